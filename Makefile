@@ -1,0 +1,32 @@
+# Two commands on a fresh machine with Python 3.11: `make bench` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+TORCH ?= torch==2.13.0
+
+.PHONY: install bench test lint benchmarks clean
+
+$(BIN)/tactile-zoo: setup.cfg pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	# torch first: the CPU build on disk; a looser requirement would drag in several GB of CUDA packages
+	$(BIN)/python -m pip install -q "$(TORCH)"
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	touch $@
+
+install: $(BIN)/tactile-zoo
+
+bench: install
+	$(BIN)/tactile-zoo bench --models all
+
+test: install
+	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
+
+lint: install
+	$(BIN)/ruff check tactile_zoo tests benchmarks examples plugins
+
+benchmarks: install
+	$(BIN)/python -m benchmarks.run
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,35 @@
+"""tactile-zoo: a model zoo and benchmark harness for tactile object recognition.
+
+Importing the package registers the built-in sensors, datasets and models; third-party plugins are discovered
+lazily through entry points on the first list/create/load call.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__version__ = "0.1.0"
+
+from . import data, models  # noqa: E402,F401  (import registers the built-ins)
+from .data import DatasetSpec, Sensor, TactileSample, collate  # noqa: E402
+from .errors import ConfigError, DatasetError, PluginError, TactileZooError, UnknownNameError  # noqa: E402
+from .registry import (  # noqa: E402
+    create_model, get_sensor, list_datasets, list_models, list_sensors, load_dataset, plugins, register_dataset,
+    register_model, register_sensor,
+)
+
+__all__ = [
+    "__version__", "DatasetSpec", "Sensor", "TactileSample", "collate", "TactileZooError", "UnknownNameError",
+    "DatasetError", "PluginError", "ConfigError", "create_model", "get_sensor", "list_datasets", "list_models",
+    "list_sensors", "load_dataset", "plugins", "register_dataset", "register_model", "register_sensor", "fit",
+    "evaluate",
+]
+
+
+def __getattr__(name: str) -> Any:
+    # the training engine is imported on first use, so `import tactile_zoo` stays light for listing and plugins
+    if name in {"fit", "evaluate"}:
+        from . import engine
+
+        return getattr(engine, name)
+    raise AttributeError(f"module 'tactile_zoo' has no attribute {name!r}")

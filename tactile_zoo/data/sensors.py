@@ -1,0 +1,276 @@
+"""Sensors: taxel geometry, the taxel graph for graph models and the image grid for image models.
+
+A :class:`Sensor` is frozen and hashable (tuples, not arrays) so a :class:`~tactile_zoo.data.spec.DatasetSpec` can
+carry it and caches can key on it. Four are built in:
+
+``neutouch``
+    The NeuTouch fingertip of Ev-Objects / Ev-Containers: 39 taxels, channels = ON/OFF event polarity. The default
+    graph is the minimum spanning tree the TactileSGNet reference trains on (see :func:`mst_edges`).
+``biotac_sp``
+    BioTac SP of BioTac-DoS: 24 electrodes in 3-D; the image layout is the 12x11 one of the ConvLSTM source
+    (Zapata-Impata et al., Sensors 2019), whose empty cells image models fill with their neighbours' mean twice.
+``optoforce3``
+    Three OptoForce 3-axis point sensors on a three-finger Jaco gripper (Augment8000): a fully connected 3-node graph
+    on a 1x3 grid.
+``uskin_allegro``
+    Two uSkin fingertips (30 taxels each, a 6x6 grid without its six corner cells) on an Allegro hand
+    (ALU-Textures): graph = 4-neighbours on the grid within each fingertip; image = both fingertips side by side, 6x12.
+
+Rasterising free-form positions (NeuTouch) onto an image grid: positions are scaled linearly onto the lattice and
+rounded to the nearest cell; a taxel whose cell is taken moves to the nearest free cell (Euclidean distance on the
+lattice, ties to the lower row then column), taxels placed in index order. See :func:`rasterize`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from ..errors import ConfigError
+from ..registry import register_sensor
+
+__all__ = ["Sensor", "mst_edges", "knn_edges", "radius_edges", "rasterize", "NEUTOUCH", "BIOTAC_SP", "OPTOFORCE3",
+           "USKIN_ALLEGRO"]
+
+Pos = tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A tactile sensor array.
+
+    Args:
+        name: canonical snake_case name.
+        positions: taxel coordinates, 2-D or 3-D, in taxel index order.
+        grid_shape: ``(H, W)`` of the image grid image models use.
+        grid: ``(row, col)`` per taxel; no two taxels share a cell.
+        default_graph: the ``kind`` :meth:`edge_index` builds by default.
+        graph_kwargs: keyword arguments of the default graph, as ``((key, value), ...)``.
+        groups: per-taxel group id (e.g. fingertip); ``grid`` graphs never connect two groups.
+        grid_fill: passes of empty-cell filling (mean of non-empty 8-neighbours) image models apply.
+        channels: names of the per-taxel channels the sensor's datasets carry.
+    """
+
+    name: str
+    positions: tuple[Pos, ...]
+    grid_shape: tuple[int, int]
+    grid: tuple[tuple[int, int], ...]
+    default_graph: str = "knn"
+    graph_kwargs: tuple[tuple[str, Any], ...] = ()
+    groups: tuple[int, ...] = ()
+    grid_fill: int = 0
+    channels: tuple[str, ...] = ()
+    description: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        n = len(self.positions)
+        if n == 0 or len({len(p) for p in self.positions}) != 1:
+            raise ConfigError(f"sensor {self.name!r}: positions must be a non-empty list of equal-length tuples")
+        if len(self.grid) != n:
+            raise ConfigError(f"sensor {self.name!r}: {len(self.grid)} grid cells for {n} taxels")
+        h, w = self.grid_shape
+        if len(set(self.grid)) != n:
+            raise ConfigError(f"sensor {self.name!r}: two taxels share an image-grid cell")
+        if any(not (0 <= r < h and 0 <= c < w) for r, c in self.grid):
+            raise ConfigError(f"sensor {self.name!r}: a grid cell lies outside the {h}x{w} grid")
+        if self.groups and len(self.groups) != n:
+            raise ConfigError(f"sensor {self.name!r}: {len(self.groups)} group ids for {n} taxels")
+
+    @property
+    def num_nodes(self) -> int:
+        return len(self.positions)
+
+    def edge_index(self, kind: str = "default", **kwargs: Any) -> torch.Tensor:
+        """The taxel graph as a ``LongTensor [2, E]``: symmetric, no self-loops, no duplicate edges, sorted.
+
+        Kinds: ``mst`` (``threshold=`` adds all pairs closer than it), ``knn`` (``k=``), ``radius`` (``r=``),
+        ``full``, ``grid`` (4-neighbours on the image grid, within a group), ``default`` (the sensor's own).
+        """
+        if kind == "default":
+            kind, kwargs = self.default_graph, {**dict(self.graph_kwargs), **kwargs}
+        return _edge_index_cached(self, kind, tuple(sorted(kwargs.items()))).clone()
+
+    def tiled(self, copies: int) -> Sensor:
+        """``copies`` side-by-side copies of this sensor (for scaling studies over N), each its own group."""
+        if copies < 1:
+            raise ConfigError("copies must be >= 1")
+        span = max(p[0] for p in self.positions) - min(p[0] for p in self.positions) + 1.0
+        h, w = self.grid_shape
+        positions = tuple((p[0] + i * span, *p[1:]) for i in range(copies) for p in self.positions)
+        grid = tuple((r, c + i * w) for i in range(copies) for r, c in self.grid)
+        base_groups = self.groups or (0,) * self.num_nodes
+        n_groups = max(base_groups) + 1
+        groups = tuple(g + i * n_groups for i in range(copies) for g in base_groups)
+        # an MST over copies stays one tree; other kinds keep their parameters
+        return Sensor(f"{self.name}_x{copies}", positions, (h, w * copies), grid, self.default_graph,
+                      self.graph_kwargs, groups, self.grid_fill, self.channels, self.description)
+
+
+# ----------------------------------------------------------------------------------------------- graph builders
+def _pairs_to_edge_index(pairs: set[tuple[int, int]]) -> torch.Tensor:
+    both = sorted({(a, b) for a, b in pairs if a != b} | {(b, a) for a, b in pairs if a != b})
+    if not both:
+        return torch.empty(2, 0, dtype=torch.long)
+    return torch.tensor(both, dtype=torch.long).t().contiguous()
+
+
+def mst_edges(positions: tuple[Pos, ...], root: int | None = None, threshold: float | None = None
+              ) -> set[tuple[int, int]]:
+    """Prim's minimum spanning tree grown from ``root`` (default: the taxel nearest the centroid).
+
+    Each step adds the shortest Euclidean edge from the visited set to an unvisited taxel. Ties go to the visited
+    taxel added earliest, then to the unvisited taxel of lowest index, as in the TactileSGNet reference. With
+    ``threshold``, every pair closer than it is added as well.
+    """
+    n = len(positions)
+    if root is None:
+        centre = [sum(c) / n for c in zip(*positions)]
+        root = min(range(n), key=lambda i: (math.dist(positions[i], centre), i))
+    visited, unvisited, pairs = [root], set(range(n)) - {root}, set()
+    while unvisited:
+        best: tuple[float, int, int] | None = None
+        for a in visited:  # in order of addition: earliest first wins a tie
+            for b in sorted(unvisited):
+                d = math.dist(positions[a], positions[b])
+                if best is None or d < best[0]:
+                    best = (d, a, b)
+        _, a, b = best  # type: ignore[misc]
+        pairs.add((a, b))
+        visited.append(b)
+        unvisited.discard(b)
+    if threshold is not None:
+        pairs |= radius_edges(positions, threshold, strict=True)
+    return pairs
+
+
+def knn_edges(positions: tuple[Pos, ...], k: int) -> set[tuple[int, int]]:
+    """Each taxel joined to its ``k`` nearest others (ties to the lower index), then symmetrised."""
+    n = len(positions)
+    if not 1 <= k < n:
+        raise ConfigError(f"knn graph needs 1 <= k < {n}, got k={k}")
+    pairs = set()
+    for a in range(n):
+        nearest = sorted((math.dist(positions[a], positions[b]), b) for b in range(n) if b != a)[:k]
+        pairs |= {(min(a, b), max(a, b)) for _, b in nearest}
+    return pairs
+
+
+def radius_edges(positions: tuple[Pos, ...], r: float, strict: bool = False) -> set[tuple[int, int]]:
+    """All pairs within distance ``r`` (``< r`` if ``strict``)."""
+    n = len(positions)
+    close = (lambda d: d < r) if strict else (lambda d: d <= r)
+    return {(a, b) for a in range(n) for b in range(a + 1, n) if close(math.dist(positions[a], positions[b]))}
+
+
+def _grid_edges(sensor: Sensor, diagonal: bool = False) -> set[tuple[int, int]]:
+    cell = {rc: i for i, rc in enumerate(sensor.grid)}
+    groups = sensor.groups or (0,) * sensor.num_nodes
+    steps = [(0, 1), (1, 0)] + ([(1, 1), (1, -1)] if diagonal else [])
+    pairs = set()
+    for i, (r, c) in enumerate(sensor.grid):
+        for dr, dc in steps:
+            j = cell.get((r + dr, c + dc))
+            if j is not None and groups[i] == groups[j]:
+                pairs.add((min(i, j), max(i, j)))
+    return pairs
+
+
+@functools.lru_cache(maxsize=256)
+def _edge_index_cached(sensor: Sensor, kind: str, kwargs: tuple[tuple[str, Any], ...]) -> torch.Tensor:
+    kw = dict(kwargs)
+    try:
+        if kind == "mst":
+            # one tree per group would leave a tiled sensor disconnected from itself; one tree over all is fine
+            pairs = mst_edges(sensor.positions, **kw)
+        elif kind == "knn":
+            pairs = knn_edges(sensor.positions, **kw)
+        elif kind == "radius":
+            pairs = radius_edges(sensor.positions, **kw)
+        elif kind == "full":
+            n = sensor.num_nodes
+            pairs = {(a, b) for a in range(n) for b in range(a + 1, n)}
+        elif kind == "grid":
+            pairs = _grid_edges(sensor, **kw)
+        else:
+            raise ConfigError(f"unknown graph kind {kind!r} for sensor {sensor.name!r}; "
+                              f"choose mst, knn, radius, full, grid or default")
+    except TypeError as exc:
+        raise ConfigError(f"bad arguments {kw} for a {kind!r} graph of sensor {sensor.name!r}: {exc}") from None
+    return _pairs_to_edge_index(pairs)
+
+
+# ----------------------------------------------------------------------------------------------- image grid
+def rasterize(positions: tuple[Pos, ...], grid_shape: tuple[int, int]) -> tuple[tuple[int, int], ...]:
+    """Place each taxel on its own cell of an ``(H, W)`` lattice (rule in the module docstring).
+
+    The first coordinate maps to rows, the second to columns.
+    """
+    h, w = grid_shape
+    if h * w < len(positions):
+        raise ConfigError(f"a {h}x{w} grid cannot hold {len(positions)} taxels")
+    xs, ys = [p[0] for p in positions], [p[1] for p in positions]
+
+    def scale(v: float, lo: float, hi: float, size: int) -> float:
+        return 0.0 if hi == lo else (v - lo) / (hi - lo) * (size - 1)
+
+    taken: dict[tuple[int, int], int] = {}
+    cells = []
+    for i, (x, y) in enumerate(zip(xs, ys)):
+        fr, fc = scale(x, min(xs), max(xs), h), scale(y, min(ys), max(ys), w)
+        free = [(r, c) for r in range(h) for c in range(w) if (r, c) not in taken]
+        r, c = min(free, key=lambda rc: ((rc[0] - fr) ** 2 + (rc[1] - fc) ** 2, rc))
+        taken[(r, c)] = i
+        cells.append((r, c))
+    return tuple(cells)
+
+
+# ----------------------------------------------------------------------------------------------- built-in sensors
+_NEUTOUCH_XY = (
+    (-6, 0), (-5.3, -3), (-5.3, 3), (-4.6, -7.8), (-4.6, 7.8), (-3.5, 0), (-3.05, -5.2), (-3.05, 5.2), (-3.1, -1.75),
+    (-3.1, 1.75), (-1.6, -8.9), (-1.75, -3), (-1.6, 8.9), (-1.75, 3), (-1.5, 0), (-0.7, -1.3), (-0.7, 1.3), (0, -6),
+    (0, 6), (0, -3.5), (0, 0), (0, 3.5), (0.8, -1.3), (0.8, 1.3), (1.6, -8.9), (1.6, 8.9), (1.5, 0), (1.75, 3),
+    (1.75, -3), (3.05, -5.2), (3.1, 1.75), (3.05, 5.2), (3.1, -1.75), (3.6, 0), (4.6, -7.8), (4.6, 7.8), (5.3, -3),
+    (5.3, 3), (6, 0),
+)
+_NEUTOUCH_POS = tuple((float(x), float(y)) for x, y in _NEUTOUCH_XY)
+NEUTOUCH = register_sensor(Sensor(
+    name="neutouch", positions=_NEUTOUCH_POS, grid_shape=(9, 13), grid=rasterize(_NEUTOUCH_POS, (9, 13)),
+    default_graph="mst", graph_kwargs=(("root", 20),), channels=("on", "off"),
+    description="NeuTouch event-based fingertip, 39 taxels (Taunyazov et al., RSS 2020)"))
+
+_BIOTAC_HALF = ((0.386, -0.109, 0.157), (0.319, -0.205, 0.121), (0.087, -0.129, 0.282), (0.084, -0.236, 0.202),
+                (-0.019, -0.300, 0.095), (-0.092, -0.120, 0.285), (-0.137, -0.238, 0.187), (-0.223, -0.271, 0.072),
+                (-0.321, -0.199, 0.128), (-0.397, -0.100, 0.152))
+_BIOTAC_POS = (_BIOTAC_HALF + tuple((x, y, -z) for x, y, z in _BIOTAC_HALF)
+               + ((0.259, -0.252, 0.0), (0.170, -0.274, 0.073), (0.170, -0.274, -0.073), (0.075, -0.298, 0.0)))
+_BIOTAC_ROWS = (0, 1, 4, 5, 6, 7, 8, 9, 10, 11, 0, 1, 4, 5, 6, 7, 8, 9, 10, 11, 2, 3, 3, 5)
+_BIOTAC_COLS = (1, 2, 0, 1, 3, 0, 1, 4, 2, 1, 9, 8, 10, 9, 7, 10, 9, 6, 8, 9, 5, 4, 6, 5)
+BIOTAC_SP = register_sensor(Sensor(
+    name="biotac_sp", positions=_BIOTAC_POS, grid_shape=(12, 11), grid=tuple(zip(_BIOTAC_ROWS, _BIOTAC_COLS)),
+    default_graph="knn", graph_kwargs=(("k", 4),), grid_fill=2, channels=("pressure",),
+    description="SynTouch BioTac SP, 24 electrodes (layout from Zapata-Impata et al., Sensors 2019)"))
+
+_OPTO_POS = tuple((round(math.cos(2 * math.pi * i / 3), 6), round(math.sin(2 * math.pi * i / 3), 6)) for i in range(3))
+OPTOFORCE3 = register_sensor(Sensor(
+    name="optoforce3", positions=_OPTO_POS, grid_shape=(1, 3), grid=((0, 0), (0, 1), (0, 2)), default_graph="full",
+    channels=("fx", "fy", "fz", "f_norm"),
+    description="Three OptoForce 3-axis sensors on a Jaco three-finger gripper (Maus et al., Augment8000)"))
+
+
+def _uskin_cells() -> list[tuple[int, int]]:
+    """Row-major cells of one fingertip: rows hold 2, 4, 6, 6, 6, 6 taxels (a 6x6 grid without 6 corner cells)."""
+    spans = [(2, 4), (1, 5), (0, 6), (0, 6), (0, 6), (0, 6)]
+    return [(r, c) for r, (lo, hi) in enumerate(spans) for c in range(lo, hi)]
+
+
+_USKIN_GRID = tuple((r, c + 6 * tip) for tip in range(2) for r, c in _uskin_cells())
+USKIN_ALLEGRO = register_sensor(Sensor(
+    name="uskin_allegro", positions=tuple((float(c + tip), float(r)) for tip, (r, c) in
+                                          zip([0] * 30 + [1] * 30, _USKIN_GRID)),
+    grid_shape=(6, 12), grid=_USKIN_GRID, default_graph="grid", groups=(0,) * 30 + (1,) * 30,
+    channels=("x", "y", "z"),
+    description="Two Xela uSkin fingertips (30 taxels x 3 axes each) on an Allegro hand"))

@@ -1,0 +1,32 @@
+"""The one exception hierarchy of tactile-zoo.
+
+Callers catch :class:`TactileZooError` to handle anything the library raises on purpose; the CLI prints such errors
+as one line (exit code 2) and shows a traceback only with ``--debug``.
+"""
+
+from __future__ import annotations
+
+__all__ = ["TactileZooError", "UnknownNameError", "DatasetError", "PluginError", "ConfigError"]
+
+
+class TactileZooError(Exception):
+    """Base class of every error tactile-zoo raises deliberately."""
+
+
+class UnknownNameError(TactileZooError, KeyError):
+    """A model, dataset or sensor name that is not registered. The message lists close matches and all names."""
+
+    def __str__(self) -> str:  # KeyError would repr() the message and add quotes
+        return str(self.args[0]) if self.args else ""
+
+
+class DatasetError(TactileZooError):
+    """Data that is missing, malformed or fails its checksum. The message names the file and what is wrong."""
+
+
+class PluginError(TactileZooError):
+    """A third-party plugin that fails to load, has the wrong type, or clashes with another plugin."""
+
+
+class ConfigError(TactileZooError, ValueError):
+    """A bad argument, hyper-parameter, recipe or configuration file."""
