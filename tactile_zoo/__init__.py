@@ -14,8 +14,16 @@ from . import data, models  # noqa: E402,F401  (import registers the built-ins)
 from .data import DatasetSpec, Sensor, TactileSample, collate  # noqa: E402
 from .errors import ConfigError, DatasetError, PluginError, TactileZooError, UnknownNameError  # noqa: E402
 from .registry import (  # noqa: E402
-    create_model, get_sensor, list_datasets, list_models, list_sensors, load_dataset, plugins, register_dataset,
-    register_model, register_sensor,
+    create_model,
+    get_sensor,
+    list_datasets,
+    list_models,
+    list_sensors,
+    load_dataset,
+    plugins,
+    register_dataset,
+    register_model,
+    register_sensor,
 )
 
 __all__ = [

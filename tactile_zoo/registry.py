@@ -22,7 +22,6 @@ import fnmatch
 import importlib.metadata
 import os
 import re
-import sys
 import threading
 import warnings
 from collections.abc import Callable, Iterable, Mapping
