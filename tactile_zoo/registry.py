@@ -35,7 +35,7 @@ __all__ = [
     "Entry", "PluginInfo", "PluginWarning", "register_model", "register_dataset", "register_sensor",
     "list_models", "list_datasets", "list_sensors", "create_model", "load_dataset", "get_sensor",
     "get_model_entry", "get_dataset_entry", "plugins", "normalize_name", "reset_plugins", "set_plugin_policy",
-    "MODEL_META_KEYS", "DATASET_META_KEYS", "ENTRY_POINT_GROUPS",
+    "MODEL_META_KEYS", "DATASET_META_KEYS", "ENTRY_POINT_GROUPS", "MODEL_INPUTS", "RECIPE_KEYS",
 ]
 
 T = TypeVar("T")
@@ -53,6 +53,15 @@ DATASET_META_KEYS = frozenset({
 })
 SENSOR_META_KEYS = frozenset({"description", "citation"})
 _META_KEYS = {"model": MODEL_META_KEYS, "dataset": DATASET_META_KEYS, "sensor": SENSOR_META_KEYS}
+#: What a model's ``inputs`` metadata may name: the taxel graph, the sensor image grid, the global features.
+MODEL_INPUTS = frozenset({"graph", "grid", "globals"})
+#: Keys of a model's training ``recipe`` (the engine reads exactly these; anything else would be silently ignored).
+RECIPE_KEYS = frozenset({
+    "loss", "optimizer", "lr", "weight_decay", "amsgrad", "schedule", "max_epochs", "patience", "batch_size",
+    "grad_clip",
+})
+_RECIPE_CHOICES = {"loss": {"ce", "mse_rate"}, "optimizer": {"adam", "adamw", "sgd"}}
+_SCHEDULE_TYPES = {"multistep", "cosine"}
 
 
 class PluginWarning(UserWarning):
@@ -147,9 +156,16 @@ class _Table:
 
 
 def _same_definition(a: Any, b: Any) -> bool:
-    """A re-executed module (reload, a plugin module imported twice) redefines the same object."""
-    return (getattr(a, "__module__", None), getattr(a, "__qualname__", None)) == \
-        (getattr(b, "__module__", None), getattr(b, "__qualname__", None)) and getattr(a, "__qualname__", None)
+    """A re-executed module (reload, a plugin module imported twice) redefines the same module-level object.
+
+    Objects defined inside functions (``<locals>``, ``<lambda>``) share a qualified name without being the same
+    definition, so only module-level names count.
+    """
+    qualname = getattr(a, "__qualname__", None)
+    if not isinstance(qualname, str) or "<" in qualname:
+        return False
+    return (getattr(a, "__module__", None), qualname) == (getattr(b, "__module__", None), getattr(b, "__qualname__",
+                                                                                                  None))
 
 
 def _describe(obj: Any) -> str:
@@ -161,6 +177,7 @@ _LOCK = threading.RLock()
 _PLUGINS: list[PluginInfo] | None = None  # None until discovery has run
 _LOADING_DIST: list[tuple[str, str]] = []  # stack of (dist, version) whose entry point is being imported
 _POLICY: dict[str, bool | None] = {"strict": None, "enabled": None}
+_DISCOVERED_UNDER: tuple[bool, bool] | None = None  # the (strict, enabled) policy _PLUGINS was discovered under
 
 
 def _env_flag(name: str) -> bool:
@@ -186,7 +203,59 @@ def _check_meta(kind: str, name: str, meta: Mapping[str, Any]) -> dict[str, Any]
     unknown = sorted(set(meta) - _META_KEYS[kind])
     if unknown:
         raise ConfigError(f"unknown metadata key(s) {unknown} for {kind} {name!r}; known: {sorted(_META_KEYS[kind])}")
+    if kind == "model":
+        _check_model_meta(name, meta)
     return dict(meta)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _check_model_meta(name: str, meta: Mapping[str, Any]) -> None:
+    """Value checks for the model metadata the CLI, the harness and the engine read."""
+
+    def bad(key: str, why: str, value: Any) -> ConfigError:
+        return ConfigError(f"model {name!r}: metadata {key!r} {why}, got {value!r}")
+
+    for key in ("tags", "inputs"):
+        value = meta.get(key, ())
+        if not isinstance(value, list | tuple | set | frozenset) or not all(isinstance(v, str) for v in value):
+            raise bad(key, "must be a list of strings", value)
+    if not set(meta.get("inputs", ())) <= MODEL_INPUTS:
+        raise bad("inputs", f"must name only {sorted(MODEL_INPUTS)}", meta["inputs"])
+    for key in ("causal", "streaming"):
+        if key in meta and not isinstance(meta[key], bool):
+            raise bad(key, "must be True or False", meta[key])
+    if "year" in meta and (not isinstance(meta["year"], int) or isinstance(meta["year"], bool)):
+        raise bad("year", "must be an integer", meta["year"])
+    if "recipe" not in meta:
+        return
+    recipe = meta["recipe"]
+    if not isinstance(recipe, Mapping):
+        raise bad("recipe", "must be a dict", recipe)
+    unknown = sorted(set(recipe) - RECIPE_KEYS)
+    if unknown:
+        raise ConfigError(f"model {name!r}: unknown recipe key(s) {unknown}; known: {sorted(RECIPE_KEYS)}")
+    for key, choices in _RECIPE_CHOICES.items():
+        if key in recipe and recipe[key] not in choices:
+            raise bad(f"recipe.{key}", f"must be one of {sorted(choices)}", recipe[key])
+    for key in ("lr", "grad_clip"):
+        if recipe.get(key) is not None and not (_is_number(recipe[key]) and recipe[key] > 0):
+            raise bad(f"recipe.{key}", "must be a positive number", recipe[key])
+    if "weight_decay" in recipe and not (_is_number(recipe["weight_decay"]) and recipe["weight_decay"] >= 0):
+        raise bad("recipe.weight_decay", "must be a number >= 0", recipe["weight_decay"])
+    for key in ("max_epochs", "batch_size", "patience"):
+        value = recipe.get(key)
+        if value is None and key == "patience":
+            continue  # early stopping off
+        if key in recipe and not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+            raise bad(f"recipe.{key}", "must be a positive integer", value)
+    if "amsgrad" in recipe and not isinstance(recipe["amsgrad"], bool):
+        raise bad("recipe.amsgrad", "must be True or False", recipe["amsgrad"])
+    schedule = recipe.get("schedule")
+    if schedule is not None and (not isinstance(schedule, Mapping) or schedule.get("type") not in _SCHEDULE_TYPES):
+        raise bad("recipe.schedule", f"must be None or a dict with 'type' in {sorted(_SCHEDULE_TYPES)}", schedule)
 
 
 def _register(kind: str, obj: Any, name: str | None, meta: Mapping[str, Any]) -> Entry:
@@ -249,65 +318,101 @@ def _discover_entry_points() -> list[tuple[PluginInfo, importlib.metadata.EntryP
     return [found[k] for k in sorted(found)]
 
 
-def _load_plugin(info: PluginInfo, ep: importlib.metadata.EntryPoint) -> None:
+def _load_plugin(info: PluginInfo, ep: importlib.metadata.EntryPoint) -> Entry:
+    """Import one entry point and register its target under the plugin's distribution."""
     _LOADING_DIST.append((info.dist, info.version))
     try:
         target = ep.load()
         if not callable(target):
             raise PluginError(f"entry point {info.name!r} ({info.value}) is a {type(target).__name__}, not a class "
                               f"or callable")
-        meta = getattr(target, "zoo_meta", None) or {}
-        entry = _register(info.kind, target, info.name, meta)
+        meta = dict(getattr(target, "zoo_meta", None) or {})
+        table = _TABLES[info.kind]
+        key = normalize_name(_snake_case(info.name))
+        with _LOCK:
+            old = table.builtin.get(key)
+            if (old is not None and (old.obj is target or _same_definition(old.obj, target))
+                    and str(getattr(target, "__module__", "")).partition(".")[0] != __package__):
+                # the plugin module was imported (its decorator run) before discovery and filed the object as a
+                # local registration; it is the same registration, and it belongs to this distribution
+                del table.builtin[key]
+                meta = {**old.meta, **meta}
+            return _register(info.kind, target, info.name, meta)
     finally:
         _LOADING_DIST.pop()
-    table = _TABLES[info.kind]
-    key = normalize_name(entry.name)
-    if key in table.builtin:
-        info.status = "shadowed"
-        info.error = f"built-in {info.kind} {table.builtin[key].name!r} wins; use {entry.qualified_name!r}"
-        warnings.warn(f"plugin {info.kind} {entry.qualified_name!r} is shadowed by the built-in of the same name",
-                      PluginWarning, stacklevel=3)
-    elif len(table.plugin.get(key, [])) > 1:
-        others = [e.dist for e in table.plugin[key] if e.dist != info.dist]
-        info.status = "clash"
-        info.error = f"{info.kind} {entry.name!r} is also registered by {', '.join(map(repr, others))}"
-        if _strict():
-            raise PluginError(f"plugin clash: {info.error} and {info.dist!r}")
-    else:
-        info.status = "ok"
+
+
+def _settle(loaded: list[tuple[PluginInfo, Entry]]) -> None:
+    """Once every plugin is loaded: mark each ok, shadowed by a built-in, or clashing with another plugin."""
+    warned: set[tuple[str, str]] = set()
+    for info, entry in loaded:
+        table, key = _TABLES[info.kind], normalize_name(entry.name)
+        rivals = table.plugin.get(key, [])
+        if key in table.builtin:
+            info.status = "shadowed"
+            info.error = f"built-in {info.kind} {table.builtin[key].name!r} wins; use {entry.qualified_name!r}"
+            warnings.warn(f"plugin {info.kind} {entry.qualified_name!r} is shadowed by the built-in of the same name; "
+                          f"use {entry.qualified_name!r} to reach it", PluginWarning, stacklevel=4)
+        elif len(rivals) > 1:
+            dists = ", ".join(repr(e.dist) for e in rivals)
+            qualified = ", ".join(repr(e.qualified_name) for e in rivals)
+            info.status = "clash"
+            info.error = f"{info.kind} {entry.name!r} is registered by distributions {dists}; use {qualified}"
+            if _strict():
+                raise PluginError(f"plugin clash: {info.error}")
+            if (info.kind, key) not in warned:
+                warned.add((info.kind, key))
+                warnings.warn(f"plugin clash: {info.error}", PluginWarning, stacklevel=4)
+        else:
+            info.status = "ok"
 
 
 def _ensure_discovered() -> list[PluginInfo]:
-    global _PLUGINS
-    if _PLUGINS is not None:
+    global _PLUGINS, _DISCOVERED_UNDER
+    policy = (_strict(), _enabled())
+    if _PLUGINS is not None and _DISCOVERED_UNDER == policy:
         return _PLUGINS
     with _LOCK:
-        if _PLUGINS is not None:
+        if _PLUGINS is not None and _DISCOVERED_UNDER == policy:
             return _PLUGINS
+        # first call, or the policy changed since (CLI flag, environment): discover under the current one; until
+        # that succeeds nothing counts as discovered, so a strict-mode error leaves no half-filled cache behind
+        _PLUGINS, _DISCOVERED_UNDER = None, None
+        for table in _TABLES.values():
+            table.remove_plugins()
         infos: list[PluginInfo] = []
-        if _enabled():
+        loaded: list[tuple[PluginInfo, Entry]] = []
+        if policy[1]:
             for info, ep in _discover_entry_points():
                 infos.append(info)
                 try:
-                    _load_plugin(info, ep)
+                    loaded.append((info, _load_plugin(info, ep)))
                 except Exception as exc:  # a broken plugin must never take the built-ins down with it
                     info.status, info.error = "failed", f"{type(exc).__name__}: {exc}"
-                    if _strict():
+                    if policy[0]:
                         raise PluginError(f"plugin distribution {info.dist!r} ({info.group} entry {info.name!r} = "
                                           f"{info.value}) failed to load: {info.error}") from exc
-                    warnings.warn(f"skipping plugin distribution {info.dist!r} ({info.group} entry {info.name!r}): "
-                                  f"{info.error}", PluginWarning, stacklevel=2)
-        _PLUGINS = infos
+                    warnings.warn(f"skipping plugin distribution {info.dist!r} ({info.group} entry {info.name!r} = "
+                                  f"{info.value}): {info.error}", PluginWarning, stacklevel=3)
+            _settle(loaded)
+        _PLUGINS, _DISCOVERED_UNDER = infos, policy
         return infos
 
 
 def reset_plugins() -> None:
     """Forget discovered plugins so the next lookup discovers again (after installing one, and in tests)."""
-    global _PLUGINS
+    global _PLUGINS, _DISCOVERED_UNDER
     with _LOCK:
         for table in _TABLES.values():
             table.remove_plugins()
-        _PLUGINS = None
+        _PLUGINS, _DISCOVERED_UNDER = None, None
+
+
+def _unregister(kind: str, name: str) -> Entry | None:
+    """Remove the built-in/local ``kind`` entry ``name`` and return it (None if absent). For tests only: the
+    registry has no public unregister, so that a running harness never sees a model vanish."""
+    with _LOCK:
+        return _TABLES[kind].builtin.pop(normalize_name(name), None)
 
 
 def plugins() -> list[PluginInfo]:
@@ -362,11 +467,13 @@ def _list(kind: str, pattern: str | Iterable[str], tags: Iterable[str] | None = 
     if kind != "sensor":
         _ensure_discovered()
     patterns = [pattern] if isinstance(pattern, str) else list(pattern)
-    wanted = set(tags or ())
+    wanted = {tags} if isinstance(tags, str) else set(tags or ())
     out = []
     for listed, entry in _TABLES[kind].visible():
-        if not any(fnmatch.fnmatchcase(listed.lower(), p.lower()) or
-                   fnmatch.fnmatchcase(normalize_name(listed), _normalize_pattern(p)) for p in patterns):
+        # a qualified plugin entry (dist:name) matches a pattern through its bare name as well
+        if not any(fnmatch.fnmatchcase(candidate.lower(), p.lower()) or
+                   fnmatch.fnmatchcase(normalize_name(candidate), _normalize_pattern(p))
+                   for p in patterns for candidate in {listed, entry.name}):
             continue
         if wanted and not wanted.issubset(set(entry.meta.get("tags", ()))):
             continue

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError, DatasetError
+from .augment import apply_augmentation, resolve_augmentations
 from .sensors import Sensor
 from .spec import DatasetSpec, TactileSample
 from .splits import carve_holdout, stratified_group_kfold
@@ -96,8 +97,9 @@ class TactileDataset(torch.utils.data.Dataset):
         fold: the fold of a k-fold protocol, ``0 <= fold < num_folds``.
         download: fetch missing raw files into ``<root>/<name>/raw/`` first.
         transform: PyG-style ``f(TactileSample) -> TactileSample`` applied when a sample is read.
-        augment: a training-only augmentation ``f(x, generator) -> x`` or a sequence of them (applied in order);
-            only the ``train`` split is expanded.
+        augment: a training-only augmentation ``f(x, generator) -> x``, a name from :mod:`.augment` (``"jitter"``,
+            ``"scaling"``, ``"magnitude_warp"``, ``"time_warp"``), or a sequence of them (applied in order); only
+            the ``train`` split is expanded.
         augment_factor: the ``train`` split grows to ``augment_factor`` times its size: the originals plus
             ``augment_factor - 1`` augmented copies of each.
         augment_seed: seed of the augmentation generator.
@@ -117,10 +119,11 @@ class TactileDataset(torch.utils.data.Dataset):
     binary: ClassVar[bool] = False  # event data: augmented copies are re-binarised (threshold 0.5)
     simulated: ClassVar[bool] = False
     obtain: ClassVar[str] = ""  # how a user gets the raw files (shown when they are missing)
+    downloadable: ClassVar[bool] = False  # download=True can fetch the raw files (the harness needs --download)
 
     def __init__(self, root: str | os.PathLike | None = None, split: str | None = None, fold: int = 0,
                  download: bool = False, *, transform: Callable[[TactileSample], TactileSample] | None = None,
-                 augment: Augmentation | Sequence[Augmentation] | None = None, augment_factor: int = 1,
+                 augment: str | Augmentation | Sequence[str | Augmentation] | None = None, augment_factor: int = 1,
                  augment_seed: int = 0) -> None:
         super().__init__()
         self.root = data_home(root)
@@ -144,7 +147,7 @@ class TactileDataset(torch.utils.data.Dataset):
         idx_t = torch.as_tensor(idx, dtype=torch.long)
         self.x, self.g, self.y, self.groups = data.x[idx_t], data.g[idx_t], data.y[idx_t], data.groups[idx_t]
         if augment is not None and augment_factor > 1 and split == "train":
-            self._expand(augment, augment_factor, augment_seed)
+            self._expand(resolve_augmentations(augment, self.binary, self.name), augment_factor, augment_seed)
         elif augment_factor < 1:
             raise ConfigError(f"augment_factor must be >= 1, got {augment_factor}")
         self.spec = DatasetSpec(self.name, len(self.class_names), tuple(self.class_names), int(data.x.shape[1]),
@@ -252,15 +255,16 @@ class TactileDataset(torch.utils.data.Dataset):
     def _expand(self, augment: Augmentation | Sequence[Augmentation], factor: int, seed: int) -> None:
         fns = list(augment) if isinstance(augment, Sequence) else [augment]
         gen = torch.Generator().manual_seed(seed)
-        copies = []
+        copies, g_copies = [], []
         for _ in range(factor - 1):
-            for xi in self.x:
+            for xi, gi in zip(self.x, self.g):
                 for fn in fns:
-                    xi = fn(xi, gen)
+                    xi, gi = apply_augmentation(fn, xi, gi, gen)  # a time warp moves g along with x
                 copies.append((xi > 0.5).to(xi.dtype) if self.binary else xi)
+                g_copies.append(gi)
         n = len(self.y)
         self.x = torch.cat([self.x, torch.stack(copies)])
-        self.g = self.g.repeat(factor, 1, 1)
+        self.g = torch.cat([self.g, torch.stack(g_copies)])
         self.y = self.y.repeat(factor)
         self.groups = self.groups.repeat(factor)  # a copy stays in its original's group
         assert self.x.shape[0] == n * factor

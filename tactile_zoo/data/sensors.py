@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import torch
 
 from ..errors import ConfigError
@@ -67,6 +68,19 @@ class Sensor:
     description: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
+        # lists or arrays passed in would make the sensor unhashable (and mutable through the caller's reference)
+        kwargs = self.graph_kwargs.items() if isinstance(self.graph_kwargs, dict) else self.graph_kwargs
+        for attr, value in (
+            ("positions", tuple(tuple(float(v) for v in p) for p in self.positions)),
+            ("grid_shape", tuple(int(v) for v in self.grid_shape)),
+            ("grid", tuple((int(r), int(c)) for r, c in self.grid)),
+            ("graph_kwargs", tuple((str(k), v) for k, v in kwargs)),
+            ("groups", tuple(int(v) for v in self.groups)),
+            ("channels", tuple(str(v) for v in self.channels)),
+        ):
+            object.__setattr__(self, attr, value)
+        if len(self.grid_shape) != 2:
+            raise ConfigError(f"sensor {self.name!r}: grid_shape must be (H, W), got {self.grid_shape}")
         n = len(self.positions)
         if n == 0 or len({len(p) for p in self.positions}) != 1:
             raise ConfigError(f"sensor {self.name!r}: positions must be a non-empty list of equal-length tuples")
@@ -118,30 +132,49 @@ def _pairs_to_edge_index(pairs: set[tuple[int, int]]) -> torch.Tensor:
     return torch.tensor(both, dtype=torch.long).t().contiguous()
 
 
+def _distances(positions: tuple[Pos, ...]) -> np.ndarray:
+    """Euclidean distance matrix ``(N, N)``, one coordinate at a time (no ``(N, N, D)`` temporary)."""
+    pos = np.asarray(positions, dtype=np.float64)  # (N, D)
+    sq = np.zeros((len(pos), len(pos)))
+    for d in range(pos.shape[1]):
+        sq += (pos[:, None, d] - pos[None, :, d]) ** 2  # (N, N)
+    return np.sqrt(sq)
+
+
 def mst_edges(positions: tuple[Pos, ...], root: int | None = None, threshold: float | None = None
               ) -> set[tuple[int, int]]:
     """Prim's minimum spanning tree grown from ``root`` (default: the taxel nearest the centroid).
 
     Each step adds the shortest Euclidean edge from the visited set to an unvisited taxel. Ties go to the visited
-    taxel added earliest, then to the unvisited taxel of lowest index, as in the TactileSGNet reference. With
-    ``threshold``, every pair closer than it is added as well.
+    taxel added earliest, then to the unvisited taxel of lowest index, as in the TactileSGNet reference. Distances
+    within 1e-9 (relative) count as tied: geometrically equal distances can differ in their last bits, and the tie
+    rule must not depend on rounding. With ``threshold``, every pair closer than it is added as well.
+
+    ``O(N^2)``: each taxel keeps its best edge into the visited set, so tiled sensors of thousands of taxels stay fast.
     """
     n = len(positions)
+    dist = _distances(positions)
     if root is None:
-        centre = [sum(c) / n for c in zip(*positions)]
+        centre = np.asarray(positions, dtype=np.float64).mean(axis=0)
         root = min(range(n), key=lambda i: (math.dist(positions[i], centre), i))
-    visited, unvisited, pairs = [root], set(range(n)) - {root}, set()
-    while unvisited:
-        best: tuple[float, int, int] | None = None
-        for a in visited:  # in order of addition: earliest first wins a tie
-            for b in sorted(unvisited):
-                d = math.dist(positions[a], positions[b])
-                if best is None or d < best[0]:
-                    best = (d, a, b)
-        _, a, b = best  # type: ignore[misc]
-        pairs.add((a, b))
-        visited.append(b)
-        unvisited.discard(b)
+    if not 0 <= root < n:
+        raise ConfigError(f"mst root {root} is not a taxel index (0..{n - 1})")
+    tol = 1e-9 * max(1.0, float(dist.max()))
+    best_d = dist[root].copy()  # per taxel: shortest distance to the visited set ...
+    best_src = np.full(n, root)  # ... reached from this visited taxel ...
+    best_rank = np.zeros(n, dtype=np.int64)  # ... which was the best_rank-th one visited
+    unvisited = np.ones(n, dtype=bool)
+    unvisited[root] = False
+    pairs: set[tuple[int, int]] = set()
+    for rank in range(1, n):
+        cand = np.flatnonzero(unvisited)
+        near = cand[best_d[cand] <= best_d[cand].min() + tol]
+        # updates below only on a strictly shorter edge, so best_src is already the earliest-visited among ties
+        b = int(min(near, key=lambda j: (best_rank[j], j)))
+        pairs.add((int(best_src[b]), b))
+        unvisited[b] = False
+        closer = unvisited & (dist[b] < best_d - tol)
+        best_d[closer], best_src[closer], best_rank[closer] = dist[b, closer], b, rank
     if threshold is not None:
         pairs |= radius_edges(positions, threshold, strict=True)
     return pairs
@@ -150,20 +183,19 @@ def mst_edges(positions: tuple[Pos, ...], root: int | None = None, threshold: fl
 def knn_edges(positions: tuple[Pos, ...], k: int) -> set[tuple[int, int]]:
     """Each taxel joined to its ``k`` nearest others (ties to the lower index), then symmetrised."""
     n = len(positions)
-    if not 1 <= k < n:
-        raise ConfigError(f"knn graph needs 1 <= k < {n}, got k={k}")
-    pairs = set()
-    for a in range(n):
-        nearest = sorted((math.dist(positions[a], positions[b]), b) for b in range(n) if b != a)[:k]
-        pairs |= {(min(a, b), max(a, b)) for _, b in nearest}
-    return pairs
+    if not isinstance(k, int) or not 1 <= k < n:
+        raise ConfigError(f"knn graph needs an integer 1 <= k < {n}, got k={k!r}")
+    dist = _distances(positions)
+    np.fill_diagonal(dist, np.inf)
+    nearest = np.argsort(dist, axis=1, kind="stable")[:, :k]  # (N, k); stable keeps the lower index first on ties
+    return {(min(a, int(b)), max(a, int(b))) for a in range(n) for b in nearest[a]}
 
 
 def radius_edges(positions: tuple[Pos, ...], r: float, strict: bool = False) -> set[tuple[int, int]]:
     """All pairs within distance ``r`` (``< r`` if ``strict``)."""
-    n = len(positions)
-    close = (lambda d: d < r) if strict else (lambda d: d <= r)
-    return {(a, b) for a in range(n) for b in range(a + 1, n) if close(math.dist(positions[a], positions[b]))}
+    dist = _distances(positions)
+    close = np.triu(dist < r if strict else dist <= r, k=1)
+    return {(int(a), int(b)) for a, b in zip(*np.nonzero(close))}
 
 
 def _grid_edges(sensor: Sensor, diagonal: bool = False) -> set[tuple[int, int]]:

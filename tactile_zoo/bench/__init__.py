@@ -1,0 +1,17 @@
+"""The benchmark harness: every model crossed with every dataset into a resumable leaderboard.
+
+``run_bench(BenchConfig(models=["all"]))`` is what ``tactile-zoo bench`` runs; :func:`write_outputs` is
+``tactile-zoo report``. Layers: :mod:`.config` (settings, YAML), :mod:`.grid` (names, datasets, cells, hashes),
+:mod:`.cell` (one cell, anywhere), :mod:`.executors` (local, process, dask), :mod:`.results` (atomic files, claims,
+tables), :mod:`.report` (report.md and plots), :mod:`.runner` (the run). The harness uses the engine
+(:mod:`tactile_zoo.engine`); nothing below it imports the harness.
+"""
+
+from .config import BenchConfig, load_yaml_config
+from .grid import Cell, Grid, build_grid, config_hash
+from .report import write_outputs
+from .results import LEADERBOARD_COLUMNS, SUMMARY_COLUMNS, RunDir
+from .runner import BenchOutcome, run_bench
+
+__all__ = ["BenchConfig", "load_yaml_config", "Cell", "Grid", "build_grid", "config_hash", "write_outputs",
+           "LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "RunDir", "BenchOutcome", "run_bench"]

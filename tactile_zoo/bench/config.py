@@ -1,0 +1,323 @@
+"""What a bench run is asked to do: :class:`BenchConfig`, filled from CLI flags and/or a YAML file.
+
+A YAML config holds the same settings as the flags (flags given on the command line win), plus per-model and
+per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
+
+    models: [sgnet, "x_*"]          # or "all" (the default), or "sgnet,dcnn"
+    datasets: all
+    seeds: [0, 1, 2]                # or "0,1,2" or "0-2"
+    folds: 5                        # run at most the first 5 folds of each dataset (default: all it defines)
+    epochs: 50                      # replaces every model's max_epochs
+    refit: false
+    quick: false
+    device: auto
+    out: results/my-run
+    executor: process               # local | process | dask
+    workers: 2
+    scheduler: null                 # tcp://HOST:PORT for dask (default: a local cluster of `workers` processes)
+    threads: null                   # torch threads per cell (default: local = torch's choice, else cores / workers)
+    plugin_modules: [my_models]
+    root: null                      # data home
+    download: false
+    force: false
+    prefixes: [0.1, 0.25, 0.5, 0.75, 1.0]
+    recipe: {lr: 0.001}             # every model
+    hparams: {}                     # every model's constructor keywords
+    model_overrides:
+      sgnet: {recipe: {batch_size: 8}, hparams: {}}
+    dataset_kwargs:
+      sim_evtouch: {n_train_per_class: 40}
+      "*": {}                       # every dataset
+
+Unknown keys anywhere in the file are a :class:`ConfigError` that names them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from ..engine.evaluate import DEFAULT_PREFIXES
+from ..errors import ConfigError
+
+__all__ = ["BenchConfig", "load_yaml_config", "merge_config", "parse_seeds", "parse_folds", "parse_assignment",
+           "parse_value", "parse_prefixes", "QUICK_SUBSET", "QUICK_EPOCHS", "EXECUTORS"]
+
+EXECUTORS = ("local", "process", "dask")
+#: ``--quick``: at most this many samples per split (class-balanced), and this many epochs unless --epochs says so.
+QUICK_SUBSET = {"train": 64, "val": 32, "test": 64}
+QUICK_EPOCHS = 2
+
+
+@dataclass
+class BenchConfig:
+    """Every setting of a bench run (see the module docstring for the YAML form)."""
+
+    models: list[str] = field(default_factory=lambda: ["all"])
+    datasets: list[str] = field(default_factory=lambda: ["all"])
+    root: str | None = None
+    download: bool = False
+    seeds: list[int] = field(default_factory=lambda: [0])
+    folds: int | None = None
+    epochs: int | None = None
+    refit: bool = False
+    quick: bool = False
+    device: str = "auto"
+    out: str | None = None
+    force: bool = False
+    executor: str = "local"
+    workers: int | None = None
+    scheduler: str | None = None
+    threads: int | None = None
+    plugin_modules: list[str] = field(default_factory=list)
+    prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))
+    recipe: dict[str, Any] = field(default_factory=dict)
+    hparams: dict[str, Any] = field(default_factory=dict)
+    model_overrides: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    dataset_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> BenchConfig:
+        self.models = _names("models", self.models)
+        self.datasets = _names("datasets", self.datasets)
+        self.seeds = parse_seeds(self.seeds)
+        self.folds = parse_folds(self.folds)
+        if self.epochs is not None:
+            self.epochs = _positive_int("--epochs", self.epochs)
+        if self.executor not in EXECUTORS:
+            raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {self.executor!r}")
+        if self.workers is not None:
+            self.workers = _positive_int("--workers", self.workers)
+        if self.threads is not None:
+            self.threads = _positive_int("--threads", self.threads)
+        if self.scheduler is not None and self.executor != "dask":
+            raise ConfigError("--scheduler only applies to --executor dask")
+        self.prefixes = parse_prefixes(self.prefixes)
+        self.plugin_modules = _names("plugin_modules", self.plugin_modules, allow_empty=True)
+        for key in ("recipe", "hparams", "model_overrides", "dataset_kwargs"):
+            if not isinstance(getattr(self, key), Mapping):
+                raise ConfigError(f"{key} must be a mapping, got {type(getattr(self, key)).__name__}")
+        for model, over in self.model_overrides.items():
+            if not isinstance(over, Mapping):
+                raise ConfigError(f"model_overrides.{model} must be a mapping with 'recipe' and/or 'hparams'")
+            unknown = sorted(set(over) - {"recipe", "hparams"})
+            if unknown:
+                raise ConfigError(f"model_overrides.{model}: unknown key(s) {unknown}; allowed: recipe, hparams")
+        for name, kwargs in self.dataset_kwargs.items():
+            if not isinstance(kwargs, Mapping):
+                raise ConfigError(f"dataset_kwargs.{name} must be a mapping of keyword arguments")
+        return self
+
+    @property
+    def subset(self) -> dict[str, int] | None:
+        return dict(QUICK_SUBSET) if self.quick else None
+
+    def effective_epochs(self) -> int | None:
+        return self.epochs if self.epochs is not None else (QUICK_EPOCHS if self.quick else None)
+
+    def overrides_for(self, model: str, aliases: Iterable[str] = ()) -> tuple[dict[str, Any], dict[str, Any]]:
+        """(recipe overrides, hparams) for ``model``: the global ones, then its ``model_overrides`` entry."""
+        from ..registry import normalize_name
+
+        keys = {normalize_name(model), *(normalize_name(a) for a in aliases)}
+        recipe, hparams = dict(self.recipe), dict(self.hparams)
+        for name, over in self.model_overrides.items():
+            if normalize_name(name) in keys:
+                recipe.update(over.get("recipe") or {})
+                hparams.update(over.get("hparams") or {})
+        return recipe, hparams
+
+    def kwargs_for(self, dataset: str) -> dict[str, Any]:
+        from ..registry import normalize_name
+
+        out = dict(self.dataset_kwargs.get("*", {}))
+        for name, kwargs in self.dataset_kwargs.items():
+            if name != "*" and normalize_name(name) == normalize_name(dataset):
+                out.update(kwargs)
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+CONFIG_KEYS = frozenset(f.name for f in fields(BenchConfig))
+
+
+def _names(key: str, value: Any, allow_empty: bool = False) -> list[str]:
+    """``"a,b"``, ``["a", "b,c"]`` -> ``["a", "b", "c"]`` (whitespace trimmed, order kept, duplicates dropped)."""
+    if value is None:
+        value = []
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, Sequence) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"{key} must be a name, a comma-separated list or a list of names; got {value!r}")
+    out: list[str] = []
+    for item in value:
+        for token in item.split(","):
+            token = token.strip()
+            if token and token not in out:
+                out.append(token)
+    if not out and not allow_empty:
+        raise ConfigError(f"{key}: no names given")
+    return out
+
+
+def _positive_int(flag: str, value: Any, minimum: int = 1) -> int:
+    if isinstance(value, str) and re.fullmatch(r"\s*\d+\s*", value):
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"{flag} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def parse_seeds(value: Any) -> list[int]:
+    """``"0,1,2"``, ``"0-4"``, ``3``, ``[0, 1]`` -> sorted distinct non-negative seeds."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        value = [value]
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, Sequence) or not value:
+        raise ConfigError(f"--seeds must be a comma-separated list of non-negative integers such as 0,1,2 (or a "
+                          f"range 0-4), got {value!r}")
+    seeds: list[int] = []
+    for item in value:
+        tokens = [item] if isinstance(item, int) and not isinstance(item, bool) else str(item).split(",")
+        for token in tokens:
+            text = str(token).strip()
+            if isinstance(token, int) and not isinstance(token, bool) and token >= 0:
+                seeds.append(token)
+            elif re.fullmatch(r"\d+", text):
+                seeds.append(int(text))
+            elif (m := re.fullmatch(r"(\d+)\s*-\s*(\d+)", text)) and int(m.group(1)) <= int(m.group(2)):
+                seeds.extend(range(int(m.group(1)), int(m.group(2)) + 1))
+            else:
+                raise ConfigError(f"--seeds: {text!r} is not a non-negative integer or a range like 0-4 (got "
+                                  f"{value!r})")
+    if any(s >= 2**63 for s in seeds):
+        raise ConfigError("--seeds: a seed must be below 2**63")
+    return sorted(set(seeds))
+
+
+def parse_folds(value: Any) -> int | None:
+    """``--folds K``: run at most the first K folds of each dataset (``None``: every fold it defines)."""
+    if value is None or (isinstance(value, str) and value.strip().lower() in {"all", ""}):
+        return None
+    try:
+        return _positive_int("--folds", value)
+    except ConfigError:
+        raise ConfigError(f"--folds must be a positive integer (run the first K folds of each dataset) or 'all', got "
+                          f"{value!r}") from None
+
+
+def parse_prefixes(value: Any) -> list[float]:
+    """Prefix fractions in (0, 1] for early classification; 1.0 is always included."""
+    if isinstance(value, str):
+        value = [v for v in value.split(",") if v.strip()]
+    if not isinstance(value, Sequence) or not value:
+        raise ConfigError(f"--prefixes must be a comma-separated list of fractions in (0, 1], got {value!r}")
+    out = set()
+    for item in value:
+        try:
+            frac = float(item)
+        except (TypeError, ValueError):
+            raise ConfigError(f"--prefixes: {item!r} is not a number") from None
+        if frac > 1 and frac <= 100:  # percentages
+            frac /= 100
+        if not 0 < frac <= 1:
+            raise ConfigError(f"--prefixes: {item!r} is not a fraction in (0, 1] (or a percentage)")
+        out.add(round(frac, 6))
+    return sorted(out | {1.0})
+
+
+def parse_value(text: str) -> Any:
+    """A CLI value: int, float, then YAML (``true``, ``null``, ``[1, 2]``, ``{type: cosine}``), else the string."""
+    import yaml
+
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def parse_assignment(flag: str, text: str) -> tuple[str | None, str, Any]:
+    """``[SCOPE:]KEY=VALUE`` -> (scope or None, key, value). The scope is a model or dataset name (which may itself
+    be ``dist:name``), separated from the key by the last ``:`` before ``=``."""
+    head, eq, value = text.partition("=")
+    if not eq or not head.strip():
+        raise ConfigError(f"{flag} expects [NAME:]KEY=VALUE, got {text!r}")
+    scope, colon, key = head.rpartition(":")
+    key = key.strip()
+    if not key or (colon and not scope.strip()):
+        raise ConfigError(f"{flag} expects [NAME:]KEY=VALUE, got {text!r}")
+    return (scope.strip() or None), key, parse_value(value.strip())
+
+
+def load_yaml_config(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a YAML bench config; unknown keys are a :class:`ConfigError` naming them and the file."""
+    import yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"--config {path}: cannot read it ({exc.strerror or exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"--config {path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"--config {path}: the top level must be a mapping of settings, got {type(data).__name__}")
+    aliases = {"plugin_module": "plugin_modules", "seed": "seeds", "model": "models", "dataset": "datasets"}
+    data = {aliases.get(str(k), str(k)): v for k, v in data.items()}
+    unknown = sorted(set(data) - CONFIG_KEYS)
+    if unknown:
+        raise ConfigError(f"--config {path}: unknown key(s) {', '.join(unknown)}; known keys: "
+                          f"{', '.join(sorted(CONFIG_KEYS))}")
+    return data
+
+
+def merge_config(yaml_data: Mapping[str, Any] | None, flags: Mapping[str, Any], sets: Sequence[str] = (),
+                 hparams: Sequence[str] = (), dataset_args: Sequence[str] = ()) -> BenchConfig:
+    """A :class:`BenchConfig` from a YAML file's settings overlaid with command-line flags (``None`` = not given)
+    and the ``--set`` / ``--hparam`` / ``--dataset-arg`` assignments (``[NAME:]KEY=VALUE``)."""
+    import copy
+
+    data: dict[str, Any] = copy.deepcopy(dict(yaml_data or {}))
+    for key, value in flags.items():
+        if value is None:
+            continue
+        if key not in CONFIG_KEYS:
+            raise ConfigError(f"internal: unknown bench setting {key!r}")
+        if key == "plugin_modules":
+            value = [*_names("plugin_modules", data.get("plugin_modules"), allow_empty=True), *value]
+        data[key] = value
+    data.setdefault("recipe", {})
+    data.setdefault("hparams", {})
+    data.setdefault("model_overrides", {})
+    data.setdefault("dataset_kwargs", {})
+    for flag, items, field_name in (("--set", sets, "recipe"), ("--hparam", hparams, "hparams")):
+        for text in items:
+            scope, key, value = parse_assignment(flag, text)
+            if scope is None:
+                data[field_name] = {**(data[field_name] or {}), key: value}
+            else:
+                over = data["model_overrides"].setdefault(scope, {})
+                over[field_name] = {**(over.get(field_name) or {}), key: value}
+    for text in dataset_args:
+        scope, key, value = parse_assignment("--dataset-arg", text)
+        target = data["dataset_kwargs"].setdefault(scope or "*", {})
+        target[key] = value
+    return BenchConfig(**data)

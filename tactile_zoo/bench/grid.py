@@ -1,0 +1,276 @@
+"""The grid: which models, which datasets (and which are skipped, why, and how to get them), which cells.
+
+A cell is ``(model, dataset, fold, seed, config hash)``. The config hash covers everything that can change a cell's
+numbers except its fold and seed: the model (and the plugin distribution it comes from), its constructor
+hyper-parameters, the fully resolved training recipe (every key, defaults included, so a changed default in a model's
+registry metadata is a new cell too), the dataset and its keyword arguments, ``refit``, the ``--quick`` subset sizes and
+the prefix fractions. It does not cover the device, the thread count or the executor, which change speed, not the
+protocol; nor the package versions, which every cell records. Rerunning the same command finds the same hashes, so
+finished cells are reused; any changed setting gives new hashes, so nothing stale is ever reused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .. import registry
+from ..engine.recipe import resolve_recipe
+from ..errors import ConfigError, DatasetError, UnknownNameError
+from .config import BenchConfig
+
+__all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "resolve_models", "resolve_datasets",
+           "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message"]
+
+HASH_FORMAT = 1
+_WILDCARD = re.compile(r"[*?\[]")
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One unit of work. ``config`` is the resolved configuration the hash covers."""
+
+    model: str
+    dataset: str
+    fold: int
+    seed: int
+    config_hash: str
+    config: dict[str, Any] = field(compare=False, hash=False)
+    protocol: str = field(default="fixed", compare=False)
+    extra_splits: tuple[str, ...] = field(default=(), compare=False)
+
+    @property
+    def cell_id(self) -> str:
+        return cell_id(self.model, self.dataset, self.fold, self.seed, self.config_hash)
+
+    def label(self) -> str:
+        return f"{self.model} x {self.dataset} fold {self.fold} seed {self.seed}"
+
+
+@dataclass
+class SkipRow:
+    """A (model, dataset) pair that produces no cells: the dataset is absent/unloadable (``skipped``) or broken
+    (``failed``)."""
+
+    model: str
+    dataset: str
+    status: str
+    reason: str
+    obtain: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"model": self.model, "dataset": self.dataset, "status": self.status, "reason": self.reason,
+                "obtain": self.obtain}
+
+
+@dataclass
+class DatasetInfo:
+    name: str
+    num_folds: int
+    folds: list[int]
+    protocol: str
+    extra_splits: tuple[str, ...]
+    kwargs: dict[str, Any]
+    num_classes: int
+
+
+@dataclass
+class Grid:
+    models: list[str]
+    datasets: list[DatasetInfo]
+    cells: list[Cell]
+    skipped: list[SkipRow]
+    dataset_notes: dict[str, str]  # dataset -> why it is skipped / failed (one line each)
+    requested_models: list[str]
+    requested_datasets: list[str]
+
+    def describe(self) -> list[str]:
+        """Human-readable lines: the plan, then the skipped datasets with the command that obtains them."""
+        lines = [f"{len(self.cells)} cells: {len(self.models)} model(s) x {len(self.datasets)} dataset(s)"]
+        for info in self.datasets:
+            lines.append(f"  {info.name}: protocol {info.protocol}, folds {_ranges(info.folds)} of {info.num_folds}")
+        lines.append(f"  models: {', '.join(self.models)}")
+        for name, note in self.dataset_notes.items():
+            lines.append(f"  skipped dataset {name}: {note}")
+        return lines
+
+
+def skip_message(reason: str, obtain: str) -> str:
+    """The reason a dataset is skipped, plus how to obtain it when the reason does not say so already."""
+    reason = reason.strip()
+    if obtain and obtain.strip() not in reason:
+        reason = f"{reason.rstrip('.')}. To obtain it: {obtain.strip()}"
+    return reason
+
+
+def _ranges(values: list[int]) -> str:
+    return f"{values[0]}..{values[-1]}" if len(values) > 2 else ",".join(map(str, values))
+
+
+def safe_name(name: str) -> str:
+    """A name usable in a file name (``dist:model`` -> ``dist-model``)."""
+    return re.sub(r"[^A-Za-z0-9_.+-]", "-", name)
+
+
+def cell_id(model: str, dataset: str, fold: int, seed: int, config_hash: str) -> str:
+    return f"{safe_name(model)}__{safe_name(dataset)}__f{fold}__s{seed}__{config_hash}"
+
+
+def _canonical(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def config_hash(config: dict[str, Any]) -> str:
+    """16 hex digits of the SHA-256 of the canonical JSON of ``config``."""
+    return hashlib.sha256(_canonical({"hash_format": HASH_FORMAT, **config}).encode()).hexdigest()[:16]
+
+
+def _listed_name(kind: str, entry: registry.Entry) -> str:
+    listed = registry.list_models() if kind == "model" else registry.list_datasets()
+    return entry.name if entry.name in listed else entry.qualified_name
+
+
+def _resolve(kind: str, tokens: Iterable[str]) -> list[str]:
+    lister = registry.list_models if kind == "model" else registry.list_datasets
+    lookup = registry.get_model_entry if kind == "model" else registry.get_dataset_entry
+    out: list[str] = []
+    for token in (t.strip() for item in tokens for t in item.split(",") if t.strip()):
+        if token.lower() == "all":
+            names = lister()
+        elif _WILDCARD.search(token):
+            names = lister(token)
+            if not names:
+                raise UnknownNameError(f"--{kind}s: pattern {token!r} matches no registered {kind}; known: "
+                                       f"{', '.join(lister()) or '(none)'}")
+        else:
+            names = [_listed_name(kind, lookup(token))]
+        out.extend(n for n in names if n not in out)
+    if not out:
+        raise ConfigError(f"no {kind}s to run: {', '.join(tokens)} selects none")
+    return out
+
+
+def resolve_models(tokens: Iterable[str]) -> list[str]:
+    """Names, comma lists, wildcards and ``all`` (entry-point plugins included) -> registered model names."""
+    return _resolve("model", tokens)
+
+
+def resolve_datasets(tokens: Iterable[str]) -> list[str]:
+    return _resolve("dataset", tokens)
+
+
+def _obtain_hint(entry: registry.Entry, name: str) -> str:
+    from ..data.base import TactileDataset
+
+    obtain = str(entry.meta.get("obtain") or getattr(entry.obj, "obtain", "") or "").strip()
+    downloadable = isinstance(entry.obj, type) and issubclass(entry.obj, TactileDataset) and \
+        bool(getattr(entry.obj, "downloadable", False))
+    if downloadable:
+        obtain = (f"tactile-zoo bench --datasets {name} --download" + (f" (or: {obtain})" if obtain else ""))
+    return obtain
+
+
+def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, str, str]:
+    """Whether ``name`` can run here: a DatasetInfo, or ``(status, reason, obtain)`` for a skipped/failed one."""
+    from ..data.base import TactileDataset
+    from .cell import load_splits
+
+    entry = registry.get_dataset_entry(name)
+    kwargs = config.kwargs_for(name)
+    obj = entry.obj
+    obtain = _obtain_hint(entry, name)
+    if isinstance(obj, type) and issubclass(obj, TactileDataset):
+        present, reason = obj.availability(config.root)
+        if not present and not (config.download and getattr(obj, "downloadable", False)):
+            if getattr(obj, "downloadable", False):
+                reason = f"{reason} (it can be downloaded: add --download)"
+            return "skipped", reason, obtain
+    try:
+        splits = load_splits(name, config.root, 0, config.download, kwargs, ("train",))
+    except ConfigError:
+        raise  # bad dataset keyword arguments from the user: exit 2 before anything runs
+    except TypeError as exc:
+        if "keyword argument" in str(exc):
+            raise ConfigError(f"dataset {name!r} does not take the keyword argument(s) {sorted(kwargs)}: {exc}") \
+                from None
+        return "failed", f"loading {name} failed: {type(exc).__name__}: {exc}", obtain
+    except (DatasetError, FileNotFoundError) as exc:
+        return "skipped", str(exc), obtain
+    except Exception as exc:  # a broken dataset must not stop the other datasets
+        return "failed", f"loading {name} failed: {type(exc).__name__}: {exc}", obtain
+    ds = splits["train"]
+    num_folds = int(getattr(ds, "num_folds", 1) or 1)
+    folds = list(range(num_folds if config.folds is None else min(num_folds, config.folds)))
+    protocol = getattr(ds, "protocol", None)
+    if not isinstance(protocol, str) or len(protocol) > 24:
+        protocol = "kfold" if num_folds > 1 else "fixed"
+    extra = tuple(getattr(ds, "extra_splits", ()) or ())
+    if not extra:
+        extra = tuple(s for s in entry.meta.get("splits", ()) if s not in ("train", "val", "test"))
+    return DatasetInfo(name, num_folds, folds, protocol, extra, kwargs, ds.spec.num_classes)
+
+
+def _model_config(model: str, config: BenchConfig) -> dict[str, Any]:
+    entry = registry.get_model_entry(model)
+    recipe_over, hparams = config.overrides_for(model, (entry.name, entry.qualified_name))
+    recipe = resolve_recipe(entry.meta.get("recipe"), recipe_over, config.effective_epochs(),
+                            where=f"recipe of model {model!r}")
+    return {"model": model, "model_source": entry.dist or "builtin", "hparams": hparams, "recipe": recipe.to_dict(),
+            "causal": bool(entry.meta.get("causal", False))}
+
+
+def build_grid(config: BenchConfig) -> Grid:
+    """Resolve names, probe datasets, and list the cells in run order (dataset, fold, seed, model)."""
+    models = resolve_models(config.models)
+    dataset_names = resolve_datasets(config.datasets)
+    model_configs = {m: _model_config(m, config) for m in models}  # bad recipe overrides fail here, before any work
+    infos: list[DatasetInfo] = []
+    skipped: list[SkipRow] = []
+    notes: dict[str, str] = {}
+    for name in dataset_names:
+        probe = _probe_dataset(name, config)
+        if isinstance(probe, DatasetInfo):
+            infos.append(probe)
+            continue
+        status, reason, obtain = probe
+        notes[name] = skip_message(reason, obtain)
+        skipped.extend(SkipRow(m, name, status, reason, obtain) for m in models)
+    cells: list[Cell] = []
+    for info in infos:
+        for model in models:
+            mc = model_configs[model]
+            cfg = {"model": model, "model_source": mc["model_source"], "hparams": mc["hparams"],
+                   "recipe": mc["recipe"], "dataset": info.name, "dataset_kwargs": info.kwargs,
+                   "refit": config.refit, "subset": config.subset, "prefixes": config.prefixes}
+            digest = config_hash(cfg)
+            cfg = {**cfg, "causal": mc["causal"]}
+            for fold in info.folds:
+                for seed in config.seeds:
+                    cells.append(Cell(model, info.name, fold, seed, digest, cfg, info.protocol, info.extra_splits))
+    cells.sort(key=lambda c: (dataset_names.index(c.dataset), c.fold, c.seed, models.index(c.model)))
+    return Grid(models, infos, cells, skipped, notes, list(config.models), list(config.datasets))
+
+
+def _tag(requested: list[str], resolved: list[str], word: str) -> str:
+    if any(t.lower() == "all" for t in requested):
+        return f"all-{word}"
+    text = "+".join(safe_name(n) for n in resolved)
+    return text if len(text) <= 40 else f"{len(resolved)}-{word}"
+
+
+def default_out_dir(config: BenchConfig, grid: Grid, base: str | Path = "tactile-zoo-results") -> Path:
+    """``tactile-zoo-results/<models>_<datasets>_<digest>``: the digest covers the resolved models and datasets, the
+    seeds, the folds and every setting that enters a cell's config, so the same command finds the same folder (and
+    resumes) while a changed grid or setting gets its own."""
+    cells = sorted({(c.model, c.dataset, c.fold, c.seed, c.config_hash) for c in grid.cells})
+    skipped = sorted({(s.model, s.dataset) for s in grid.skipped})
+    digest = hashlib.sha256(_canonical({"cells": cells, "skipped": skipped}).encode()).hexdigest()[:10]
+    dataset_names = [d.name for d in grid.datasets] + list(grid.dataset_notes)
+    name = f"{_tag(grid.requested_models, grid.models, 'models')}_" \
+           f"{_tag(grid.requested_datasets, dataset_names, 'datasets')}_{'quick_' if config.quick else ''}{digest}"
+    return Path(base) / name

@@ -1,0 +1,330 @@
+"""Everything a run directory shows, rebuilt from its cell files: leaderboard.csv, summary.csv, report.md, plots.
+
+``tactile-zoo report DIR`` calls :func:`write_outputs`; so does every bench run when it ends. Which cells belong to
+the run comes from ``run.json``'s grid when it is there (cells of other configurations left in the same folder are
+listed as ignored), otherwise every cell file counts. Plots (matplotlib, Agg backend, PNG):
+
+* ``plots/heatmap.png``: mean test accuracy, model x dataset;
+* ``plots/bars_<dataset>.png``: mean accuracy per model with the sample standard deviation over cells as error bars
+  and the chance level;
+* ``plots/confusion/<dataset>__<model>.png``: the confusion matrix of the model's best cell on that dataset (highest
+  test accuracy, then lowest fold and seed), class names on the axes, rows normalised;
+* ``plots/curves_<dataset>.png``: training loss, validation loss and validation accuracy per epoch of each model's
+  best cell;
+* ``plots/early_<dataset>.png``: accuracy versus the fraction of the sequence seen (early classification), one line
+  per model (mean over cells; dashed = non-causal model given the prefix as its whole input).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from .grid import safe_name
+from .results import (
+    RunDir,
+    atomic_write_text,
+    leaderboard_rows,
+    prefix_label,
+    rows_to_csv,
+    summary_rows,
+)
+
+__all__ = ["write_outputs", "load_run"]
+
+
+def load_run(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any], int]:
+    """``(records of the run's cells, skipped rows, run.json, number of ignored cell files)``."""
+    run = RunDir(path)
+    records = run.cells()
+    info: dict[str, Any] = {}
+    try:
+        info = json.loads((run.path / "run.json").read_text())
+    except (OSError, ValueError):
+        pass
+    grid = info.get("grid") or {}
+    wanted = grid.get("cells")
+    if wanted is not None:
+        selected = [records[c] for c in wanted if c in records]
+        ignored = len(records) - len(selected)
+    else:
+        selected, ignored = sorted(records.values(), key=lambda r: r["cell_id"]), 0
+    return selected, list(grid.get("skipped") or []), info, ignored
+
+
+def write_outputs(path: str | os.PathLike, plots: bool = True) -> dict[str, Path]:
+    """Write leaderboard.csv, summary.csv, report.md (and the plots) of the run directory ``path``."""
+    from ..errors import ConfigError
+
+    run = RunDir(path)
+    if not run.path.is_dir():
+        raise ConfigError(f"{run.path} is not a folder (expected a bench output folder with cells/)")
+    if not run.cells_dir.is_dir():
+        raise ConfigError(f"{run.path} has no cells/ folder: not a tactile-zoo bench output")
+    records, skipped, info, ignored = load_run(run.path)
+    board, board_cols = leaderboard_rows(records, skipped)
+    summary, summary_cols = summary_rows(board, board_cols)
+    written = {"leaderboard": run.path / "leaderboard.csv", "summary": run.path / "summary.csv",
+               "report": run.path / "report.md"}
+    atomic_write_text(written["leaderboard"], rows_to_csv(board, board_cols))
+    atomic_write_text(written["summary"], rows_to_csv(summary, summary_cols))
+    figures: dict[str, Any] = {}
+    if plots and records:
+        figures = _plots(run, records, summary)
+    atomic_write_text(written["report"], _markdown(run, records, board, summary, figures, info, ignored))
+    return written
+
+
+# ----------------------------------------------------------------------------------------------- markdown
+def _f(value: Any, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _ok(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [r for r in records if r.get("status") == "ok"]
+
+
+def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, Any]], summary: list[dict[str, Any]],
+              figures: dict[str, Any], info: dict[str, Any], ignored: int) -> str:
+    env = info.get("environment") or {}
+    versions = env.get("versions") or {}
+    status_counts: dict[str, int] = {}
+    for rec in records:
+        status_counts[rec["status"]] = status_counts.get(rec["status"], 0) + 1
+    devices = sorted({str(r.get("device")) for r in _ok(records) if r.get("device")})
+    out = ["# tactile-zoo benchmark report", ""]
+    out.append(f"Generated {time.strftime('%Y-%m-%d %H:%M')} from {len(records)} cell file(s) in `{run.path}` "
+               f"({', '.join(f'{v} {k}' for k, v in sorted(status_counts.items())) or 'none'}).")
+    if info.get("command"):
+        out.append(f"Command: `{' '.join(info['command'])}`.")
+    if versions:
+        out.append(f"tactile-zoo {versions.get('tactile_zoo', '?')}, torch {versions.get('torch', '?')}, "
+                   f"Python {env.get('python', '?')}; {env.get('cpu_model', '?')} ({env.get('cpu_cores', '?')} cores, "
+                   f"{env.get('torch_threads', '?')} torch threads); GPU: "
+                   f"{(env.get('gpu') or {}).get('name', 'none')}; device(s) used: {', '.join(devices) or '–'}; "
+                   f"git {env.get('git_commit') or '–'}.")
+    if ignored:
+        out.append(f"{ignored} cell file(s) in the folder belong to another configuration and are not included.")
+    out += ["", "Accuracy, balanced accuracy and macro-F1 are on each dataset's test split, for the epoch selected on "
+                "its validation split; mean ± sample standard deviation over folds and seeds. Rank is per dataset "
+                "(1 = best mean accuracy); mean rank is over the datasets a model ran on. Timings (train seconds, "
+                "inference ms per sample at batch 1) depend on the machine.", ""]
+    out += ["## Summary", ""]
+    rows = [[s["model"], s["dataset"], str(s["n_cells"]),
+             f"{_f(s['accuracy_mean'])} ± {_f(s['accuracy_std'])}", _f(s["balanced_accuracy_mean"]),
+             _f(s["macro_f1_mean"]), _f(s["train_seconds_mean"], 1), _f(s["rank"]), _f(s["mean_rank"], 2)]
+            for s in sorted(summary, key=lambda s: (s["dataset"], s["rank"] or 1e9, s["model"]))]
+    out.append(_table(["model", "dataset", "cells", "accuracy", "balanced acc.", "macro-F1", "train s", "rank",
+                       "mean rank"], rows) if rows else "No finished cell yet.")
+    out.append("")
+    if "heatmap" in figures:
+        out += ["## Accuracy by model and dataset", "", f"![heat map]({figures['heatmap']})", ""]
+    datasets = sorted({r["dataset"] for r in _ok(records)})
+    for dataset in datasets:
+        out += [f"## {dataset}", ""]
+        for key, title in (("bars", "Accuracy per model"), ("curves", "Training curves (best cell per model)"),
+                           ("early", "Early classification: accuracy versus the part of the sequence seen")):
+            if dataset in figures.get(key, {}):
+                out += [f"### {title}", "", f"![{key} {dataset}]({figures[key][dataset]})", ""]
+        early = _early_table(_ok(records), dataset)
+        if early:
+            out += [early, ""]
+        confusions = figures.get("confusion", {}).get(dataset, {})
+        if confusions:
+            out += ["### Confusion matrices (best cell per model)", ""]
+            out += [f"![confusion {model}]({p})" for model, p in sorted(confusions.items())]
+            out.append("")
+    skipped = [r for r in board if r.get("status") == "skipped"]
+    if skipped:
+        out += ["## Skipped", ""]
+        seen = set()
+        for row in skipped:
+            who = row["dataset"] if row.get("fold") is None else f"{row['model']} x {row['dataset']}"
+            if (who, row.get("error")) in seen:
+                continue
+            seen.add((who, row.get("error")))
+            out.append(f"- {who}: {row.get('error')}")
+        out.append("")
+    failed = [r for r in board if r.get("status") == "failed"]
+    if failed:
+        out += ["## Failed", ""]
+        out += [f"- {r['model']} x {r['dataset']} fold {_f(r.get('fold'))} seed {_f(r.get('seed'))}: "
+                f"`{r.get('error')}`" for r in failed]
+        out.append("")
+    out += ["Per-cell numbers: `leaderboard.csv`; per model and dataset: `summary.csv`; everything else (predictions, "
+            "probabilities, curves, configs) is in `cells/*.json`.", ""]
+    return "\n".join(out)
+
+
+def _early_table(records: list[dict[str, Any]], dataset: str) -> str:
+    per_model: dict[str, list[dict[str, Any]]] = {}
+    for rec in records:
+        if rec["dataset"] == dataset and rec.get("prefix"):
+            per_model.setdefault(rec["model"], []).append(rec["prefix"])
+    if not per_model:
+        return ""
+    fractions = sorted({f for ps in per_model.values() for p in ps for f in p["fractions"]})
+    rows = []
+    for model, prefixes in sorted(per_model.items()):
+        accs = []
+        for frac in fractions:
+            vals = [p["accuracy"][p["fractions"].index(frac)] for p in prefixes if frac in p["fractions"]]
+            accs.append(_f(sum(vals) / len(vals)) if vals else "–")
+        earl = [p["earliness"] for p in prefixes if p.get("earliness") is not None]
+        causal = "yes" if prefixes[0].get("causal") else f"no ({prefixes[0].get('input', 'truncated')})"
+        rows.append([model, causal, *accs, _f(sum(earl) / len(earl), 2) if earl else "–"])
+    return _table(["model", "causal", *[f"{prefix_label(f)} %" for f in fractions], "earliness"], rows)
+
+
+# ----------------------------------------------------------------------------------------------- plots
+def _best_cells(records: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
+    best: dict[tuple[str, str], dict[str, Any]] = {}
+    for rec in sorted(_ok(records), key=lambda r: (-r["metrics"]["test"]["accuracy"], r["fold"], r["seed"])):
+        best.setdefault((rec["model"], rec["dataset"]), rec)
+    return best
+
+
+def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, Any]]) -> dict[str, Any]:
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    run.plots_dir.mkdir(parents=True, exist_ok=True)
+    figures: dict[str, Any] = {"bars": {}, "curves": {}, "early": {}, "confusion": {}}
+    ok = _ok(records)
+    if not ok:
+        return figures
+
+    def save(fig: Any, rel: str) -> str:
+        target = run.path / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_name(f".{target.name}.tmp.png")
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+        plt.close(fig)
+        os.replace(tmp, target)
+        return rel
+
+    models = sorted({s["model"] for s in summary})
+    datasets = sorted({s["dataset"] for s in summary})
+    by_key = {(s["model"], s["dataset"]): s for s in summary}
+    num_classes = {r["dataset"]: len(r.get("class_names") or []) for r in ok}
+
+    # heat map: model x dataset mean accuracy
+    fig, ax = plt.subplots(figsize=(1.6 + 1.5 * len(datasets), 1.0 + 0.45 * len(models)))
+    grid = [[(by_key.get((m, d)) or {}).get("accuracy_mean") for d in datasets] for m in models]
+    values = [[math.nan if v is None else v for v in row] for row in grid]
+    image = ax.imshow(values, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    ax.set_xticks(range(len(datasets)), datasets, rotation=30, ha="right")
+    ax.set_yticks(range(len(models)), models)
+    for i, row in enumerate(grid):
+        for j, v in enumerate(row):
+            if v is not None:
+                std = by_key[(models[i], datasets[j])].get("accuracy_std")
+                text = f"{v:.2f}" + (f"\n±{std:.2f}" if std is not None else "")
+                ax.text(j, i, text, ha="center", va="center", fontsize=8, color="white" if v < 0.6 else "black")
+    fig.colorbar(image, ax=ax, label="test accuracy (mean)")
+    ax.set_title("Test accuracy")
+    figures["heatmap"] = save(fig, "plots/heatmap.png")
+
+    best = _best_cells(ok)
+    for dataset in datasets:
+        entries = sorted((s for s in summary if s["dataset"] == dataset), key=lambda s: -(s["accuracy_mean"] or 0))
+        # bars with error bars
+        fig, ax = plt.subplots(figsize=(1.5 + 0.7 * len(entries), 3.6))
+        ax.bar(range(len(entries)), [e["accuracy_mean"] or 0 for e in entries],
+               yerr=[e["accuracy_std"] or 0 for e in entries], capsize=4, color="tab:blue")
+        ax.set_xticks(range(len(entries)), [e["model"] for e in entries], rotation=30, ha="right")
+        if num_classes.get(dataset):
+            ax.axhline(1 / num_classes[dataset], color="grey", ls="--", lw=1, label="chance")
+            ax.legend(loc="upper right", fontsize=8)
+        ax.set_ylim(0, 1)
+        ax.set_ylabel("test accuracy")
+        ax.set_title(f"{dataset} (mean ± std over {max(e['n_cells'] for e in entries)} cell(s) per model)")
+        figures["bars"][dataset] = save(fig, f"plots/bars_{safe_name(dataset)}.png")
+
+        # training curves of each model's best cell
+        fig, axes = plt.subplots(1, 3, figsize=(13, 3.4))
+        for (model, ds), rec in sorted(best.items()):
+            if ds != dataset or not rec.get("curve"):
+                continue
+            epochs = [row["epoch"] for row in rec["curve"]]
+            for ax, key in zip(axes, ("train_loss", "val_loss", "val_accuracy")):
+                ys = [row.get(key) for row in rec["curve"]]
+                if any(y is not None for y in ys):
+                    ax.plot(epochs, [math.nan if y is None else y for y in ys], label=model, marker=".", ms=3)
+        for ax, title in zip(axes, ("training loss", "validation loss", "validation accuracy")):
+            ax.set_title(title)
+            ax.set_xlabel("epoch")
+        axes[2].set_ylim(0, 1.02)
+        axes[2].legend(fontsize=7, loc="lower right")
+        fig.suptitle(f"{dataset}: training curves (best cell per model)", y=1.04)
+        figures["curves"][dataset] = save(fig, f"plots/curves_{safe_name(dataset)}.png")
+
+        # accuracy versus time (prefix fraction)
+        fig, ax = plt.subplots(figsize=(6, 4))
+        drawn = False
+        for model in sorted({r["model"] for r in ok if r["dataset"] == dataset}):
+            prefixes = [r["prefix"] for r in ok if r["dataset"] == dataset and r["model"] == model and r.get("prefix")]
+            if not prefixes:
+                continue
+            fractions = prefixes[0]["fractions"]
+            means = [sum(p["accuracy"][i] for p in prefixes) / len(prefixes) for i in range(len(fractions))]
+            causal = prefixes[0].get("causal")
+            ax.plot([100 * f for f in fractions], means, marker="o", ls="-" if causal else "--",
+                    label=model + ("" if causal else " (non-causal)"))
+            drawn = True
+        if drawn:
+            if num_classes.get(dataset):
+                ax.axhline(1 / num_classes[dataset], color="grey", ls=":", lw=1, label="chance")
+            ax.set_xlabel("% of the sequence seen")
+            ax.set_ylabel("test accuracy")
+            ax.set_ylim(0, 1.02)
+            ax.set_title(f"{dataset}: early classification")
+            ax.legend(fontsize=7, loc="lower right")
+            figures["early"][dataset] = save(fig, f"plots/early_{safe_name(dataset)}.png")
+        else:
+            plt.close(fig)
+
+        # confusion matrix of each model's best cell
+        for (model, ds), rec in sorted(best.items()):
+            if ds != dataset:
+                continue
+            cm = rec["metrics"]["test"].get("confusion")
+            names = rec.get("class_names") or [str(i) for i in range(len(cm or []))]
+            if not cm:
+                continue
+            k = len(cm)
+            size = max(3.5, 0.35 * k + 2)
+            fig, ax = plt.subplots(figsize=(size + 1, size))
+            norm = [[v / max(1, sum(row)) for v in row] for row in cm]
+            image = ax.imshow(norm, vmin=0, vmax=1, cmap="Blues")
+            ax.set_xticks(range(k), names, rotation=60, ha="right", fontsize=max(5, 9 - k // 8))
+            ax.set_yticks(range(k), names, fontsize=max(5, 9 - k // 8))
+            if k <= 15:
+                for i in range(k):
+                    for j in range(k):
+                        if cm[i][j]:
+                            ax.text(j, i, str(cm[i][j]), ha="center", va="center", fontsize=7,
+                                    color="white" if norm[i][j] > 0.5 else "black")
+            ax.set_xlabel("predicted")
+            ax.set_ylabel("true")
+            acc = rec["metrics"]["test"]["accuracy"]
+            ax.set_title(f"{model} on {dataset}\nfold {rec['fold']} seed {rec['seed']}, accuracy {acc:.3f}",
+                         fontsize=9)
+            fig.colorbar(image, ax=ax, fraction=0.046, label="fraction of the true class")
+            rel = f"plots/confusion/{safe_name(dataset)}__{safe_name(model)}.png"
+            figures["confusion"].setdefault(dataset, {})[model] = save(fig, rel)
+    return figures

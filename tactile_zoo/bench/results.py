@@ -1,0 +1,341 @@
+"""The run directory: atomic cell files, per-cell claims, and the leaderboard/summary tables built from them.
+
+Layout of ``--out``::
+
+    cells/<model>__<dataset>__f<fold>__s<seed>__<config hash>.json   one per finished cell (ok, failed, skipped)
+    claims/<cell id>.lock                                             held (flock) while a process runs that cell
+    run.json, leaderboard.csv, summary.csv, report.md, plots/*.png
+
+Every file is written to a temporary file in the same folder and renamed over the target (``os.replace``), so a
+reader, or a rerun after SIGKILL, sees either the old complete file or the new complete one, never a torn one.
+
+Two processes on one ``--out`` share the work through *claims*: before running a cell a process takes an exclusive,
+non-blocking ``fcntl.flock`` on the cell's claim file (and writes its pid and host there); a cell claimed by another
+live process is left to it. The kernel drops the lock when its holder exits or is killed, so a claim can never go
+stale. Once a process has nothing else to do it waits for the cells others hold (saying which pid holds them) and, if
+the holder died without finishing one, runs that cell itself. The tables are rewritten under ``run.lock``. So two
+``tactile-zoo bench`` commands on the same folder cooperate: no cell is computed twice and no file is corrupted.
+(``flock`` works on local file systems; on NFS Linux maps it to POSIX byte-range locks, which need a lock daemon.)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import math
+import os
+import socket
+import tempfile
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows: no claims; one process per --out
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = ["atomic_write_text", "atomic_write_json", "RunDir", "Claim", "LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS",
+           "leaderboard_rows", "summary_rows", "rows_to_csv", "prefix_label", "CellWriteError"]
+
+#: The leaderboard's fixed columns (the issue's list, in its order); extra columns follow ``error``:
+#: ``accuracy_<split>`` for each extra test split, ``accuracy_at_<p>`` per prefix percentage, ``earliness``.
+LEADERBOARD_COLUMNS = (
+    "model", "dataset", "protocol", "fold", "seed", "status", "accuracy", "balanced_accuracy", "macro_f1", "n_train",
+    "n_val", "n_test", "epochs_run", "best_epoch", "train_seconds", "infer_ms_per_sample", "params",
+    "peak_memory_mb", "device", "config_hash", "tactile_zoo_version", "torch_version", "error",
+)
+SUMMARY_COLUMNS = (
+    "model", "dataset", "n_cells", "accuracy_mean", "accuracy_std", "balanced_accuracy_mean", "macro_f1_mean",
+    "train_seconds_mean", "rank", "mean_rank",
+)
+TIMING_COLUMNS = ("train_seconds", "infer_ms_per_sample", "peak_memory_mb", "train_seconds_mean")
+
+
+class CellWriteError(OSError):
+    """A cell (or table) file could not be written (disk full, permissions)."""
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same folder and ``os.replace`` (plus fsync)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _json_default(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, set | frozenset | tuple):
+        return list(value)
+    return str(value)
+
+
+def atomic_write_json(path: str | os.PathLike, obj: Any) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=1, default=_json_default, allow_nan=True) + "\n")
+
+
+class Claim:
+    """An exclusive ``flock`` on one claim file; released by :meth:`release` or when the process ends."""
+
+    def __init__(self, path: Path, fd: int) -> None:
+        self.path, self.fd = path, fd
+
+    def release(self, remove: bool = True) -> None:
+        if self.fd < 0:
+            return
+        if remove:  # unlink while still holding the lock, so a waiter notices the file is gone (see RunDir.claim)
+            with contextlib.suppress(OSError):
+                self.path.unlink()
+        with contextlib.suppress(OSError):
+            os.close(self.fd)  # closing drops the flock
+        self.fd = -1
+
+
+class RunDir:
+    """The ``--out`` folder of a run."""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        self.cells_dir = self.path / "cells"
+        self.claims_dir = self.path / "claims"
+        self.plots_dir = self.path / "plots"
+
+    # ------------------------------------------------------------------------------------------- set-up
+    def prepare(self) -> RunDir:
+        """Create the folders and prove the location is writable; an unwritable ``--out`` is a ConfigError."""
+        try:
+            for folder in (self.path, self.cells_dir, self.claims_dir):
+                folder.mkdir(parents=True, exist_ok=True)
+            fd, probe = tempfile.mkstemp(dir=self.cells_dir, prefix=".probe.")
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            raise ConfigError(f"--out {self.path}: cannot write there ({exc.strerror or exc}); choose a writable "
+                              f"folder") from None
+        return self
+
+    # ------------------------------------------------------------------------------------------- cells
+    def cell_path(self, cell_id: str) -> Path:
+        return self.cells_dir / f"{cell_id}.json"
+
+    def read_cell(self, cell_id: str) -> dict[str, Any] | None:
+        return self._read(self.cell_path(cell_id))
+
+    @staticmethod
+    def _read(path: Path) -> dict[str, Any] | None:
+        try:
+            record = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None  # absent, or not ours: it will be recomputed and replaced
+        return record if isinstance(record, dict) and "cell_id" in record and "status" in record else None
+
+    def cells(self) -> dict[str, dict[str, Any]]:
+        """Every readable cell record in the folder, by cell id."""
+        out = {}
+        if self.cells_dir.is_dir():
+            for path in sorted(self.cells_dir.glob("*.json")):
+                record = self._read(path)
+                if record is not None:
+                    out[record["cell_id"]] = record
+        return out
+
+    def write_cell(self, record: dict[str, Any]) -> Path:
+        path = self.cell_path(record["cell_id"])
+        try:
+            atomic_write_json(path, record)
+        except OSError as exc:
+            raise CellWriteError(exc.errno, f"cannot write cell file {path}: {exc.strerror or exc}") from None
+        return path
+
+    # ------------------------------------------------------------------------------------------- claims
+    def _claim_path(self, cell_id: str) -> Path:
+        return self.claims_dir / f"{cell_id}.lock"
+
+    def claim(self, cell_id: str, blocking: bool = False) -> Claim | None:
+        """Take the cell's claim; ``None`` if another process holds it (non-blocking mode)."""
+        if fcntl is None:
+            return Claim(self._claim_path(cell_id), -1)
+        path = self._claim_path(cell_id)
+        while True:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+            except BlockingIOError:
+                os.close(fd)
+                return None
+            except BaseException:
+                os.close(fd)
+                raise
+            # the holder we waited for may have unlinked the file before releasing: our lock is then on an orphan
+            # inode that a third process cannot see; start over on the current file
+            try:
+                same = os.fstat(fd).st_ino == os.stat(path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, 0)
+                    os.write(fd, f"{os.getpid()} {socket.gethostname()} {time.strftime('%H:%M:%S')}\n".encode())
+                return Claim(path, fd)
+            os.close(fd)
+
+    def claim_holder(self, cell_id: str) -> str:
+        """``"pid P on HOST since T"`` of the process holding a claim (best effort)."""
+        try:
+            text = self._claim_path(cell_id).read_text().split()
+        except OSError:
+            return "another process"
+        return f"pid {text[0]} on {text[1]} since {text[2]}" if len(text) >= 3 else "another process"
+
+    @contextlib.contextmanager
+    def table_lock(self) -> Iterator[None]:
+        """Serialise rewriting the tables and run.json between processes sharing the folder."""
+        if fcntl is None:
+            yield
+            return
+        fd = os.open(self.path / "run.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            yield
+        finally:
+            os.close(fd)
+
+
+# ----------------------------------------------------------------------------------------------- tables
+def prefix_label(fraction: float) -> str:
+    """0.25 -> ``"25"`` (percent, as in ``accuracy_at_25``)."""
+    return f"{fraction * 100:g}"
+
+
+def _num(value: Any) -> Any:
+    if isinstance(value, float) and (math.isnan(value) or math.isinf(value)):
+        return None
+    return value
+
+
+def leaderboard_rows(records: Iterable[dict[str, Any]], skipped: Iterable[dict[str, Any]] = ()
+                     ) -> tuple[list[dict[str, Any]], list[str]]:
+    """One row per cell (and per skipped model x dataset pair); returns ``(rows, columns)``."""
+    rows: list[dict[str, Any]] = []
+    extra_splits: set[str] = set()
+    prefixes: set[float] = set()
+    for rec in records:
+        metrics = rec.get("metrics") or {}
+        test = metrics.get("test") or {}
+        versions = rec.get("versions") or {}
+        row: dict[str, Any] = {
+            "model": rec["model"], "dataset": rec["dataset"], "protocol": rec.get("protocol", ""),
+            "fold": rec.get("fold"), "seed": rec.get("seed"), "status": rec["status"],
+            "accuracy": test.get("accuracy"), "balanced_accuracy": test.get("balanced_accuracy"),
+            "macro_f1": test.get("macro_f1"), "n_train": rec.get("n_train"), "n_val": rec.get("n_val"),
+            "n_test": rec.get("n_test"), "epochs_run": rec.get("epochs_run"), "best_epoch": rec.get("best_epoch"),
+            "train_seconds": rec.get("train_seconds"), "infer_ms_per_sample": rec.get("infer_ms_per_sample"),
+            "params": rec.get("params"), "peak_memory_mb": rec.get("peak_memory_mb"), "device": rec.get("device"),
+            "config_hash": rec.get("config_hash"), "tactile_zoo_version": versions.get("tactile_zoo"),
+            "torch_version": versions.get("torch"), "error": rec.get("error"),
+        }
+        for split, split_metrics in metrics.items():
+            if split not in ("test", "val") and split_metrics:
+                extra_splits.add(split)
+                row[f"accuracy_{split}"] = split_metrics.get("accuracy")
+        prefix = rec.get("prefix") or {}
+        for frac, acc in zip(prefix.get("fractions", ()), prefix.get("accuracy", ())):
+            prefixes.add(float(frac))
+            row[f"accuracy_at_{prefix_label(frac)}"] = acc
+        if prefix:
+            row["earliness"] = prefix.get("earliness")
+        rows.append({k: _num(v) for k, v in row.items()})
+    for skip in skipped:
+        reason = skip.get("reason", "")
+        obtain = str(skip.get("obtain") or "").strip()
+        if obtain and obtain not in reason:
+            reason = f"{reason.rstrip('.')}. To obtain it: {obtain}"
+        rows.append({"model": skip["model"], "dataset": skip["dataset"], "status": skip.get("status", "skipped"),
+                     "error": reason})
+    rows.sort(key=lambda r: (str(r["model"]), str(r["dataset"]), r.get("fold") if r.get("fold") is not None else -1,
+                             r.get("seed") if r.get("seed") is not None else -1, str(r.get("config_hash") or "")))
+    columns = list(LEADERBOARD_COLUMNS) + [f"accuracy_{s}" for s in sorted(extra_splits)] + \
+        [f"accuracy_at_{prefix_label(p)}" for p in sorted(prefixes)] + (["earliness"] if prefixes else [])
+    return rows, columns
+
+
+def _mean(values: list[float]) -> float | None:
+    values = [v for v in values if v is not None]
+    return sum(values) / len(values) if values else None
+
+
+def _std(values: list[float]) -> float | None:
+    values = [v for v in values if v is not None]
+    if len(values) < 2:
+        return None  # one cell has no spread to report
+    mean = sum(values) / len(values)
+    return math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+
+
+def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple[list[dict[str, Any]], list[str]]:
+    """Per (model, dataset) over ok cells: means, sample std of accuracy, rank per dataset (1 = best mean accuracy,
+    ties share the best rank) and each model's mean rank over the datasets it ran on."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for row in leaderboard:
+        if row.get("status") == "ok":
+            groups.setdefault((row["model"], row["dataset"]), []).append(row)
+    extra = [c for c in columns if c.startswith("accuracy_") and c not in ("accuracy_mean",)] + \
+        (["earliness"] if "earliness" in columns else [])
+    out: list[dict[str, Any]] = []
+    for (model, dataset), rows in sorted(groups.items()):
+        entry = {"model": model, "dataset": dataset, "n_cells": len(rows),
+                 "accuracy_mean": _mean([r["accuracy"] for r in rows]),
+                 "accuracy_std": _std([r["accuracy"] for r in rows]),
+                 "balanced_accuracy_mean": _mean([r["balanced_accuracy"] for r in rows]),
+                 "macro_f1_mean": _mean([r["macro_f1"] for r in rows]),
+                 "train_seconds_mean": _mean([r["train_seconds"] for r in rows])}
+        for col in extra:
+            entry[f"{col}_mean"] = _mean([r.get(col) for r in rows])
+        out.append(entry)
+    by_dataset: dict[str, list[dict[str, Any]]] = {}
+    for entry in out:
+        by_dataset.setdefault(entry["dataset"], []).append(entry)
+    for entries in by_dataset.values():
+        for entry in entries:
+            acc = entry["accuracy_mean"]
+            entry["rank"] = None if acc is None else \
+                1 + sum(1 for e in entries if e["accuracy_mean"] is not None and e["accuracy_mean"] > acc)
+    ranks: dict[str, list[float]] = {}
+    for entry in out:
+        if entry["rank"] is not None:
+            ranks.setdefault(entry["model"], []).append(entry["rank"])
+    for entry in out:
+        entry["mean_rank"] = _mean(ranks.get(entry["model"], []))
+    return out, list(SUMMARY_COLUMNS) + [f"{c}_mean" for c in extra]
+
+
+def rows_to_csv(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({c: ("" if row.get(c) is None else _fmt(row.get(c))) for c in columns})
+    return buf.getvalue()
+
+
+def _fmt(value: Any) -> Any:
+    if isinstance(value, float):
+        return repr(value)  # shortest exact representation: tables compare equal iff the numbers do
+    if isinstance(value, str):
+        return value.replace("\n", " ")
+    return value

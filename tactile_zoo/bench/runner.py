@@ -1,0 +1,273 @@
+"""The bench run: resolve the grid, reuse finished cells, run the rest on an executor, write every output.
+
+Resuming: a cell whose file exists with status ``ok`` or ``skipped`` is finished and never recomputed (``force``
+recomputes); a ``failed`` cell is retried on the next run. A cell is written the moment it finishes, atomically, so a
+run killed at any point (SIGKILL included) loses at most the cells that were running.
+
+Exit codes: 0 every cell ok (or skipped), 1 a cell or a dataset failed or a file could not be written, 130
+interrupted (Ctrl-C: running cells are abandoned, finished ones kept, the tables written for them).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from .cell import CellTask, import_plugin_modules
+from .config import BenchConfig
+from .environment import environment
+from .executors import Executor, make_executor
+from .grid import Cell, Grid, build_grid, default_out_dir
+from .results import CellWriteError, Claim, RunDir, atomic_write_json
+
+__all__ = ["run_bench", "BenchOutcome", "FINISHED"]
+
+FINISHED = ("ok", "skipped")  # statuses a rerun keeps; "failed" cells are retried
+
+
+@dataclass
+class BenchOutcome:
+    out: Path | None
+    exit_code: int
+    grid: Grid
+    counts: dict[str, int] = field(default_factory=dict)
+    ran: list[str] = field(default_factory=list)  # cell ids computed by this process
+    reused: list[str] = field(default_factory=list)  # finished before (or by another process)
+
+
+class _Console:
+    """Per-cell lines on ``out`` (through tqdm when a bar is shown), and the grid's progress bar."""
+
+    def __init__(self, total: int, quiet: bool, out: TextIO, err: TextIO) -> None:
+        self.quiet, self.out, self.err = quiet, out, err
+        self.bar = None
+        if not quiet and total and getattr(err, "isatty", lambda: False)():
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=total, desc="cells", unit="cell", file=err, dynamic_ncols=True)
+
+    def line(self, text: str, always: bool = False) -> None:
+        if self.quiet and not always:
+            return
+        if self.bar is not None:
+            self.bar.write(text, file=self.out)
+        else:
+            print(text, file=self.out, flush=True)
+
+    def error(self, text: str) -> None:
+        if self.bar is not None:
+            self.bar.write(text, file=self.err)
+        else:
+            print(text, file=self.err, flush=True)
+
+    def step(self) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
+    head = f"[{index}/{total}] {record['status']:<7} {record['model']} x {record['dataset']} fold {record['fold']} " \
+           f"seed {record['seed']}"
+    if record["status"] == "ok":
+        test = record["metrics"]["test"]
+        return (f"{head}: acc {test['accuracy']:.3f} bal {test['balanced_accuracy']:.3f} f1 {test['macro_f1']:.3f}"
+                f"  {record['epochs_run']} ep (best {record['best_epoch']})  {record['train_seconds']:.1f}s")
+    return f"{head}: {record.get('error')}"
+
+
+def _task(cell: Cell, config: BenchConfig, executor: Executor) -> CellTask:
+    return CellTask(model=cell.model, dataset=cell.dataset, fold=cell.fold, seed=cell.seed,
+                    config_hash=cell.config_hash, cell_id=cell.cell_id, config=cell.config, protocol=cell.protocol,
+                    extra_splits=cell.extra_splits, root=config.root, download=config.download, device=config.device,
+                    threads=executor.threads if executor.threads is not None else config.threads,
+                    plugin_modules=tuple(config.plugin_modules), sys_path=tuple(sys.path))
+
+
+def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
+    payload = {"status": status, "command": ["tactile-zoo", *sys.argv[1:]], "config": config.to_dict(),
+               "out": str(run.path), "environment": environment(),
+               "grid": {"models": grid.models, "datasets": [d.name for d in grid.datasets],
+                        "cells": [c.cell_id for c in grid.cells], "skipped": [s.to_dict() for s in grid.skipped],
+                        "dataset_notes": grid.dataset_notes}, **extra}
+    with run.table_lock():
+        atomic_write_json(run.path / "run.json", payload)
+
+
+def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False, out: TextIO | None = None,
+              err: TextIO | None = None, report: bool = True) -> BenchOutcome:
+    """Run (or with ``dry_run`` only list) the grid ``config`` describes. Raises ConfigError for bad input."""
+    out, err = out or sys.stdout, err or sys.stderr
+    if os.getcwd() not in sys.path and "" not in sys.path:
+        sys.path.append(os.getcwd())  # --plugin-module my_model finds ./my_model.py, as `python -m` would
+    import_plugin_modules(config.plugin_modules)
+    grid = build_grid(config)
+    out_dir = Path(config.out) if config.out else default_out_dir(config, grid)
+    if dry_run:
+        for line in grid.describe():
+            print(line, file=out)
+        for cell in grid.cells:
+            print(f"  cell {cell.cell_id}", file=out)
+        print(f"output folder: {out_dir}", file=out)
+        return BenchOutcome(out_dir, 0, grid)
+
+    run = RunDir(out_dir).prepare()
+    started = time.time()
+    started_text = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    executor = make_executor(config.executor, workers=config.workers, threads=config.threads,
+                             scheduler=config.scheduler, plugin_modules=tuple(config.plugin_modules),
+                             progress=not quiet)
+    outcome = BenchOutcome(out_dir, 0, grid)
+    status = "running"
+    try:
+        _run_json(run, config, grid, "running", {"started": started_text, "executor": executor.describe()})
+        existing = run.cells()
+        todo = [c for c in grid.cells
+                if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
+        outcome.reused = [c.cell_id for c in grid.cells if c not in todo]
+        console = _Console(len(todo), quiet, out, err)
+        console.line(f"tactile-zoo bench: {len(grid.cells)} cells, {len(outcome.reused)} already finished, "
+                     f"{len(todo)} to run on {executor.describe()} -> {out_dir}")
+        for name, note in grid.dataset_notes.items():
+            console.line(f"skipped dataset {name}: {note}", always=True)
+        status = "finished"
+        try:
+            write_error = _loop(todo, run, config, executor, console, outcome, started)
+        except KeyboardInterrupt:
+            status = "interrupted"
+            write_error = None
+            console.error(f"tactile-zoo: interrupted; {len(outcome.ran)} cell(s) finished in this run are saved in "
+                          f"{out_dir}; rerun the same command to resume")
+        finally:
+            console.close()
+        records = run.cells()
+        counts = {"ok": 0, "failed": 0, "skipped": 0, "pending": 0}
+        for cell in grid.cells:
+            counts[(records.get(cell.cell_id) or {}).get("status", "pending")] += 1
+        counts["datasets_failed"] = len({s.dataset for s in grid.skipped if s.status == "failed"})
+        counts["datasets_skipped"] = len(grid.dataset_notes) - counts["datasets_failed"]
+        outcome.counts = counts
+        try:
+            if report:
+                from .report import write_outputs
+
+                with run.table_lock():
+                    write_outputs(run.path, plots=status == "finished")
+            _run_json(run, config, grid, status, {"started": started_text, "executor": executor.describe(),
+                                                  "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                                                  "counts": counts})
+        except OSError as exc:
+            write_error = write_error or f"cannot write the tables in {out_dir}: {exc.strerror or exc}"
+        summary = (f"done: {counts['ok']} ok, {counts['failed']} failed, {counts['skipped']} skipped"
+                   + (f", {counts['pending']} not run" if counts["pending"] else "")
+                   + (f"; {len(grid.dataset_notes)} dataset(s) skipped" if grid.dataset_notes else "")
+                   + f" -> {out_dir / 'leaderboard.csv'}")
+        console.line(summary, always=True)
+        if write_error:
+            console.error(f"tactile-zoo: error: {write_error}; every cell file written before is intact")
+        if status == "interrupted":
+            outcome.exit_code = 130
+        elif write_error or counts["failed"] or counts["pending"] or counts["datasets_failed"]:
+            outcome.exit_code = 1
+        return outcome
+    finally:
+        executor.shutdown(cancel=status != "finished")
+
+
+def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor, console: _Console,
+          outcome: BenchOutcome, started: float) -> str | None:
+    """Claim, submit, collect and write cells until none is left. Returns a write error, if one stopped the run."""
+    pending = deque(todo)
+    inflight: dict[Any, tuple[Cell, Claim]] = {}
+    deferred: deque[Cell] = deque()
+    total, done = len(todo), 0
+    waited_note = False
+
+    def fresh(cell: Cell) -> dict[str, Any] | None:
+        """A finished record of ``cell`` that this run may keep (written by another process since we started)."""
+        record = run.read_cell(cell.cell_id)
+        if record is None or record.get("status") not in FINISHED:
+            return None
+        if config.force and run.cell_path(cell.cell_id).stat().st_mtime < started:
+            return None
+        return record
+
+    def finish(cell: Cell, record: dict[str, Any], by_us: bool) -> None:
+        nonlocal done
+        done += 1
+        (outcome.ran if by_us else outcome.reused).append(cell.cell_id)
+        suffix = "" if by_us else "  (finished by another process)"
+        console.line(_cell_line(record, done, total) + suffix)
+        console.step()
+
+    try:
+        while pending or inflight or deferred:
+            while pending and len(inflight) < executor.slots:
+                cell = pending.popleft()
+                claim = run.claim(cell.cell_id)
+                if claim is None:
+                    deferred.append(cell)
+                    continue
+                record = fresh(cell)
+                if record is not None:
+                    claim.release()
+                    finish(cell, record, by_us=False)
+                    continue
+                inflight[executor.submit(_task(cell, config, executor))] = (cell, claim)
+            if inflight:
+                for future in executor.wait(list(inflight)):
+                    cell, claim = inflight.pop(future)
+                    try:
+                        record = executor.result(future)
+                    except KeyboardInterrupt:
+                        raise
+                    except BaseException as exc:  # noqa: BLE001 - a worker died: this cell failed, the grid goes on
+                        record = _worker_failure(cell, exc)
+                    try:
+                        run.write_cell(record)
+                    except CellWriteError as exc:
+                        claim.release()
+                        console.error(f"tactile-zoo: error: {exc.strerror}")
+                        pending.clear()
+                        deferred.clear()
+                        return str(exc.strerror)
+                    claim.release()
+                    finish(cell, record, by_us=True)
+                continue
+            # everything left is claimed by other processes: wait for them, then take over what they left undone
+            cell = deferred.popleft()
+            if not waited_note:
+                console.line(f"waiting for {len(deferred) + 1} cell(s) that another tactile-zoo bench on {run.path} "
+                             f"is running ({run.claim_holder(cell.cell_id)})", always=True)
+                waited_note = True
+            claim = run.claim(cell.cell_id, blocking=True)
+            assert claim is not None
+            record = fresh(cell)
+            if record is not None:
+                claim.release()
+                finish(cell, record, by_us=False)
+            else:  # its holder stopped without finishing it
+                inflight[executor.submit(_task(cell, config, executor))] = (cell, claim)
+    finally:
+        for _, claim in inflight.values():
+            claim.release()
+    return None
+
+
+def _worker_failure(cell: Cell, exc: BaseException) -> dict[str, Any]:
+    from .cell import RECORD_FORMAT
+
+    text = f"{type(exc).__name__}: {exc}".strip()
+    if "BrokenProcessPool" in type(exc).__name__ or "KilledWorker" in type(exc).__name__:
+        text = f"the worker process running this cell died (out of memory or killed): {text}"
+    return {"format": RECORD_FORMAT, "cell_id": cell.cell_id, "model": cell.model, "dataset": cell.dataset,
+            "fold": cell.fold, "seed": cell.seed, "config_hash": cell.config_hash, "protocol": cell.protocol,
+            "status": "failed", "error": text[:2000], "config": cell.config}

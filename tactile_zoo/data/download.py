@@ -1,0 +1,179 @@
+"""Fetching and unpacking raw dataset files without trusting them.
+
+* :func:`fetch` streams a URL into a temporary file next to its destination, hashes it on the way, and renames it
+  into place only when the sha256 matches; a mismatch deletes the temporary file and raises. A half-finished or
+  forged download therefore never sits where a loader would find it.
+* :func:`check_zip_member` refuses what a hostile archive uses to write outside its folder ("zip slip"): absolute
+  paths, ``..`` components, symbolic links and other special files, plus encrypted members and members larger than
+  a cap. :func:`safe_extract` checks every member before writing anything, then writes each one with an explicit
+  path that is verified to stay inside the destination.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import stat
+import tempfile
+import urllib.error
+import urllib.parse
+import urllib.request
+import zipfile
+from pathlib import Path, PurePosixPath
+from typing import BinaryIO
+
+from ..errors import DatasetError
+
+__all__ = ["fetch", "verify_sha256", "check_zip_member", "check_zip", "open_zip", "safe_extract", "MAX_DOWNLOAD_BYTES",
+           "MAX_MEMBER_BYTES"]
+
+MAX_DOWNLOAD_BYTES = 2 << 30  # 2 GiB: no release this zoo knows is larger; a server streaming forever is refused
+MAX_MEMBER_BYTES = 512 << 20  # one archive member, uncompressed (the Ev releases' members are ~100 kB)
+
+
+def verify_sha256(path: str | os.PathLike, expected: str) -> str:
+    """Return the file's sha256; raise a DatasetError when it is not ``expected``."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(1 << 20):
+            digest.update(block)
+    got = digest.hexdigest()
+    if got != expected.lower():
+        raise DatasetError(f"{path}: sha256 {got} does not match the expected {expected}")
+    return got
+
+
+def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60.0,
+          max_bytes: int = MAX_DOWNLOAD_BYTES, hint: str = "") -> Path:
+    """Download ``url`` to ``dest`` if and only if its sha256 is ``sha256``.
+
+    The bytes go to a temporary file in ``dest``'s folder and are renamed into place after the checksum matched, so
+    ``dest`` is either absent or complete and verified. Network failures, a wrong checksum and oversized responses
+    raise a DatasetError that ends with ``hint`` (what to place where by hand).
+
+    Returns:
+        ``dest`` as a Path.
+    """
+    dest = Path(dest)
+    suffix = f" {hint}" if hint else ""
+    scheme = urllib.parse.urlsplit(url).scheme.lower()
+    if scheme not in ("http", "https"):
+        raise DatasetError(f"refusing to download {url!r}: only http(s) URLs are fetched.{suffix}")
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".part")
+    except OSError as exc:
+        raise DatasetError(f"cannot write the download into {dest.parent} ({exc.strerror or exc}).{suffix}") from exc
+    tmp = Path(tmp_name)
+    try:
+        digest, size = hashlib.sha256(), 0
+        with os.fdopen(fd, "wb") as out, urllib.request.urlopen(url, timeout=timeout) as response:
+            while block := response.read(1 << 20):
+                size += len(block)
+                if size > max_bytes:
+                    raise DatasetError(f"download of {url} exceeds {max_bytes} bytes; refused and deleted.{suffix}")
+                digest.update(block)
+                out.write(block)
+        got = digest.hexdigest()
+        if got != sha256.lower():
+            raise DatasetError(f"download of {url} has sha256 {got}, expected {sha256}; the file was refused and "
+                               f"deleted.{suffix}")
+        os.replace(tmp, dest)
+    except urllib.error.HTTPError as exc:
+        raise DatasetError(f"could not download {url}: HTTP {exc.code} {exc.reason}.{suffix}") from exc
+    except urllib.error.URLError as exc:
+        raise DatasetError(f"could not download {url} (offline? {exc.reason}).{suffix}") from exc
+    except (OSError, TimeoutError) as exc:
+        raise DatasetError(f"could not download {url} ({type(exc).__name__}: {exc}).{suffix}") from exc
+    finally:
+        tmp.unlink(missing_ok=True)
+    return dest
+
+
+_DRIVE = re.compile(r"^[A-Za-z]:")
+
+
+def check_zip_member(info: zipfile.ZipInfo, archive: str | os.PathLike = "<zip>",
+                     max_bytes: int = MAX_MEMBER_BYTES) -> PurePosixPath:
+    """The member's safe relative path, or a DatasetError saying why the member (and so the archive) is refused."""
+    name = info.filename
+    where = f"{archive}: member {name!r}"
+    if "\x00" in name:
+        raise DatasetError(f"{where}: NUL byte in the name; archive refused")
+    if name.startswith(("/", "\\")) or _DRIVE.match(name):
+        raise DatasetError(f"{where}: absolute path; archive refused (zip slip)")
+    parts = re.split(r"[/\\]+", name)
+    if ".." in parts:
+        raise DatasetError(f"{where}: '..' path component; archive refused (zip slip)")
+    mode = info.external_attr >> 16
+    kind = stat.S_IFMT(mode)
+    if stat.S_ISLNK(mode):
+        raise DatasetError(f"{where}: symbolic link; archive refused (zip slip)")
+    if kind not in (0, stat.S_IFREG, stat.S_IFDIR):
+        raise DatasetError(f"{where}: special file (mode {oct(mode)}); archive refused")
+    if info.flag_bits & 0x1:
+        raise DatasetError(f"{where}: encrypted member; archive refused")
+    if info.file_size > max_bytes:
+        raise DatasetError(f"{where}: {info.file_size} bytes uncompressed exceeds the {max_bytes}-byte cap; "
+                           f"archive refused")
+    clean = [p for p in parts if p not in ("", ".")]
+    return PurePosixPath(*clean) if clean else PurePosixPath(".")
+
+
+def check_zip(zf: zipfile.ZipFile, archive: str | os.PathLike = "<zip>") -> list[tuple[zipfile.ZipInfo, PurePosixPath]]:
+    """Check every member (see :func:`check_zip_member`); returns ``(info, safe relative path)`` pairs."""
+    return [(info, check_zip_member(info, archive)) for info in zf.infolist()]
+
+
+def open_zip(path: str | os.PathLike) -> zipfile.ZipFile:
+    try:
+        return zipfile.ZipFile(path)
+    except FileNotFoundError as exc:
+        raise DatasetError(f"{path}: file not found") from exc
+    except (zipfile.BadZipFile, OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: not a readable zip archive ({exc})") from exc
+
+
+def safe_extract(archive: str | os.PathLike, dest: str | os.PathLike) -> list[Path]:
+    """Extract ``archive`` into ``dest`` after checking every member; returns the files written.
+
+    Nothing is written when any member is refused. Each file is written through an explicit path that must resolve
+    inside ``dest``, and no more bytes than the member declares are copied.
+    """
+    dest = Path(dest)
+    with open_zip(archive) as zf:
+        members = check_zip(zf, archive)
+        dest.mkdir(parents=True, exist_ok=True)
+        top = dest.resolve()
+        written: list[Path] = []
+        for info, rel in members:
+            target = (dest / rel).resolve()
+            if target != top and top not in target.parents:
+                raise DatasetError(f"{archive}: member {info.filename!r} would land outside {dest}; refused")
+            if info.is_dir():
+                target.mkdir(parents=True, exist_ok=True)
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                with zf.open(info) as src, open(target, "wb") as out:
+                    copied = _copy_capped(src, out, info.file_size)
+            except (zipfile.BadZipFile, OSError, EOFError) as exc:
+                raise DatasetError(f"{archive}: member {info.filename!r} cannot be extracted ({exc})") from exc
+            if copied != info.file_size:
+                raise DatasetError(f"{archive}: member {info.filename!r} holds {copied} bytes, its header says "
+                                   f"{info.file_size}")
+            written.append(target)
+    return written
+
+
+def _copy_capped(src: BinaryIO, out: BinaryIO, declared: int) -> int:
+    """Copy at most ``declared + 1`` bytes (one more reveals a member larger than its header says)."""
+    copied = 0
+    while block := src.read(min(1 << 20, declared - copied + 1)):
+        copied += len(block)
+        if copied > declared:
+            return copied
+        out.write(block)
+    return copied
+

@@ -1,0 +1,314 @@
+"""``fit``: train one model on one dataset split with its recipe, select the epoch on validation, evaluate on test.
+
+The loop batches straight from the split's tensors (a seeded ``torch.randperm`` per epoch indexes ``x``, ``g``,
+``y``), which is many times faster than a per-sample ``DataLoader`` for these small, fixed-size sequences.
+
+Protocol:
+
+1. seed Python/NumPy/torch with ``seed`` (so a model built here, its dropout and the shuffling repeat exactly on CPU);
+2. train up to ``max_epochs``; after every epoch evaluate on the validation split and keep the best state (see
+   :mod:`tactile_zoo.engine.recipe` for what "best" means); stop after ``patience`` epochs without improvement;
+3. restore the best state (test data is never looked at before this point);
+4. with ``refit=True``, restart from the initial weights and train on train + val for the selected number of epochs
+   (same seed, same schedule), and use that model;
+5. evaluate on the test split when one is given.
+
+Without a validation split there is no selection: every epoch runs and the last state is kept.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from ..errors import ConfigError, TactileZooError
+from .evaluate import EvalResult, evaluate, predict_scores
+from .recipe import Recipe, lr_factor, resolve_recipe
+from .runtime import count_parameters, resolve_device, seed_everything
+from .tensors import TensorSplit, as_split, concat
+
+__all__ = ["fit", "FitResult", "TrainingError", "build_optimizer", "compute_loss"]
+
+
+class TrainingError(TactileZooError):
+    """Training cannot go on: a non-finite loss, or a model whose output has the wrong shape."""
+
+
+@dataclass
+class FitResult:
+    """What :func:`fit` returns.
+
+    ``metrics``/``predictions``/``probabilities`` are the test split's when a test split was given, else the
+    validation split's (of the selected model). ``curve`` has one row per epoch: ``epoch``, ``train_loss``,
+    ``val_loss``, ``val_accuracy``, ``lr``, ``seconds``; ``refit_curve`` the same for the refit run.
+    """
+
+    model: torch.nn.Module
+    recipe: Recipe
+    curve: list[dict[str, Any]]
+    best_epoch: int
+    epochs_run: int
+    train_seconds: float
+    params: int
+    device: str
+    seed: int
+    val: EvalResult | None = None
+    test: EvalResult | None = None
+    refit: bool = False
+    refit_curve: list[dict[str, Any]] = field(default_factory=list)
+    n_train: int = 0
+    n_val: int = 0
+
+    @property
+    def _main(self) -> EvalResult | None:
+        return self.test if self.test is not None else self.val
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        return dict(self._main.metrics) if self._main is not None else {}
+
+    @property
+    def predictions(self) -> list[int]:
+        return list(self._main.predictions) if self._main is not None else []
+
+    @property
+    def probabilities(self) -> list[list[float]]:
+        return list(self._main.probabilities) if self._main is not None else []
+
+
+def build_optimizer(model: torch.nn.Module, recipe: Recipe) -> torch.optim.Optimizer:
+    params = [p for p in model.parameters() if p.requires_grad]
+    if not params:
+        raise ConfigError(f"{type(model).__name__} has no trainable parameters")
+    if recipe.optimizer == "sgd":
+        return torch.optim.SGD(params, lr=recipe.lr, momentum=recipe.momentum, nesterov=recipe.nesterov,
+                               weight_decay=recipe.weight_decay)
+    cls = torch.optim.AdamW if recipe.optimizer == "adamw" else torch.optim.Adam
+    return cls(params, lr=recipe.lr, weight_decay=recipe.weight_decay, amsgrad=recipe.amsgrad)
+
+
+def compute_loss(scores: torch.Tensor, y: torch.Tensor, recipe: Recipe) -> torch.Tensor:
+    """Cross-entropy on logits, or MSE between output rates and ``rate_targets`` (true class, others)."""
+    if recipe.loss == "ce":
+        return F.cross_entropy(scores, y, label_smoothing=recipe.label_smoothing)
+    on, off = recipe.rate_targets
+    target = torch.full_like(scores, off).scatter_(1, y[:, None], on)  # (B, K)
+    return F.mse_loss(scores, target)
+
+
+def _batches(order: torch.Tensor, batch_size: int) -> Iterator[torch.Tensor]:
+    """Consecutive slices of ``order``; a lone last sample joins the previous batch (BatchNorm needs two)."""
+    n = order.shape[0]
+    starts = list(range(0, n, batch_size))
+    if len(starts) > 1 and n - starts[-1] == 1:
+        starts.pop()
+    for i, start in enumerate(starts):
+        yield order[start:starts[i + 1] if i + 1 < len(starts) else n]
+
+
+class _Trainer:
+    """One training run: optimiser, schedule and shuffling state for a model on one split."""
+
+    def __init__(self, model: torch.nn.Module, recipe: Recipe, train: TensorSplit, seed: int, device: torch.device
+                 ) -> None:
+        self.model, self.recipe, self.device = model, recipe, device
+        self.x, self.y = train.x.to(device), train.y.to(device)  # whole split on the device once
+        self.g = train.g.to(device) if train.g.shape[-1] > 0 else None
+        self.num_classes = train.spec.num_classes
+        self.optimizer = build_optimizer(model, recipe)
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def epoch(self, epoch: int) -> float:
+        """Train one (0-based) epoch; returns the mean training loss."""
+        lr = self.recipe.lr * lr_factor(self.recipe, epoch)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        self.model.train()
+        order = torch.randperm(self.x.shape[0], generator=self.generator).to(self.device)
+        total = torch.zeros((), device=self.device)
+        for idx in _batches(order, self.recipe.batch_size):
+            xb, yb = self.x[idx], self.y[idx]  # (B, T, N, C), (B,)
+            gb = self.g[idx] if self.g is not None else None  # (B, T, G)
+            scores = self.model(xb, gb)
+            if scores.shape != (idx.shape[0], self.num_classes):
+                raise TrainingError(f"{type(self.model).__name__}.forward returned shape {tuple(scores.shape)}; "
+                                    f"expected [batch={idx.shape[0]}, num_classes={self.num_classes}]")
+            loss = compute_loss(scores, yb, self.recipe)
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if self.recipe.grad_clip is not None:
+                torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.recipe.grad_clip)
+            self.optimizer.step()
+            total += loss.detach() * idx.shape[0]
+        mean = float(total) / self.x.shape[0]  # one host sync per epoch, not per batch
+        if mean != mean or mean in (float("inf"), float("-inf")):
+            raise TrainingError(f"the training loss became {mean} in epoch {epoch + 1} (lr {lr:g}); the model "
+                                f"diverged")
+        return mean
+
+
+def _val_step(model: torch.nn.Module, val: TensorSplit, recipe: Recipe, device: torch.device
+              ) -> tuple[float, float]:
+    scores = predict_scores(model, val.x, val.g, recipe.eval_batch_size, device)
+    loss = float(compute_loss(scores, val.y, recipe))
+    acc = float((scores.argmax(-1) == val.y).float().mean())
+    return loss, acc
+
+
+def _better(recipe: Recipe, loss: float, acc: float, best: tuple[float, float] | None) -> bool:
+    if loss != loss:  # a NaN validation loss never improves anything
+        return False
+    if best is None:
+        return True
+    key = (acc, -loss) if recipe.monitor == "val_accuracy" else (-loss, acc)
+    best_key = (best[1], -best[0]) if recipe.monitor == "val_accuracy" else (-best[0], best[1])
+    return key > best_key
+
+
+def _clone_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+
+def _resolve_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: int
+                   ) -> tuple[torch.nn.Module, dict[str, Any] | None]:
+    """A module (built from its registry name after seeding) and its registered default recipe."""
+    if isinstance(model, str):
+        from ..registry import create_model, get_model_entry
+
+        meta_recipe = get_model_entry(model).meta.get("recipe")
+        seed_everything(seed)
+        return create_model(model, spec, **(hparams or {})), meta_recipe
+    if not isinstance(model, torch.nn.Module):
+        raise ConfigError(f"fit() needs a torch.nn.Module or a registered model name, got {type(model).__name__}")
+    if hparams:
+        raise ConfigError("hparams only apply when fit() builds the model from its name")
+    meta = getattr(model, "zoo_meta", None) or {}
+    return model, meta.get("recipe")
+
+
+def _load_named(dataset: str, root: Any, fold: int, kwargs: dict[str, Any] | None) -> dict[str, Any]:
+    from ..registry import load_dataset
+
+    return {split: load_dataset(dataset, root=root, split=split, fold=fold, **(kwargs or {}))
+            for split in ("train", "val", "test")}
+
+
+def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | None = None, seed: int = 0,
+        val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None, *,
+        test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None, root: Any = None,
+        fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = False,
+        callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
+    """Train ``model`` on ``dataset`` (the train split) and select the epoch on ``val_dataset``.
+
+    Args:
+        model: a ``torch.nn.Module`` (trained in place), or a registered model name (built for the dataset's spec
+            with ``hparams``, after seeding, so the initial weights repeat too).
+        dataset: the training split, or a registered dataset name (then its ``train``/``val``/``test`` splits of
+            ``fold`` are loaded from ``root`` with ``dataset_kwargs``, unless given explicitly).
+        recipe: a :class:`Recipe` (used as is), a dict of overrides on top of the model's registered recipe, or
+            ``None`` for the registered recipe (the harness default for a model without one).
+        seed: seeds model initialisation (name given), dropout and the batch order.
+        val_dataset: the split that selects the epoch and drives early stopping; never the test split.
+        device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``...
+        epochs: replaces the recipe's ``max_epochs``.
+        test_dataset: evaluated once, with the selected (or refit) model.
+        refit: retrain on train + val for the selected epoch count (needs ``val_dataset``).
+        progress: a tqdm bar over epochs (hidden when stderr is not a terminal).
+        callback: called with each epoch's curve row.
+    """
+    if isinstance(dataset, str):
+        named = _load_named(dataset, root, fold, dataset_kwargs)
+        dataset, val_dataset = named["train"], val_dataset if val_dataset is not None else named["val"]
+        test_dataset = test_dataset if test_dataset is not None else named["test"]
+    train = as_split(dataset)
+    val = as_split(val_dataset) if val_dataset is not None else None
+    if refit and val is None:
+        raise ConfigError("refit=True needs a validation split: it retrains for the epoch count chosen on it")
+    if len(train) == 0:
+        raise ConfigError("the training split is empty")
+    dev = resolve_device(device)
+    module, base_recipe = _resolve_model(model, train.spec, hparams, seed)
+    if isinstance(recipe, Recipe):
+        rec = resolve_recipe(recipe, None, epochs)
+    else:
+        rec = resolve_recipe(base_recipe, recipe, epochs)
+    seed_everything(seed)  # dropout and any other randomness during training
+    module.to(dev)
+    module.zoo_loss = rec.loss  # so evaluate(model, ...) later knows how scores become probabilities
+    initial = _clone_state(module) if refit else None
+
+    start = time.perf_counter()
+    trainer = _Trainer(module, rec, train, seed, dev)
+    curve: list[dict[str, Any]] = []
+    best: tuple[float, float] | None = None
+    best_state: dict[str, torch.Tensor] | None = None
+    best_epoch, waited = 0, 0
+    bar = _epoch_bar(progress, rec.max_epochs, train.spec.name)
+    try:
+        for epoch in range(rec.max_epochs):
+            t0 = time.perf_counter()
+            train_loss = trainer.epoch(epoch)
+            row: dict[str, Any] = {"epoch": epoch + 1, "train_loss": train_loss, "val_loss": None,
+                                   "val_accuracy": None, "lr": trainer.optimizer.param_groups[0]["lr"]}
+            if val is not None:
+                val_loss, val_acc = _val_step(module, val, rec, dev)
+                row.update(val_loss=val_loss, val_accuracy=val_acc)
+                if _better(rec, val_loss, val_acc, best):
+                    best, best_state, best_epoch, waited = (val_loss, val_acc), _clone_state(module), epoch + 1, 0
+                else:
+                    waited += 1
+            else:
+                best_epoch = epoch + 1
+            row["seconds"] = time.perf_counter() - t0
+            curve.append(row)
+            if callback is not None:
+                callback(row)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{train_loss:.3f}", val_acc=f"{row['val_accuracy'] or 0:.3f}")
+            if rec.patience is not None and val is not None and waited >= rec.patience:
+                break
+    finally:
+        if bar is not None:
+            bar.close()
+    if best_state is not None:
+        module.load_state_dict(best_state)
+    elif val is not None:
+        raise TrainingError("no epoch produced a finite validation loss")
+    val_result = evaluate(module, val, loss=rec.loss, batch_size=rec.eval_batch_size) if val is not None else None
+
+    refit_curve: list[dict[str, Any]] = []
+    if refit:
+        assert initial is not None and val is not None
+        module.load_state_dict(initial)
+        seed_everything(seed)
+        both = concat(train, val)
+        trainer = _Trainer(module, rec, both, seed, dev)
+        for epoch in range(best_epoch):
+            t0 = time.perf_counter()
+            loss = trainer.epoch(epoch)
+            refit_curve.append({"epoch": epoch + 1, "train_loss": loss, "lr": trainer.optimizer.param_groups[0]["lr"],
+                                "seconds": time.perf_counter() - t0})
+    train_seconds = time.perf_counter() - start
+    test_result = None
+    if test_dataset is not None:
+        test_result = evaluate(module, test_dataset, loss=rec.loss, batch_size=rec.eval_batch_size)
+    return FitResult(model=module, recipe=rec, curve=curve, best_epoch=best_epoch, epochs_run=len(curve),
+                     train_seconds=train_seconds, params=count_parameters(module), device=str(dev), seed=seed,
+                     val=val_result, test=test_result, refit=refit, refit_curve=refit_curve,
+                     n_train=len(train), n_val=len(val) if val is not None else 0)
+
+
+def _epoch_bar(progress: bool, total: int, name: str) -> Any:
+    if not progress:
+        return None
+    import sys
+
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=f"epochs {name}", leave=False, unit="ep", disable=not sys.stderr.isatty())

@@ -1,0 +1,90 @@
+"""ConvLSTM tactile classifier (Zapata-Impata, Gil & Torres, "Learning Spatio Temporal Tactile Features with a
+ConvLSTM for the Direction Of Slip Detection", Sensors 19(3):523, 2019; code: github.com/yayaneath/BioTacSP-DoS).
+
+Each frame becomes a sensor image (:class:`~tactile_zoo.nn.grid.SensorGrid`: 12x11 with two fill passes for the
+BioTac SP, as in the source; the sensor's own grid elsewhere, 9x13 for NeuTouch), a stack of ConvLSTM layers reads the
+image sequence, and the last hidden state of the top layer is averaged over the grid and classified::
+
+    (B, T, N, C) -> grid (B, T, C, H, W) -> ConvLSTM 16 ch 3x3 -> ConvLSTM 16 ch 3x3 -> h_T (B, 16, H, W)
+    -> global average pool (B, 16) [++ g_T (B, G)] -> FC 16 + ReLU -> FC K
+
+The model is causal: the scores after frame t depend on frames 0..t only, and :meth:`ConvLSTMNet.step` streams them.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from ..data.spec import DatasetSpec
+from ..nn.convlstm import ConvLSTM, ConvLSTMConfig
+from ..nn.grid import SensorGrid
+from ..registry import register_model
+from ._inputs import check_inputs
+
+__all__ = ["ConvLSTMNet"]
+
+State = list[tuple[Tensor, Tensor]]
+
+
+@register_model(
+    "convlstm",
+    paper="Learning Spatio Temporal Tactile Features with a ConvLSTM for the Direction Of Slip Detection",
+    citation="B. S. Zapata-Impata, P. Gil, F. Torres. Sensors 19(3):523, 2019. doi:10.3390/s19030523",
+    year=2019,
+    url="https://github.com/yayaneath/BioTacSP-DoS",
+    description="Frames as sensor images, two ConvLSTM layers (16 channels, 3x3, no peepholes), global average "
+                "pooling of the last hidden state, FC 16 + ReLU, FC classes.",
+    tags=["recurrent", "convolutional"],
+    inputs=["grid", "globals"],
+    # the source gives Adam 1e-3, batch 32, cross-entropy; epochs and patience are ours (docs/models.md)
+    recipe={"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
+            "max_epochs": 60, "patience": 15, "batch_size": 32, "grad_clip": 1.0},
+    causal=True,
+    streaming=True,
+)
+class ConvLSTMNet(nn.Module):
+    """ConvLSTM classifier of Zapata-Impata et al. (2019); model card in docs/models.md.
+
+    Args:
+        spec: the dataset's :class:`DatasetSpec`.
+        hidden_channels: ConvLSTM state channels (source: 16).
+        num_layers: stacked ConvLSTM layers (source: 2).
+        kernel_size: ConvLSTM kernel side (source: 3).
+        fc_units: width of the hidden fully connected layer (source: 16).
+        fill_passes: empty-cell fill passes of the sensor image; ``None`` takes the sensor's (BioTac SP: 2).
+
+    Shapes:
+        ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming:
+        ``x_t (B, N, C)``, ``g_t (B, G)`` or None -> ``(B, num_classes)``.
+    """
+
+    def __init__(self, spec: DatasetSpec, hidden_channels: int = 16, num_layers: int = 2, kernel_size: int = 3,
+                 fc_units: int = 16, fill_passes: int | None = None) -> None:
+        super().__init__()
+        self.spec = spec
+        self.grid = SensorGrid(spec.sensor, fill_passes)
+        self.convlstm = ConvLSTM(ConvLSTMConfig(spec.num_channels, hidden_channels, num_layers, kernel_size))
+        self.fc = nn.Linear(hidden_channels + spec.num_globals, fc_units)
+        self.head = nn.Linear(fc_units, spec.num_classes)
+
+    def _classify(self, h: Tensor, g_t: Tensor | None) -> Tensor:
+        feats = h.mean(dim=(-2, -1))  # (B, hidden): global average pooling over the grid
+        if g_t is not None:  # globals join after pooling, at the step being classified
+            feats = torch.cat([feats, g_t], dim=-1)  # (B, hidden + G)
+        return self.head(torch.relu(self.fc(feats)))
+
+    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+        g = check_inputs("convlstm", self.spec, x, g)
+        frames = self.grid(x)  # (B, T, C, H, W)
+        _, states = self.convlstm(frames)
+        return self._classify(states[-1][0], None if g is None else g[:, -1])
+
+    def init_state(self, batch_size: int) -> State:
+        return self.convlstm.init_state(batch_size, self.grid.grid_shape)
+
+    def step(self, x_t: Tensor, g_t: Tensor | None, state: State) -> tuple[Tensor, State]:
+        g_t = check_inputs("convlstm", self.spec, x_t, g_t, per_step=True)
+        h, state = self.convlstm.step(self.grid(x_t), state)  # (B, hidden, H, W)
+        return self._classify(h, g_t), state
+

@@ -1,0 +1,217 @@
+"""Tacformer: the spatial graph attention module of X-Tacformer, on its own.
+
+Also home of the pieces X-Tacformer shares: :class:`SpatialGraphAttention`, :func:`bin_frames` and the streaming
+machinery of :class:`BinnedStreamer`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from ..data.spec import DatasetSpec
+from ..errors import ConfigError
+from ..nn.attention import LIFConfig, SpikingSelfAttention
+from ..nn.graph import FrameGraphConv
+from ..registry import register_model
+from ._inputs import check_inputs
+
+__all__ = ["Tacformer", "SpatialGraphAttention", "SpikingMLP", "BinnedStreamer", "bin_frames"]
+
+PAPER = "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition"
+
+
+def bin_frames(x: Tensor, bin_size: int, reduce: str = "sum") -> Tensor:
+    """``(B, T, ...) -> (B, ceil(T / bin_size), ...)``: frames summed (or averaged) over consecutive bins.
+
+    A last, partial bin holds the frames there are: a sum over fewer frames, or their mean. That is what makes a
+    prefix of any length a valid input, and what streaming reproduces frame by frame.
+    """
+    if bin_size == 1:
+        return x
+    b, t = x.shape[:2]
+    nb = -(-t // bin_size)
+    pad = nb * bin_size - t
+    if pad:
+        x = torch.cat([x, x.new_zeros(b, pad, *x.shape[2:])], dim=1)
+    out = x.view(b, nb, bin_size, *x.shape[2:]).sum(2)  # (B, T', ...)
+    if reduce == "mean":
+        counts = torch.full((nb,), float(bin_size), dtype=x.dtype, device=x.device)
+        counts[-1] = bin_size - pad
+        out = out / counts.view(1, nb, *([1] * (x.dim() - 2)))
+    return out
+
+
+class SpikingMLP(nn.Module):
+    """The feed-forward half of a spiking transformer block: LN(Linear(LIF(LN(Linear(x))))), same pattern as the
+    MSA-SNN chains. ``(T, *, D) -> (T, *, D)``; the LIF membrane is the state."""
+
+    def __init__(self, dim: int, hidden: int, lif: LIFConfig) -> None:
+        super().__init__()
+        self.fc1, self.norm1, self.lif = nn.Linear(dim, hidden), nn.LayerNorm(hidden), lif.build()
+        self.fc2, self.norm2 = nn.Linear(hidden, dim), nn.LayerNorm(dim)
+
+    def run(self, x: Tensor, mem: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        s, mem = self.lif(self.norm1(self.fc1(x)), mem, return_mem=True)
+        return self.norm2(self.fc2(s)), mem
+
+
+class SpatialGraphAttention(nn.Module):
+    """Per-frame graph convolution, spiking self-attention over the taxels of each frame, pooling over taxels.
+
+    ``x (T, B, N, C)`` -> TAGConv (K hops) -> ``(T, B, N, D)`` taxel tokens (+ a learned per-taxel embedding) ->
+    ``depth`` residual blocks ``z = z + MSA(z)`` [``z = z + MLP(z)``] -> mean over taxels -> LayerNorm ->
+    ``(T, B, D)`` frame features. Attention never crosses frames, so only LIF membranes carry over time.
+    """
+
+    def __init__(self, in_channels: int, dim: int, edge_index: Tensor, num_nodes: int, *, heads: int, depth: int,
+                 mlp_ratio: float, lif: LIFConfig, hops: int, taxel_embedding: bool, attn_dropout: float,
+                 graph_backend: str, pool: str = "mean") -> None:
+        super().__init__()
+        if pool not in ("mean", "flatten"):
+            raise ConfigError(f"pool must be 'mean' or 'flatten', got {pool!r}")
+        self.gc = FrameGraphConv(in_channels, dim, edge_index, num_nodes, kind="tag", K=hops, backend=graph_backend)
+        self.embed = nn.Parameter(torch.randn(num_nodes, dim) * 0.02) if taxel_embedding else None
+        self.attn = nn.ModuleList([SpikingSelfAttention(dim, heads, lif, attn_dropout) for _ in range(depth)])
+        hidden = round(dim * mlp_ratio)
+        self.mlp = nn.ModuleList([SpikingMLP(dim, hidden, lif) for _ in range(depth)]) if hidden > 0 else None
+        # flatten keeps which taxel is which: (N * D) -> D, one matmul over all frames
+        self.pool = nn.Linear(num_nodes * dim, dim) if pool == "flatten" else None
+        self.norm = nn.LayerNorm(dim)
+
+    def run(self, x: Tensor, state: list[Any] | None = None) -> tuple[Tensor, list[Any]]:
+        state = list(state) if state is not None else [None] * (2 * len(self.attn))
+        z = self.gc(x)  # (T, B, N, D)
+        if self.embed is not None:
+            z = z + self.embed
+        new_state: list[Any] = []
+        for i, attn in enumerate(self.attn):
+            a, st = attn.run(z, state[2 * i])
+            z = z + a
+            new_state.append(st)
+            if self.mlp is not None:
+                m, st = self.mlp[i].run(z, state[2 * i + 1])
+                z = z + m
+            else:
+                st = None
+            new_state.append(st)
+        pooled = z.mean(dim=2) if self.pool is None else self.pool(z.flatten(2))  # (T, B, D)
+        return self.norm(pooled), new_state
+
+
+@dataclass
+class StreamState:
+    """Streaming state: the model's state after the last complete bin, and the frames of the bin being filled."""
+
+    core: Any
+    pending_x: Tensor  # (B, N, C) sum of the frames of the open bin
+    pending_g: Tensor  # (B, G) sum of their globals
+    pending: int  # frames in the open bin
+
+
+class BinnedStreamer(nn.Module):
+    """Streaming for a model whose per-bin computation is causal: ``_advance(xb (T', B, N, C), gb (T', B, G),
+    core_state) -> (scores, core_state)`` must fold bins into a state and score everything folded so far.
+
+    :meth:`forward` folds all bins from rest. :meth:`step` feeds one frame: it re-scores the open (partial) bin from
+    the state after the last complete bin, and commits the new state only when the bin is full, so the scores at
+    every frame equal ``forward`` on that prefix (whose last bin is partial in the same way).
+    """
+
+    name: str
+    spec: DatasetSpec
+    bin_size: int
+
+    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+        raise NotImplementedError
+
+    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+        g = check_inputs(self.name, self.spec, x, g)
+        xb = bin_frames(x, self.bin_size, "sum").transpose(0, 1)  # (T', B, N, C), time-major
+        gb = None if g is None else bin_frames(g, self.bin_size, "mean").transpose(0, 1)  # (T', B, G)
+        return self._advance(xb, gb, None)[0]
+
+    def init_state(self, batch_size: int) -> StreamState:
+        p = next(self.parameters())
+        return StreamState(None, p.new_zeros(batch_size, self.spec.num_nodes, self.spec.num_channels),
+                           p.new_zeros(batch_size, self.spec.num_globals), 0)
+
+    def step(self, x_t: Tensor, g_t: Tensor | None, state: StreamState) -> tuple[Tensor, StreamState]:
+        g_t = check_inputs(self.name, self.spec, x_t, g_t, per_step=True)
+        px = state.pending_x + x_t
+        pg = state.pending_g if g_t is None else state.pending_g + g_t
+        n = state.pending + 1
+        scores, core = self._advance(px[None], None if g_t is None else (pg / n)[None], state.core)
+        if n == self.bin_size:  # the bin is complete: commit it and open the next
+            return scores, StreamState(core, torch.zeros_like(px), torch.zeros_like(pg), 0)
+        return scores, StreamState(state.core, px, pg, n)
+
+
+@register_model(
+    "tacformer",
+    paper=PAPER,
+    year=2024,
+    description="Spatial graph attention of X-Tacformer: per-frame TAGConv, spiking multi-head self-attention over "
+                "the taxels of each frame, LIF over time, spike-rate read-out.",
+    tags=["spiking", "graph", "attention"],
+    inputs=["graph", "globals"],
+    recipe={"loss": "ce", "optimizer": "adamw", "lr": 2e-3, "weight_decay": 1e-2, "schedule": {"type": "cosine"},
+            "max_epochs": 60, "patience": 15, "batch_size": 16, "grad_clip": 1.0},
+    causal=True,
+    streaming=True,
+)
+class Tacformer(BinnedStreamer):
+    """Tacformer (draft model card; see docs/models.md).
+
+    Args:
+        spec: the dataset's :class:`DatasetSpec`.
+        dim: token width ``D``.
+        heads: attention heads.
+        depth: residual MSA(-MLP) blocks.
+        mlp_ratio: hidden width of the spiking MLP as a multiple of ``D``; 0 drops the MLP.
+        hops: TAGConv hops ``K``.
+        tau, v_th, surrogate, detach_reset: every LIF (:class:`LIFConfig`).
+        bin_size: input frames summed per model time step (1 = full time resolution).
+        taxel_embedding: add a learned vector per taxel to its token.
+        dropout: dropout on the read-out vector; ``attn_dropout`` on the attention weights.
+        graph: the sensor graph kind (``"default"``: the sensor's own, the MST for NeuTouch).
+        graph_backend, lif_backend: implementation choices of the shared operators.
+
+    Shapes:
+        ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``.
+    """
+
+    def __init__(self, spec: DatasetSpec, dim: int = 64, heads: int = 4, depth: int = 1, mlp_ratio: float = 0.0,
+                 hops: int = 3, tau: float = 2.0, v_th: float = 1.0, surrogate: str = "atan",
+                 detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, dropout: float = 0.1,
+                 attn_dropout: float = 0.0, pool: str = "mean", graph: str = "default",
+                 graph_backend: str = "dense", lif_backend: str = "fused") -> None:
+        super().__init__()
+        if bin_size < 1:
+            raise ConfigError(f"tacformer: bin_size must be >= 1, got {bin_size}")
+        self.name, self.spec, self.bin_size = "tacformer", spec, int(bin_size)
+        lif = LIFConfig(tau, v_th, surrogate, detach_reset, lif_backend)
+        self.spatial = SpatialGraphAttention(
+            spec.num_channels, dim, spec.sensor.edge_index(graph), spec.num_nodes, heads=heads, depth=depth,
+            mlp_ratio=mlp_ratio, lif=lif, hops=hops, taxel_embedding=taxel_embedding, attn_dropout=attn_dropout,
+            graph_backend=graph_backend, pool=pool)
+        self.glob = nn.Linear(spec.num_globals, dim) if spec.num_globals else None
+        width = dim * (2 if self.glob is not None else 1)
+        self.readout_lif = lif.build()
+        self.dropout = nn.Dropout(dropout)
+        self.head = nn.Linear(width, spec.num_classes)
+
+    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+        sp_state, mem, spike_sum, bins = core if core is not None else (None, None, 0.0, 0)
+        f, sp_state = self.spatial.run(xb, sp_state)  # (T', B, D)
+        if self.glob is not None:
+            f = torch.cat([f, self.glob(gb)], dim=-1)  # (T', B, 2D)
+        s, mem = self.readout_lif(f, mem, return_mem=True)  # (T', B, W) spikes
+        spike_sum = spike_sum + s.sum(0)
+        bins = bins + s.shape[0]
+        logits = self.head(self.dropout(spike_sum / bins))  # read-out: spike rate over the time steps so far
+        return logits, (sp_state, mem, spike_sum, bins)
+

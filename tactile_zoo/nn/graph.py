@@ -1,0 +1,197 @@
+"""Graph convolution over every frame of a sequence at once, on one static sensor graph.
+
+A tactile sequence ``x [B, T, N, F]`` is ``B * T`` graph signals on the same taxel graph. PyG's ``TAGConv``
+(Du et al., "Topology Adaptive Graph Convolutional Networks", 2017) and ``GCNConv`` (Kipf & Welling, ICLR 2017)
+accept node features with leading batch dimensions and a single ``edge_index`` (they aggregate along
+``node_dim=-2``), so one call covers all frames: no per-step ``Data``/``Batch`` objects. With ``A`` the normalised
+adjacency PyG builds (``gcn_norm``; ``TAGConv`` without self-loops, ``GCNConv`` with them by default)::
+
+    TAGConv:  X' = sum_{k=0..K} A^k X W_k + b
+    GCNConv:  X' = A X W + b
+
+The ``"dense"`` backend (default; faster for sensor-sized graphs, see benchmarks/) precomputes ``A^k`` as dense
+``N x N`` matrices from PyG's own ``gcn_norm`` output and applies them as matrix products. It holds the very same
+PyG module and reads its weights, so parameters and ``state_dict`` are interchangeable with ``backend="pyg"``, and it
+equals PyG's output and gradients to float rounding (tests/nn/test_graph.py). Hops are applied before the weights
+when ``F_in <= F_out`` (cheaper; PyG's ``TAGConv`` always does so) and after them otherwise (PyG's ``GCNConv`` order).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ..errors import ConfigError
+
+__all__ = ["FrameGraphConv", "dense_propagator"]
+
+_KINDS = ("tag", "gcn")
+_BACKENDS = ("dense", "pyg")
+
+
+def dense_propagator(conv: nn.Module, edge_index: Tensor, num_nodes: int, edge_weight: Tensor | None = None
+                     ) -> Tensor:
+    """The hop matrices ``[H, N, N]`` a PyG ``TAGConv`` (``H = K + 1``: ``A^0 .. A^K``) or ``GCNConv`` (``H = 1``)
+    applies, built in float64 from PyG's ``gcn_norm`` with the module's own settings.
+
+    Row ``i`` of ``A`` gathers node ``i``'s incoming messages: ``A[i, j]`` sums the weights of edges ``j -> i``
+    (for ``flow="source_to_target"``; transposed for ``"target_to_source"``).
+    """
+    from torch_geometric.nn import GCNConv, TAGConv
+    from torch_geometric.nn.conv.gcn_conv import gcn_norm
+
+    if getattr(conv, "aggr", "add") != "add":
+        raise ConfigError(f"the dense graph backend needs aggr='add', the layer has aggr={conv.aggr!r}; "
+                          f"use backend='pyg'")
+    weight = None if edge_weight is None else edge_weight.to(torch.float64)
+    if isinstance(conv, TAGConv):
+        hops, self_loops, improved = conv.K + 1, False, False
+    elif isinstance(conv, GCNConv):
+        hops, self_loops, improved = 1, conv.add_self_loops, conv.improved
+    else:
+        raise ConfigError(f"dense_propagator supports TAGConv and GCNConv, got {type(conv).__name__}")
+    if conv.normalize:
+        edge_index, weight = gcn_norm(edge_index, weight, num_nodes, improved, self_loops, conv.flow, torch.float64)
+    elif weight is None:
+        weight = torch.ones(edge_index.shape[1], dtype=torch.float64)
+    dst, src = (edge_index[1], edge_index[0]) if conv.flow == "source_to_target" else (edge_index[0], edge_index[1])
+    adj = torch.zeros(num_nodes, num_nodes, dtype=torch.float64)
+    adj.index_put_((dst, src), weight, accumulate=True)
+    if hops == 1 and isinstance(conv, GCNConv):
+        return adj.unsqueeze(0)
+    powers = [torch.eye(num_nodes, dtype=torch.float64)]
+    for _ in range(hops - 1):
+        powers.append(adj @ powers[-1])
+    return torch.stack(powers)
+
+
+class FrameGraphConv(nn.Module):
+    """``TAGConv`` or ``GCNConv`` applied to every frame of a batch of sequences in one call.
+
+    Args:
+        in_channels: input features per node ``F_in``.
+        out_channels: output features per node ``F_out``.
+        edge_index: the static graph, ``LongTensor [2, E]`` (e.g. ``spec.sensor.edge_index()``).
+        num_nodes: ``N``.
+        kind: ``"tag"`` (``TAGConv``, ``K`` hops) or ``"gcn"`` (``GCNConv``; ``K`` unused).
+        K: hops of ``TAGConv``.
+        bias: learn an additive bias.
+        backend: ``"dense"`` (precomputed hop matrices, default) or ``"pyg"`` (one PyG call on ``[M, N, F]``).
+        edge_weight: optional edge weights ``[E]``.
+        **pyg_kwargs: passed to the PyG layer (e.g. ``normalize``, ``improved``, ``add_self_loops``).
+
+    Shapes:
+        - input: ``(*, N, F_in)`` with any leading dimensions (e.g. ``B, T``).
+        - output: ``(*, N, F_out)``.
+    """
+
+    def __init__(self, in_channels: int, out_channels: int, edge_index: Tensor, num_nodes: int, kind: str = "tag",
+                 K: int = 3, bias: bool = True, backend: str = "dense", edge_weight: Tensor | None = None,
+                 **pyg_kwargs: Any) -> None:
+        super().__init__()
+        from torch_geometric.nn import GCNConv, TAGConv
+
+        if kind not in _KINDS:
+            raise ConfigError(f"FrameGraphConv kind must be one of {_KINDS}, got {kind!r}")
+        if backend not in _BACKENDS:
+            raise ConfigError(f"FrameGraphConv backend must be one of {_BACKENDS}, got {backend!r}")
+        for name, value in (("in_channels", in_channels), ("out_channels", out_channels), ("num_nodes", num_nodes)):
+            if not isinstance(value, int) or value < 1:
+                raise ConfigError(f"FrameGraphConv {name} must be a positive int, got {value!r}")
+        if kind == "tag" and (not isinstance(K, int) or K < 0):
+            raise ConfigError(f"FrameGraphConv K must be a non-negative int, got {K!r}")
+        edge_index = torch.as_tensor(edge_index)
+        if edge_index.dim() != 2 or edge_index.shape[0] != 2 or edge_index.is_floating_point():
+            raise ConfigError(f"edge_index must be an integer tensor [2, E], got {edge_index.dtype} "
+                              f"{tuple(edge_index.shape)}")
+        if edge_index.numel() and (edge_index.min() < 0 or edge_index.max() >= num_nodes):
+            raise ConfigError(f"edge_index refers to nodes outside 0..{num_nodes - 1}")
+        if edge_weight is not None and tuple(edge_weight.shape) != (edge_index.shape[1],):
+            raise ConfigError(f"edge_weight must have shape [{edge_index.shape[1]}], got {tuple(edge_weight.shape)}")
+        self.in_channels, self.out_channels, self.num_nodes = in_channels, out_channels, num_nodes
+        self.kind, self.backend = kind, backend
+        try:
+            if kind == "tag":
+                self.conv = TAGConv(in_channels, out_channels, K=K, bias=bias, **pyg_kwargs)
+            else:
+                self.conv = GCNConv(in_channels, out_channels, bias=bias, **pyg_kwargs)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"bad PyG arguments {pyg_kwargs} for FrameGraphConv(kind={kind!r}): {exc}") from None
+        edge_index = edge_index.long()
+        # graph buffers follow .to(device) but stay out of the state_dict, which matches a bare PyG module's
+        self.register_buffer("edge_index", edge_index, persistent=False)
+        self.register_buffer("edge_weight", None if edge_weight is None else edge_weight.float(), persistent=False)
+        propagator = dense_propagator(self.conv, edge_index, num_nodes, edge_weight) if backend == "dense" else None
+        self.register_buffer("propagator", None if propagator is None else propagator.float(), persistent=False)
+
+    def extra_repr(self) -> str:
+        return f"kind={self.kind}, num_nodes={self.num_nodes}, backend={self.backend}"
+
+    def _weights(self) -> list[Tensor]:
+        """The PyG module's weight matrices ``[F_out, F_in]``, one per hop."""
+        lins = self.conv.lins if self.kind == "tag" else [self.conv.lin]
+        return [lin.weight for lin in lins]
+
+    def forward(self, x: Tensor) -> Tensor:
+        if x.dim() < 2 or x.shape[-2] != self.num_nodes or x.shape[-1] != self.in_channels:
+            raise ConfigError(f"FrameGraphConv expects (..., {self.num_nodes}, {self.in_channels}) node features, "
+                              f"got {tuple(x.shape)}")
+        lead = x.shape[:-2]
+        frames = x.reshape(-1, self.num_nodes, self.in_channels)  # (M, N, F_in), M = prod(lead)
+        if self.backend == "pyg":
+            out = self.conv(frames, self.edge_index, self.edge_weight)
+        else:
+            out = self._dense(frames)
+        return out.reshape(*lead, self.num_nodes, self.out_channels)
+
+    def _dense(self, x: Tensor) -> Tensor:
+        prop = self.propagator.to(x.dtype)  # (H, N, N) hop matrices A^k
+        hops, n, m = prop.shape[0], self.num_nodes, x.shape[0]
+        f_in, f_out = self.in_channels, self.out_channels
+        weights = self._weights()
+        if f_in <= f_out:
+            # hops first, on the narrow input: Z[m, i, k, f] = sum_j A^k[i, j] x[m, j, f]
+            z = _hop(x, prop)  # (M, N, H, F_in)
+            return F.linear(z.reshape(m, n, hops * f_in), torch.cat(weights, dim=1), self.conv.bias)  # (M, N, F_out)
+        # weights first, on the narrow output: out[m, i, f] = sum_{k, j} A^k[i, j] (x W_k^T)[m, j, f]
+        y = F.linear(x, torch.cat(weights, dim=0)).view(m, n, hops, f_out)  # (M, N, H, F_out)
+        out = _hop_sum(y, prop)  # (M, N, F_out)
+        return out if self.conv.bias is None else out + self.conv.bias
+
+
+#: Largest Kronecker propagation matrix (entries) used; above it the hop runs as one product in a transposed layout.
+KRON_LIMIT = 1 << 20
+
+
+def _hop(x: Tensor, prop: Tensor) -> Tensor:
+    """``Z[m, i, k, f] = sum_j prop[k, i, j] x[m, j, f]`` for ``x (M, N, F)``, ``prop (H, N, N)``; returns
+    ``(M, N, H, F)``.
+
+    With few features it is one matrix product on the flat frames, ``x (M, N*F) @ kron (N*F, N*H*F)``: no copies and
+    no tiny batched products (the Kronecker factor wastes a factor F of multiplications, cheap while F is small).
+    Otherwise the nodes move to the front, ``(N, M*F)``, for one product with the stacked hop matrices.
+    """
+    m, n, f = x.shape
+    hops = prop.shape[0]
+    if (n * f) * (n * hops * f) <= KRON_LIMIT:
+        eye = torch.eye(f, dtype=x.dtype, device=x.device)
+        kron = torch.einsum("kij,fg->jfikg", prop, eye).reshape(n * f, n * hops * f)  # rows (j, f), cols (i, k, g)
+        return (x.reshape(m, n * f) @ kron).view(m, n, hops, f)
+    xt = x.transpose(0, 1).reshape(n, m * f)  # (N, M * F)
+    z = (prop.reshape(hops * n, n) @ xt).view(hops, n, m, f)  # (H, N, M, F)
+    return z.permute(2, 1, 0, 3)  # (M, N, H, F), a view; the caller's reshape copies
+
+
+def _hop_sum(y: Tensor, prop: Tensor) -> Tensor:
+    """``out[m, i, f] = sum_{k, j} prop[k, i, j] y[m, j, k, f]`` for ``y (M, N, H, F)``; returns ``(M, N, F)``."""
+    m, n, hops, f = y.shape
+    if (n * hops * f) * (n * f) <= KRON_LIMIT:
+        eye = torch.eye(f, dtype=y.dtype, device=y.device)
+        kron = torch.einsum("kij,fg->jkfig", prop, eye).reshape(n * hops * f, n * f)  # rows (j, k, f), cols (i, g)
+        return (y.reshape(m, n * hops * f) @ kron).view(m, n, f)
+    yt = y.permute(1, 2, 0, 3).reshape(n * hops, m * f)  # (N * H, M * F), rows (j, k)
+    cat = prop.permute(1, 2, 0).reshape(n, n * hops)  # (N, N * H): cat[i, (j, k)] = A^k[i, j]
+    return (cat @ yt).view(n, m, f).transpose(0, 1)  # (M, N, F)

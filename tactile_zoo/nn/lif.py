@@ -1,0 +1,353 @@
+"""Multi-step leaky integrate-and-fire (LIF) neurons: snnTorch's ``Leaky`` over a whole sequence at once.
+
+The neuron is ``snntorch.Leaky`` (snnTorch 1.0), reset to zero or by subtraction, stepped with the reset computed
+from the previous step's membrane potential. For ``t = 1..T`` with ``U[0] = mem`` (zeros by default)::
+
+    R[t] = Heaviside(U[t-1] - U_thr)                       # reset of the previous step's spike
+    U[t] = beta * (1 - R[t]) * U[t-1] + I[t]               # reset="zero"
+    U[t] = beta * U[t-1] + I[t] - R[t] * U_thr             # reset="subtract"
+    S[t] = Heaviside(U[t] - U_thr)                         # spike, 1 where U[t] > U_thr (strictly)
+
+Back-propagation replaces dS/dU by a surrogate. snnTorch detaches ``R`` from the graph (``detach_reset=True``);
+the TactileSGNet reference (Gu et al., IROS 2020) differentiates through it, ``mem * decay * (1 - spike)``
+(``detach_reset=False``). The paper's LIF (X-Tacformer, eqs. 2-4)::
+
+    H(t) = V(t-1) + (X(t) - (V(t-1) - V_reset)) / tau
+    S(t) = Heaviside(H(t) - V_th)
+    V(t) = H(t) (1 - S(t)) + V_reset S(t)
+
+is the same neuron in the shifted variable ``U = V - V_reset``: ``beta = 1 - 1/tau``, ``U_thr = V_th - V_reset``, fed
+``X / tau`` (:meth:`MultiStepLIF.from_tau`); the neuron starts at rest, ``V(0) = V_reset``.
+
+Two backends compute the same thing: ``"snntorch"`` steps ``snntorch.Leaky`` once per time step (the reference
+definition; autograd records every step) and ``"fused"`` (default) runs the whole time loop inside one
+``torch.autograd.Function`` with a hand-written backward through time. The fused forward does two kernels per step
+and keeps only the membrane potentials; its backward evaluates every surrogate derivative in one vectorised call and
+then runs one multiply-add per step. The two give bit-identical spikes (same rounding: ``(beta * U) * keep + I``)
+and the same gradients to float rounding (tests/nn/test_lif.py).
+
+Surrogates: ``"rect"`` (dS/dU = 1 where ``|U - U_thr| < width / 2``, TactileSGNet's rectangle; snnTorch has none,
+so the snnTorch backend wraps it in ``snntorch.surrogate.custom_surrogate``), ``"atan"`` (``snntorch.surrogate.atan``,
+alpha), ``"sigmoid"`` (``snntorch.surrogate.sigmoid``, slope; the fused backend evaluates the same derivative as
+``k s (1 - s)``, which stays finite where snnTorch's ``k e^{-kU} / (e^{-kU} + 1)^2`` overflows to NaN, U < -88/k),
+or any snnTorch surrogate callable (the fused backward then asks it for dS/dU once over all steps).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+
+import torch
+from torch import Tensor, nn
+
+from ..errors import ConfigError
+
+__all__ = ["MultiStepLIF", "Surrogate", "make_surrogate"]
+
+_RESETS = ("zero", "subtract")
+_BACKENDS = ("fused", "snntorch")
+
+
+class Surrogate:
+    """A surrogate gradient: the snnTorch spike function (``spike_fn``) and its derivative as a tensor (``grad``).
+
+    Args:
+        kind: ``"rect"``, ``"atan"``, ``"sigmoid"`` or ``"custom"`` (an snnTorch surrogate callable).
+        param: rectangle width, atan alpha or sigmoid slope.
+        fn: the callable for ``"custom"``.
+    """
+
+    def __init__(self, kind: str, param: float = 1.0, fn: Callable[[Tensor], Tensor] | None = None) -> None:
+        self.kind, self.param, self._fn = kind, float(param), fn
+
+    def grad(self, u: Tensor, out: Tensor | None = None) -> Tensor:
+        """dS/dU at ``u = U - U_thr`` (elementwise), into ``out`` if given."""
+        if out is None:
+            out = torch.empty_like(u)
+        if self.kind == "rect":  # |u| < width / 2, as a 0/1 mask in one kernel
+            return _hardtanh_backward(u.new_ones(()).expand_as(u), u, -self.param / 2, self.param / 2,
+                                      grad_input=out)
+        if self.kind == "atan":  # snntorch.surrogate.ATan.backward: alpha / 2 / (1 + (pi / 2 * alpha * u) ** 2)
+            torch.mul(u, math.pi / 2 * self.param, out=out).pow_(2).add_(1)
+            return torch.reciprocal(out, out=out).mul_(self.param / 2)
+        if self.kind == "sigmoid":  # k s (1 - s), s = sigmoid(k u): finite where snnTorch's form overflows
+            s = torch.sigmoid(torch.mul(u, self.param, out=out), out=out)
+            return torch.addcmul(s, s, s, value=-1.0, out=s).mul_(self.param)
+        # an arbitrary snnTorch surrogate: its backward is elementwise, so one call with unit output grads gives dS/dU
+        with torch.enable_grad():
+            leaf = u.detach().requires_grad_(True)
+            (g,) = torch.autograd.grad(self.spike_fn(leaf), leaf, torch.ones_like(leaf))
+        return out.copy_(g)
+
+    @property
+    def spike_fn(self) -> Callable[[Tensor], Tensor]:
+        """The callable ``snntorch.Leaky(spike_grad=...)`` takes."""
+        if self._fn is None:
+            from snntorch import surrogate
+
+            if self.kind == "rect":
+                half = self.param / 2
+                self._fn = surrogate.custom_surrogate(lambda u, grad, spk: grad * (u.abs() < half).to(grad.dtype))
+            elif self.kind == "atan":
+                self._fn = surrogate.atan(alpha=self.param)
+            else:
+                self._fn = surrogate.sigmoid(slope=self.param)
+        return self._fn
+
+    def __repr__(self) -> str:
+        return f"Surrogate({self.kind!r}, {self.param:g})" if self.kind != "custom" else f"Surrogate({self._fn!r})"
+
+
+def make_surrogate(surrogate: str | Callable[[Tensor], Tensor], width: float = 1.0, alpha: float = 2.0,
+                   slope: float = 25.0) -> Surrogate:
+    """A :class:`Surrogate` from a name (``rect`` uses ``width``, ``atan`` ``alpha``, ``sigmoid`` ``slope``) or an
+    snnTorch surrogate callable."""
+    if callable(surrogate) and not isinstance(surrogate, str):
+        return Surrogate("custom", fn=surrogate)
+    params = {"rect": width, "atan": alpha, "sigmoid": slope}
+    if surrogate not in params:
+        raise ConfigError(f"surrogate must be one of {sorted(params)} or an snntorch.surrogate callable, "
+                          f"got {surrogate!r}")
+    if not params[surrogate] > 0:
+        raise ConfigError(f"the {surrogate} surrogate needs a positive parameter, got {params[surrogate]}")
+    return Surrogate(surrogate, params[surrogate])
+
+
+#: Sequences whose membrane history is at most this large keep it for the backward pass; longer ones keep one
+#: checkpoint per block and recompute the block (two kernels per step) instead of allocating, and page-faulting in,
+#: a history as large as the input.
+SAVE_LIMIT_BYTES = 8 << 20
+#: Bytes per block of steps that the vectorised parts of forward and backward process at once (stays in cache).
+BLOCK_BYTES = 2 << 20
+
+_hardtanh_backward = torch.ops.aten.hardtanh_backward.grad_input  # grad * (lo < u < hi): a 0/1 mask in one kernel
+
+
+def _next_up(level: float, dtype: torch.dtype) -> float:
+    """The smallest value of ``dtype`` above ``level``: ``u <= level`` is ``u < _next_up(level)`` exactly."""
+    return torch.nextafter(torch.tensor(level, dtype=dtype), torch.tensor(math.inf, dtype=dtype)).item()
+
+
+def _advance(x_t: Tensor, prev: Tensor, out: Tensor, flag: Tensor, ones: Tensor, beta: float, threshold: float,
+             th_up: float, subtract: bool) -> Tensor:
+    """One LIF step from membrane ``prev`` into ``out``. ``flag`` is scratch for the previous step's reset, ``ones``
+    an all-ones tensor of the step's shape (may be expanded), ``th_up = _next_up(threshold)``."""
+    if subtract:
+        torch.gt(prev, threshold, out=flag)
+        torch.mul(prev, beta, out=out)
+        return out.add_(x_t).sub_(flag, alpha=threshold)
+    # 1 - R[t] = (U <= U_thr) as 0/1 in one kernel (a comparison into a float tensor takes two)
+    _hardtanh_backward(ones, prev, -math.inf, th_up, grad_input=flag)
+    # one kernel for (beta * U) * (1 - R) + I: exactly the rounding of snnTorch's beta * ((1 - R) * U) + I
+    return torch.addcmul(x_t, prev, flag, value=beta, out=out)
+
+
+class _FusedLIF(torch.autograd.Function):
+    """The whole LIF time loop as one autograd node. Inputs ``x [T, ...]``, ``mem0 [...]``; outputs spikes
+    ``[T, ...]`` and the last membrane potential ``[...]``.
+
+    Forward: two kernels per step; spikes are thresholded a block of steps at a time. The membrane history (with
+    ``mem0`` as row 0) is saved when small, else only the membrane entering each block. Backward, block by block
+    from the end: recompute the block's membranes if needed, evaluate the surrogate derivatives and the step-to-step
+    factors ``dU[t]/dU[t-1]`` for the whole block at once, then one multiply-add per step carries dL/dU back.
+    Large temporaries are avoided on purpose: on CPU each fresh tensor as large as the input costs about as much in
+    page faults as the whole loop.
+    """
+
+    @staticmethod
+    def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
+                surrogate: Surrogate) -> tuple[Tensor, Tensor]:
+        steps, step_bytes = x.shape[0], max(1, mem0.numel() * x.element_size())
+        block = max(1, min(steps, BLOCK_BYTES // step_bytes))
+        keep_all = (steps + 1) * step_bytes <= SAVE_LIMIT_BYTES
+        spikes = torch.empty_like(x)
+        flag, ones = torch.empty_like(mem0), mem0.new_ones(()).expand_as(mem0)
+        th_up = _next_up(threshold, x.dtype)
+        rows_total = steps + 1 if keep_all else block + 1
+        hist = torch.empty((rows_total, *mem0.shape), dtype=x.dtype, device=x.device)  # row 0: membrane before
+        hist[0] = mem0
+        starts = list(range(0, steps, block))
+        ckpts = []  # the membrane entering each block, when the history is not kept
+        xs = x.unbind(0)
+        for t0 in starts:
+            t1 = min(t0 + block, steps)
+            rows = hist[t0:t1 + 1] if keep_all else hist[:t1 - t0 + 1]  # (n + 1, ...) with the entering membrane
+            if not keep_all:
+                ckpts.append(rows[0].clone())
+            out = rows.unbind(0)
+            prev = out[0]
+            for k in range(t1 - t0):
+                prev = _advance(xs[t0 + k], prev, out[k + 1], flag, ones, beta, threshold, th_up, subtract)
+            # spikes U > U_thr as 0/1 in one kernel (only an infinite membrane would be missed)
+            _hardtanh_backward(ones.expand_as(rows[1:]), rows[1:], threshold, math.inf, grad_input=spikes[t0:t1])
+            if not keep_all and t1 < steps:
+                rows[0].copy_(prev)  # the next block reuses the buffer, starting from this block's last membrane
+        last = prev.clone()
+        ctx.save_for_backward(hist if keep_all else torch.stack(ckpts), x)
+        ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, block, keep_all, starts)
+        ctx.set_materialize_grads(False)  # an unused output needs no zero-filled gradient
+        return spikes, last
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_spikes: Tensor | None, grad_mem: Tensor | None) -> tuple[Tensor | None, ...]:
+        saved, x = ctx.saved_tensors
+        beta, th, subtract, detach_reset, surrogate, block, keep_all, starts = ctx.cfg
+        steps, shape = x.shape[0], saved.shape[1:]
+        grad = saved.new_empty((steps, *shape))
+        # per-block workspaces, reused (fresh temporaries this size would page-fault on every block)
+        u_buf, sg_buf = saved.new_empty((block + 1, *shape)), saved.new_empty((block + 1, *shape))
+        decay_buf = saved.new_empty((block, *shape))
+        ones, th_up = saved.new_ones(()).expand(block + 1, *shape), _next_up(th, saved.dtype)
+        if not keep_all:
+            rows_buf, flag = saved.new_empty((block + 1, *shape)), saved.new_empty(shape)
+            xs = x.unbind(0)
+        carry = grad_mem  # dL/dU[t1 - 1], the gradient reaching the end of the current block from later blocks
+        for j in range(len(starts) - 1, -1, -1):
+            t0 = starts[j]
+            n = min(t0 + block, steps) - t0
+            if keep_all:
+                rows = saved[t0:t0 + n + 1]
+            else:  # recompute the block's membranes from its checkpoint
+                rows = rows_buf[:n + 1]
+                out = rows.unbind(0)
+                prev = out[0].copy_(saved[j])
+                for k in range(n):
+                    prev = _advance(xs[t0 + k], prev, out[k + 1], flag, ones[0], beta, th, th_up, subtract)
+            u = torch.sub(rows, th, out=u_buf[:n + 1])  # U - U_thr, exactly what snnTorch feeds its surrogate
+            sg = surrogate.grad(u, out=sg_buf[:n + 1])  # dS/dU of U[t0-1 .. t0+n-1]
+            # dU[t]/dU[t-1] for the block's steps, in units of beta where that helps: the step-to-step path
+            if subtract:
+                if detach_reset:
+                    decay, scale = None, beta
+                else:  # beta - U_thr * S'(U[t-1])
+                    decay, scale = torch.mul(sg[:-1], -th, out=decay_buf[:n]).add_(beta), 1.0
+            else:
+                decay = _hardtanh_backward(ones[:n], rows[:-1], -math.inf, th_up, grad_input=decay_buf[:n])  # 1 - R
+                if not detach_reset:  # beta * (1 - S[t-1]) * U[t-1] also depends on U[t-1] through S[t-1]
+                    decay.addcmul_(rows[:-1], sg[:-1], value=-1.0)
+                scale = beta
+            # grad[t] = dL/dS[t] * S'(U[t]) + grad[t+1] * dU[t+1]/dU[t]
+            g = grad[t0:t0 + n]
+            if grad_spikes is None:
+                g.zero_()
+            else:
+                torch.mul(grad_spikes[t0:t0 + n], sg[1:], out=g)
+            if carry is not None:
+                g[-1].add_(carry)
+            rows_g = g.unbind(0)
+            for k in range(n - 2, -1, -1):
+                if decay is None:
+                    rows_g[k].add_(rows_g[k + 1], alpha=scale)
+                else:
+                    rows_g[k].addcmul_(rows_g[k + 1], decay[k + 1], value=scale)
+            carry = rows_g[0] * scale if decay is None else torch.mul(rows_g[0], decay[0]).mul_(scale)
+        return grad, (carry if ctx.needs_input_grad[1] else None), None, None, None, None, None
+
+
+@functools.cache
+def _attached_leaky() -> type:
+    """``snntorch.Leaky`` whose reset keeps its gradient (the only change): TactileSGNet's ``detach_reset=False``."""
+    import snntorch
+
+    class AttachedResetLeaky(snntorch.Leaky):
+        def mem_reset(self, mem: Tensor) -> Tensor:
+            return self.spike_grad(mem - self.threshold)
+
+    return AttachedResetLeaky
+
+
+class MultiStepLIF(nn.Module):
+    """A layer of LIF neurons run over a time-major sequence; state is reset at every call.
+
+    Args:
+        beta: membrane decay per step, in [0, 1] (snnTorch clamps it there).
+        threshold: firing threshold ``U_thr``.
+        reset: ``"zero"`` (TactileSGNet, the paper) or ``"subtract"``.
+        surrogate: ``"rect"``, ``"atan"``, ``"sigmoid"`` or an ``snntorch.surrogate`` callable.
+        surrogate_width: full width of the ``rect`` window (1.0: gradient 1 where ``|U - U_thr| < 0.5``).
+        surrogate_alpha: ``atan`` alpha (snnTorch default 2).
+        surrogate_slope: ``sigmoid`` slope (snnTorch default 25).
+        detach_reset: ``True`` detaches the reset from the graph (snnTorch); ``False`` back-propagates through it
+            (TactileSGNet).
+        backend: ``"fused"`` (one autograd node for the whole loop) or ``"snntorch"`` (steps ``snntorch.Leaky``).
+        input_scale: the input is multiplied by it first (``1/tau`` for the paper's neuron).
+
+    Shapes:
+        - input ``x``: ``(T, *)`` time-major, any trailing shape; ``mem``: ``(*)`` or ``None`` (zeros).
+        - output: spikes ``(T, *)`` as 0/1 floats; with ``return_mem=True`` also the last membrane ``(*)``, which
+          continues the sequence when passed back as ``mem``.
+    """
+
+    def __init__(self, beta: float = 0.2, threshold: float = 0.5, reset: str = "zero",
+                 surrogate: str | Callable[[Tensor], Tensor] = "rect", surrogate_width: float = 1.0,
+                 surrogate_alpha: float = 2.0, surrogate_slope: float = 25.0, detach_reset: bool = False,
+                 backend: str = "fused", input_scale: float = 1.0) -> None:
+        super().__init__()
+        if not 0.0 <= beta <= 1.0:
+            raise ConfigError(f"LIF beta must lie in [0, 1], got {beta}")
+        if reset not in _RESETS:
+            raise ConfigError(f"LIF reset must be one of {_RESETS}, got {reset!r}")
+        if backend not in _BACKENDS:
+            raise ConfigError(f"LIF backend must be one of {_BACKENDS}, got {backend!r}")
+        self.beta, self.threshold, self.reset = float(beta), float(threshold), reset
+        self.surrogate = make_surrogate(surrogate, surrogate_width, surrogate_alpha, surrogate_slope)
+        self.detach_reset, self.backend, self.input_scale = bool(detach_reset), backend, float(input_scale)
+        self._leaky: tuple[nn.Module, ...] = ()  # built on first snnTorch use; outside the state_dict on purpose
+
+    @classmethod
+    def from_tau(cls, tau: float, v_th: float, v_reset: float = 0.0, **kw: object) -> MultiStepLIF:
+        """The paper's LIF (eqs. 2-4) with time constant ``tau`` > 1, threshold ``v_th`` and reset ``v_reset``.
+
+        The membrane it returns is ``V - v_reset`` (zero at rest)."""
+        if not tau >= 1.0:
+            raise ConfigError(f"LIF tau must be >= 1, got {tau}")
+        if not v_th > v_reset:
+            raise ConfigError(f"LIF v_th ({v_th}) must exceed v_reset ({v_reset})")
+        return cls(beta=1.0 - 1.0 / tau, threshold=v_th - v_reset, reset="zero", input_scale=1.0 / tau, **kw)
+
+    def extra_repr(self) -> str:
+        return (f"beta={self.beta:g}, threshold={self.threshold:g}, reset={self.reset}, surrogate={self.surrogate}, "
+                f"detach_reset={self.detach_reset}, backend={self.backend}"
+                + (f", input_scale={self.input_scale:g}" if self.input_scale != 1.0 else ""))
+
+    def forward(self, x: Tensor, mem: Tensor | None = None, return_mem: bool = False
+                ) -> Tensor | tuple[Tensor, Tensor]:
+        if x.dim() < 1 or x.shape[0] < 1:
+            raise ConfigError(f"MultiStepLIF expects a time-major input (T >= 1, ...), got shape {tuple(x.shape)}")
+        if mem is None:
+            mem = x.new_zeros(x.shape[1:])
+        elif mem.shape != x.shape[1:]:
+            raise ConfigError(f"MultiStepLIF: mem has shape {tuple(mem.shape)}, the input's step shape is "
+                              f"{tuple(x.shape[1:])}")
+        if self.input_scale != 1.0:
+            x = x * self.input_scale
+        if self.backend == "fused":
+            spikes, last = _FusedLIF.apply(x, mem, self.beta, self.threshold, self.reset == "subtract",
+                                           self.detach_reset, self.surrogate)
+        else:
+            spikes, last = self._snntorch_loop(x, mem)
+        return (spikes, last) if return_mem else spikes
+
+    def step(self, x_t: Tensor, mem: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """One time step: ``x_t (*)`` and the membrane ``(*)`` -> ``(spike (*), membrane (*))``; the arithmetic of
+        :meth:`forward` (it is ``forward`` on a length-1 sequence)."""
+        spikes, mem = self.forward(x_t.unsqueeze(0), mem, return_mem=True)
+        return spikes.squeeze(0), mem
+
+    def _snntorch_loop(self, x: Tensor, mem: Tensor) -> tuple[Tensor, Tensor]:
+        if not self._leaky:
+            import snntorch
+
+            leaky_cls = snntorch.Leaky if self.detach_reset else _attached_leaky()
+            self._leaky = (leaky_cls(beta=self.beta, threshold=self.threshold, spike_grad=self.surrogate.spike_fn,
+                                     reset_mechanism=self.reset),)
+        leaky = self._leaky[0].to(device=x.device, dtype=x.dtype)
+        spikes = []
+        for x_t in x.unbind(0):  # never x[t]: each x[t] backward would materialise a full-size gradient
+            spk, mem = leaky(x_t, mem)
+            spikes.append(spk)
+        leaky.mem = torch.zeros(0, device=x.device)  # do not keep the last graph alive in snnTorch's buffer
+        return torch.stack(spikes), mem

@@ -1,0 +1,194 @@
+"""T-GCN cell of X-Tacformer (paper eqs. 10-13) and attention over frames: the temporal graph attention branch.
+
+Paper: "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition"; the cell follows T-GCN (Zhao et al.,
+IEEE T-ITS 2020): a graph convolution of each frame feeds a GRU whose state lives on the taxels.
+
+    u_t = sigmoid(W_u [GC(A, X_t), h_{t-1}] + b_u)                    (eq. 10, update gate)
+    r_t = sigmoid(W_r [GC(A, X_t), h_{t-1}] + b_r)                    (eq. 11, reset gate)
+    c_t = tanh(W_c [GC(A, X_t), r_t * h_{t-1}] + b_c)                 (eq. 12, candidate)
+    h_t = u_t * h_{t-1} + (1 - u_t) * c_t                             (eq. 13)
+
+``W [a, b]`` splits into ``W^x a + W^h b``: the graph convolution and the input halves of all three gates do not depend
+on ``h``, so they run once over all ``T * B`` frames (one graph-conv call, one matmul); only the hidden halves
+(``H -> 2H`` for u and r, ``H -> H`` for c) loop over time. One GC is shared by the three gates, as eqs. 10-12 write.
+
+Attention over frames (our reading of the paper's temporal attention): each frame's hidden state is pooled over the
+taxels to ``f_t``, scored by a small additive (Bahdanau-style) network ``e_t = w^T tanh(W f_t + b)``, and the branch
+output is ``sum_t softmax_t(e)_t f_t``. The weights sum to one over the frames seen so far; softmax over a growing
+prefix can be updated online (running maximum, denominator and weighted sum), so the branch is causal and streams in
+constant memory (:meth:`TemporalGraphAttention.run`).
+
+``temporal_backend="tgt"`` swaps the cell for ``torch_geometric_temporal``'s ``TGCN2``: a different cell (one
+``GCNConv`` with self-loops per gate, the gates' Linear over the concatenation, GC re-run every step), offered as an
+alternative when that optional package imports.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from ..errors import ConfigError
+from .graph import FrameGraphConv
+
+__all__ = ["TGCNCell", "TGT_TGCN2Cell", "TemporalAttention", "TemporalGraphAttention"]
+
+# (taxel states h (B, N, H), running max of the scores (B,), softmax denominator (B,), weighted feature sum (B, F))
+BranchState = tuple[Tensor, Tensor, Tensor, Tensor]
+
+
+class TGCNCell(nn.Module):
+    """The T-GCN recurrence, eqs. 10-13, over a whole sequence of graph frames.
+
+    Args:
+        in_channels: features per taxel ``C``.
+        hidden_channels: GRU state per taxel ``H``.
+        edge_index: the taxel graph ``[2, E]``.
+        num_nodes: taxels ``N``.
+        gc_channels: output width of ``GC(A, X_t)`` (default ``H``).
+        graph_backend: ``"dense"`` or ``"pyg"`` (see :class:`FrameGraphConv`).
+
+    Shapes:
+        input ``x``: ``(T, B, N, C)``; ``h``: ``(B, N, H)`` or ``None`` (zeros).
+        output: ``(T, B, N, H)`` hidden states of every frame, and the last one ``(B, N, H)``.
+    """
+
+    def __init__(self, in_channels: int, hidden_channels: int, edge_index: Tensor, num_nodes: int,
+                 gc_channels: int | None = None, graph_backend: str = "dense") -> None:
+        super().__init__()
+        hid = hidden_channels
+        gc_channels = gc_channels or hid
+        self.hidden_channels = hid
+        self.gc = FrameGraphConv(in_channels, gc_channels, edge_index, num_nodes, kind="gcn", backend=graph_backend)
+        self.lin_x = nn.Linear(gc_channels, 3 * hid)  # [W_u^x; W_r^x; W_c^x] and [b_u; b_r; b_c]
+        self.lin_h_ur = nn.Linear(hid, 2 * hid, bias=False)  # [W_u^h; W_r^h]
+        self.lin_h_c = nn.Linear(hid, hid, bias=False)  # W_c^h
+
+    def forward(self, x: Tensor, h: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        t, b, n, _ = x.shape
+        hid = self.hidden_channels
+        gx = self.lin_x(self.gc(x))  # (T, B, N, 3H): every frame's GC and input-side gate terms in one call
+        if h is None:
+            h = x.new_zeros(b, n, hid)
+        hs = []
+        for gx_t in gx.unbind(0):  # (B, N, 3H); unbind keeps the backward to one gradient buffer
+            ur = torch.sigmoid(gx_t[..., :2 * hid] + self.lin_h_ur(h))  # eqs. 10-11, (B, N, 2H)
+            u, r = ur.chunk(2, dim=-1)
+            c = torch.tanh(gx_t[..., 2 * hid:] + self.lin_h_c(r * h))  # eq. 12
+            h = c + u * (h - c)  # eq. 13: u h + (1 - u) c
+            hs.append(h)
+        return torch.stack(hs), h  # (T, B, N, H), (B, N, H)
+
+
+class TGT_TGCN2Cell(nn.Module):  # noqa: N801  (named after the class it wraps)
+    """``torch_geometric_temporal.nn.recurrent.TGCN2`` stepped over frames, with :class:`TGCNCell`'s interface.
+
+    Not eqs. 10-13: TGCN2 runs one ``GCNConv`` (with self-loops) per gate on every step. Raises
+    :class:`ConfigError` when the optional package cannot be imported (its import needs ``torch-sparse``).
+    """
+
+    def __init__(self, in_channels: int, hidden_channels: int, edge_index: Tensor, num_nodes: int,
+                 gc_channels: int | None = None, graph_backend: str = "dense") -> None:
+        super().__init__()
+        try:
+            from torch_geometric_temporal.nn.recurrent import TGCN2
+        except Exception as exc:  # ImportError, or the package's own import failing on a missing torch-sparse
+            raise ConfigError(f"temporal_backend='tgt' needs torch-geometric-temporal, which cannot be imported "
+                              f"here ({type(exc).__name__}: {exc}); use temporal_backend='native'") from None
+        self.hidden_channels = hidden_channels
+        self.cell = TGCN2(in_channels, hidden_channels, batch_size=1)
+        self.register_buffer("edge_index", edge_index.clone(), persistent=False)
+
+    def forward(self, x: Tensor, h: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        hs = []
+        for x_t in x.unbind(0):  # (B, N, C)
+            h = self.cell(x_t, self.edge_index, None, h)
+            hs.append(h)
+        return torch.stack(hs), h
+
+
+class TemporalAttention(nn.Module):
+    """Additive attention over frames: ``e_t = w^T tanh(W f_t + b)``, ``alpha = softmax_t(e)``,
+    output ``sum_t alpha_t f_t``.
+
+    Args:
+        features: width ``F`` of a frame feature.
+        attn_dim: width of the scoring network's hidden layer.
+
+    Shapes:
+        input ``f``: ``(T, B, F)``; output: ``(B, F)`` and the weights ``alpha`` ``(T, B)`` (sum to one over T).
+    """
+
+    def __init__(self, features: int, attn_dim: int = 32) -> None:
+        super().__init__()
+        self.score = nn.Sequential(nn.Linear(features, attn_dim), nn.Tanh(), nn.Linear(attn_dim, 1))
+
+    def forward(self, f: Tensor) -> tuple[Tensor, Tensor]:
+        alpha = torch.softmax(self.score(f).squeeze(-1), dim=0)  # (T, B)
+        return torch.einsum("tb,tbf->bf", alpha, f), alpha
+
+    def update(self, f: Tensor, state: tuple[Tensor, Tensor, Tensor] | None
+               ) -> tuple[Tensor, tuple[Tensor, Tensor, Tensor]]:
+        """Online softmax: fold frames ``f (T, B, F)`` into ``state = (max e, sum exp(e - max), sum exp(e - max) f)``
+        and return the output over every frame seen so far (equal to :meth:`forward` on the whole prefix)."""
+        e = self.score(f).squeeze(-1)  # (T, B)
+        m_new = e.max(dim=0).values  # (B,)
+        if state is not None:
+            m_old, den, num = state
+            m_new = torch.maximum(m_old, m_new)
+            keep = torch.exp(m_old - m_new)  # (B,)
+            den, num = den * keep, num * keep[:, None]
+        else:
+            den, num = e.new_zeros(e.shape[1]), f.new_zeros(f.shape[1:])
+        w = torch.exp(e - m_new)  # (T, B)
+        den = den + w.sum(0)
+        num = num + torch.einsum("tb,tbf->bf", w, f)
+        return num / den[:, None], (m_new, den, num)
+
+
+class TemporalGraphAttention(nn.Module):
+    """The temporal branch: T-GCN over the frames, hidden states pooled per frame, attention over frames.
+
+    Args:
+        in_channels, hidden_channels, edge_index, num_nodes: as :class:`TGCNCell`.
+        pool: frame feature from the taxel states: ``"mean"`` over taxels (``F = H``) or ``"flatten"``
+            (``F = N * H``, keeps which taxel is which).
+        attn_dim: hidden width of the frame-scoring network.
+        temporal_backend: ``"native"`` (eqs. 10-13) or ``"tgt"`` (torch_geometric_temporal's TGCN2).
+        graph_backend: passed to the graph convolution.
+
+    Shapes:
+        input ``x``: ``(T, B, N, C)``; output ``(B, F)``.
+    """
+
+    def __init__(self, in_channels: int, hidden_channels: int, edge_index: Tensor, num_nodes: int,
+                 pool: str = "mean", attn_dim: int = 32, temporal_backend: str = "native",
+                 graph_backend: str = "dense") -> None:
+        super().__init__()
+        cells = {"native": TGCNCell, "tgt": TGT_TGCN2Cell}
+        if temporal_backend not in cells:
+            raise ConfigError(f"temporal_backend must be 'native' or 'tgt', got {temporal_backend!r}")
+        if pool not in ("mean", "flatten"):
+            raise ConfigError(f"pool must be 'mean' or 'flatten', got {pool!r}")
+        self.pool = pool
+        self.cell = cells[temporal_backend](in_channels, hidden_channels, edge_index, num_nodes,
+                                            graph_backend=graph_backend)
+        self.out_features = hidden_channels * (num_nodes if pool == "flatten" else 1)
+        self.attention = TemporalAttention(self.out_features, attn_dim)
+
+    def frame_features(self, hs: Tensor) -> Tensor:
+        """``(T, B, N, H)`` taxel states -> ``(T, B, F)`` frame features."""
+        return hs.mean(dim=2) if self.pool == "mean" else hs.flatten(2)
+
+    def forward(self, x: Tensor) -> Tensor:
+        hs, _ = self.cell(x)  # (T, B, N, H)
+        return self.attention(self.frame_features(hs))[0]  # (B, F)
+
+    def run(self, x: Tensor, state: BranchState | None = None) -> tuple[Tensor, BranchState]:
+        """Continue from ``state`` over the frames ``x (T, B, N, C)``; returns the output over every frame seen so
+        far and the new state (constant size in T)."""
+        h, att = (None, None) if state is None else (state[0], state[1:])
+        hs, h = self.cell(x, h)
+        out, att = self.attention.update(self.frame_features(hs), att)
+        return out, (h, *att)
+

@@ -1,0 +1,64 @@
+"""Harness test helpers: the tiny zoo (tests/tiny_zoo.py) registered per test, CLI runners, leaderboard reading."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import tiny_zoo
+
+from tactile_zoo.bench.results import TIMING_COLUMNS
+from tactile_zoo.cli import main
+
+TESTS = Path(__file__).resolve().parents[1]
+#: a small grid: 2 models x (tiny_blobs: 1 fold + tiny_kfold: 2 of its 3 folds) x seed 0 = 6 cells
+SMALL = ["--models", "tiny_mlp,tiny_rate", "--datasets", "tiny_blobs,tiny_kfold", "--folds", "2", "--seeds", "0",
+         "--threads", "1"]
+
+
+@pytest.fixture(autouse=True)
+def tiny() -> Iterator[None]:
+    tiny_zoo.register()
+    yield
+    tiny_zoo.unregister()
+
+
+def run_cli(args: list[str]) -> int:
+    return main(["bench", "--plugin-module", "tiny_zoo", *args] if args and args[0].startswith("-") else args)
+
+
+def subprocess_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(TESTS), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env["OMP_NUM_THREADS"] = "1"
+    return env
+
+
+def bench_subprocess(args: list[str], **kw: object) -> subprocess.Popen:
+    """``python -m tactile_zoo.cli bench --plugin-module tiny_zoo ARGS`` as a real child process."""
+    cmd = [sys.executable, "-m", "tactile_zoo.cli", "bench", "--plugin-module", "tiny_zoo", *args]
+    return subprocess.Popen(cmd, env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            **kw)
+
+
+def read_board(path: Path, drop_timing: bool = True) -> list[dict[str, str]]:
+    """leaderboard.csv rows, without the machine-dependent timing columns."""
+    with open(path / "leaderboard.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if drop_timing:
+        rows = [{k: v for k, v in r.items() if k not in TIMING_COLUMNS} for r in rows]
+    return rows
+
+
+@pytest.fixture(scope="session")
+def reference_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The SMALL grid run once, uninterrupted, locally in this process."""
+    out = tmp_path_factory.mktemp("reference") / "run"
+    tiny_zoo.register()
+    assert run_cli([*SMALL, "--out", str(out), "-q"]) == 0
+    return out

@@ -1,0 +1,125 @@
+from __future__ import annotations
+
+import errno
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tactile_zoo.bench import results
+from tactile_zoo.bench.results import (
+    LEADERBOARD_COLUMNS,
+    SUMMARY_COLUMNS,
+    RunDir,
+    atomic_write_json,
+    leaderboard_rows,
+    rows_to_csv,
+    summary_rows,
+)
+from tactile_zoo.errors import ConfigError
+
+
+def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                                             ) -> None:
+    path = tmp_path / "cell.json"
+    atomic_write_json(path, {"v": 1})
+
+    def full(*args: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(results.os, "replace", full)
+    with pytest.raises(OSError, match="No space"):
+        atomic_write_json(path, {"v": 2})
+    assert json.loads(path.read_text()) == {"v": 1}
+    assert [p.name for p in tmp_path.iterdir()] == ["cell.json"]  # no temporary file left behind
+
+
+def test_unwritable_out_is_a_config_error(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(ConfigError, match="--out .*cannot write there"):
+        RunDir(blocker / "run").prepare()
+
+
+def test_claims_are_exclusive_and_released(tmp_path: Path) -> None:
+    run = RunDir(tmp_path).prepare()
+    first = run.claim("cell-a")
+    assert first is not None
+    assert run.claim("cell-a") is None  # another open file description: flock says no
+    assert f"pid {os.getpid()}" in run.claim_holder("cell-a")
+    assert run.claim("cell-b") is not None
+    first.release()
+    again = run.claim("cell-a")
+    assert again is not None
+    again.release()
+
+
+def test_a_claim_dies_with_its_process(tmp_path: Path) -> None:
+    run = RunDir(tmp_path).prepare()
+    # the child takes the claim the way RunDir.claim does (flock + "pid host time"), without importing torch
+    code = ("import fcntl, os, sys, time; fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT); "
+            "fcntl.flock(fd, fcntl.LOCK_EX); os.write(fd, f'{os.getpid()} host 00:00:00'.encode()); "
+            "print('held', flush=True); time.sleep(60)")
+    lock = tmp_path / "claims" / "cell-x.lock"
+    child = subprocess.Popen([sys.executable, "-c", code, str(lock)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "held"
+        assert run.claim("cell-x") is None
+        assert f"pid {child.pid}" in run.claim_holder("cell-x")
+        child.kill()
+        child.wait()
+        deadline = time.time() + 10
+        claim = None
+        while claim is None and time.time() < deadline:
+            claim = run.claim("cell-x")
+        assert claim is not None  # the kernel dropped the dead holder's lock: never a stale claim
+    finally:
+        child.kill()
+
+
+def _record(model: str, dataset: str, seed: int, acc: float, status: str = "ok", extra: dict | None = None) -> dict:
+    metrics = {"test": {"accuracy": acc, "balanced_accuracy": acc, "macro_f1": acc}}
+    metrics.update(extra or {})
+    return {"cell_id": f"{model}-{dataset}-{seed}", "model": model, "dataset": dataset, "fold": 0, "seed": seed,
+            "status": status, "metrics": metrics if status == "ok" else {}, "train_seconds": 1.0,
+            "prefix": {"fractions": [0.5, 1.0], "accuracy": [acc / 2, acc], "earliness": 1.0}
+            if status == "ok" else None, "versions": {"tactile_zoo": "0.1.0", "torch": "2"},
+            "error": None if status == "ok" else "boom"}
+
+
+def test_leaderboard_columns_are_the_issue_list_then_extras() -> None:
+    recs = [_record("a", "d1", 0, 0.5, extra={"test_solids": {"accuracy": 0.25}}), _record("b", "d1", 0, 0.0,
+                                                                                            "failed")]
+    rows, cols = leaderboard_rows(recs, [{"model": "a", "dataset": "d2", "status": "skipped", "reason": "absent",
+                                          "obtain": "tactile-zoo download d2"}])
+    assert tuple(cols[:len(LEADERBOARD_COLUMNS)]) == LEADERBOARD_COLUMNS
+    assert cols[len(LEADERBOARD_COLUMNS):] == ["accuracy_test_solids", "accuracy_at_50", "accuracy_at_100",
+                                               "earliness"]
+    assert [(r["model"], r["dataset"], r["status"]) for r in rows] == [("a", "d1", "ok"), ("a", "d2", "skipped"),
+                                                                       ("b", "d1", "failed")]
+    assert rows[1]["error"] == "absent. To obtain it: tactile-zoo download d2"
+    assert rows[0]["accuracy_test_solids"] == 0.25 and rows[0]["accuracy_at_50"] == 0.25
+    text = rows_to_csv(rows, cols)
+    assert text.splitlines()[0] == ",".join(cols) and "0.5" in text.splitlines()[1]
+
+
+def test_summary_means_std_ranks_and_mean_rank() -> None:
+    recs = [_record("a", "d1", 0, 0.8), _record("a", "d1", 1, 0.6), _record("b", "d1", 0, 0.9),
+            _record("a", "d2", 0, 0.5), _record("b", "d2", 0, 0.5), _record("c", "d2", 0, 0.2),
+            _record("c", "d1", 0, 0.0, "failed")]
+    board, cols = leaderboard_rows(recs)
+    summary, scols = summary_rows(board, cols)
+    assert tuple(scols[:len(SUMMARY_COLUMNS)]) == SUMMARY_COLUMNS
+    assert {"accuracy_at_50_mean", "earliness_mean"} <= set(scols)
+    by = {(s["model"], s["dataset"]): s for s in summary}
+    assert by[("a", "d1")]["n_cells"] == 2 and by[("a", "d1")]["accuracy_mean"] == pytest.approx(0.7)
+    assert by[("a", "d1")]["accuracy_std"] == pytest.approx(0.1414213, rel=1e-5)  # sample std (n - 1)
+    assert by[("b", "d1")]["accuracy_std"] is None  # a single cell has no spread
+    assert (by[("b", "d1")]["rank"], by[("a", "d1")]["rank"]) == (1, 2)
+    assert (by[("a", "d2")]["rank"], by[("b", "d2")]["rank"], by[("c", "d2")]["rank"]) == (1, 1, 3)  # ties share
+    assert by[("a", "d1")]["mean_rank"] == 1.5 and by[("b", "d2")]["mean_rank"] == 1.0
+    assert by[("c", "d2")]["mean_rank"] == 3.0 and ("c", "d1") not in by  # failed cells are not averaged

@@ -1,0 +1,46 @@
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from tactile_zoo.engine.recipe import DEFAULT_RECIPE, RECIPE_KEYS, Recipe, lr_factor, resolve_recipe
+from tactile_zoo.errors import ConfigError
+
+
+def test_default_recipe_is_cross_entropy_adam() -> None:
+    assert DEFAULT_RECIPE.loss == "ce" and DEFAULT_RECIPE.optimizer == "adam"
+    assert set(DEFAULT_RECIPE.to_dict()) == set(RECIPE_KEYS)
+
+
+def test_overrides_apply_in_order_and_epochs_last() -> None:
+    rec = resolve_recipe({"lr": 0.01, "batch_size": 8, "max_epochs": 50}, {"lr": "1e-4"}, epochs=3)
+    assert rec.lr == 1e-4 and rec.batch_size == 8 and rec.max_epochs == 3  # text numbers (from YAML) are numbers
+    assert rec.replace(patience=None).patience is None
+
+
+def test_unknown_key_names_the_key_and_the_source() -> None:
+    with pytest.raises(ConfigError, match=r"recipe of sgnet.*\['lrr'\]"):
+        resolve_recipe({"lrr": 0.1}, where="recipe of sgnet")
+    with pytest.raises(ConfigError, match="bogus"):
+        resolve_recipe(None, {"bogus": 1})
+
+
+@pytest.mark.parametrize("bad", [{"lr": -1}, {"lr": "fast"}, {"loss": "hinge"}, {"optimizer": "lbfgs"},
+                                 {"batch_size": 0}, {"max_epochs": 2.5}, {"patience": 0}, {"amsgrad": "yes"},
+                                 {"schedule": {"type": "poly"}}, {"schedule": {"type": "multistep"}},
+                                 {"schedule": {"type": "cosine", "gamma": 0.1}}, {"monitor": "test_accuracy"},
+                                 {"rate_targets": [1.0]}, {"label_smoothing": 1.0}])
+def test_bad_values_are_config_errors(bad: dict) -> None:
+    with pytest.raises(ConfigError):
+        resolve_recipe(None, bad)
+
+
+def test_schedules_as_pure_functions_of_the_epoch() -> None:
+    multi = Recipe.from_dict({"schedule": {"type": "multistep", "milestones": [2, 4], "gamma": 0.5}})
+    assert [lr_factor(multi, e) for e in range(6)] == [1, 1, 0.5, 0.5, 0.25, 0.25]
+    cos = Recipe.from_dict({"schedule": "cosine", "max_epochs": 4})
+    assert lr_factor(cos, 0) == 1.0 and math.isclose(lr_factor(cos, 2), 0.5) and lr_factor(cos, 4) < 1e-12
+    warm = Recipe.from_dict({"schedule": {"type": "step", "step_size": 10, "gamma": 0.1, "warmup_epochs": 4}})
+    assert [lr_factor(warm, e) for e in range(5)] == [0.25, 0.5, 0.75, 1.0, 1.0]
+    assert lr_factor(Recipe(), 100) == 1.0

@@ -1,0 +1,144 @@
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+import torch
+
+import tactile_zoo as tz
+from tactile_zoo.data.spec import TactileSample
+from tactile_zoo.engine import FitResult, TrainingError, fit
+from tactile_zoo.errors import ConfigError
+
+
+def _splits(**kw: Any) -> dict[str, Any]:
+    return {s: tz.load_dataset("tiny_blobs", split=s, **kw) for s in ("train", "val", "test")}
+
+
+def _fit(model: str = "tiny_mlp", seed: int = 0, device: str = "cpu", **kw: Any) -> FitResult:
+    s = _splits()
+    return fit(model, s["train"], seed=seed, val_dataset=s["val"], test_dataset=s["test"], device=device, **kw)
+
+
+def test_fit_learns_and_the_same_seed_repeats_exactly() -> None:
+    a, b, c = _fit(seed=0), _fit(seed=0), _fit(seed=1)
+    assert a.metrics["accuracy"] > 0.6  # 3 classes: chance is 1/3
+    assert [r["train_loss"] for r in a.curve] == [r["train_loss"] for r in b.curve]
+    assert [r["val_loss"] for r in a.curve] == [r["val_loss"] for r in b.curve]
+    assert a.predictions == b.predictions and a.probabilities == b.probabilities
+    assert [r["train_loss"] for r in a.curve] != [r["train_loss"] for r in c.curve]
+    assert a.params == sum(p.numel() for p in a.model.parameters()) and a.device == "cpu"
+    assert set(a.curve[0]) == {"epoch", "train_loss", "val_loss", "val_accuracy", "lr", "seconds"}
+
+
+def test_public_api_forwards_to_the_engine() -> None:
+    assert tz.fit is fit and tz.evaluate is tz.engine.evaluate
+    res = tz.fit("tiny_mlp", "tiny_blobs", seed=0, epochs=2, device="cpu")  # names: splits are loaded
+    assert res.epochs_run == 2 and res.test is not None and res.n_train == len(tz.load_dataset("tiny_blobs",
+                                                                                              split="train"))
+
+
+class _Spy:
+    """A split that logs when its tensors are read."""
+
+    def __init__(self, inner: Any, log: list[str], name: str) -> None:
+        self.inner, self.log, self.name, self.spec = inner, log, name, inner.spec
+
+    def tensors(self) -> Any:
+        self.log.append(f"read {self.name}")
+        return self.inner.tensors()
+
+
+def test_epoch_is_selected_on_val_and_test_is_read_only_after_training() -> None:
+    s = _splits()
+    log: list[str] = []
+    res = fit("tiny_mlp", s["train"], seed=3, val_dataset=s["val"], test_dataset=_Spy(s["test"], log, "test"),
+              device="cpu", recipe={"max_epochs": 12, "patience": None},
+              callback=lambda row: log.append(f"epoch {row['epoch']}"))
+    assert log.index("read test") > log.index("epoch 12")
+    key = [(r["val_accuracy"], -r["val_loss"]) for r in res.curve]
+    assert res.best_epoch == 1 + key.index(max(key))
+    # the returned model is the best epoch's: its validation numbers are that row's
+    row = res.curve[res.best_epoch - 1]
+    assert res.val.metrics["accuracy"] == pytest.approx(row["val_accuracy"])
+
+
+def test_monitor_val_loss_selects_lowest_loss() -> None:
+    res = _fit(seed=2, recipe={"monitor": "val_loss", "max_epochs": 10, "patience": None})
+    losses = [r["val_loss"] for r in res.curve]
+    assert res.best_epoch == 1 + losses.index(min(losses))
+
+
+def test_early_stopping_after_patience_epochs_without_improvement() -> None:
+    res = _fit(seed=0, recipe={"max_epochs": 60, "patience": 2, "lr": 0.1})
+    assert res.epochs_run < 60
+    assert res.epochs_run == res.best_epoch + 2
+
+
+def test_refit_retrains_on_train_and_val_for_the_selected_epochs() -> None:
+    plain, refit = _fit(seed=0), _fit(seed=0, refit=True)
+    assert refit.refit and len(refit.refit_curve) == refit.best_epoch == plain.best_epoch
+    assert refit.curve == [{**r, "seconds": refit.curve[i]["seconds"]} for i, r in enumerate(plain.curve)]
+    assert any(not torch.equal(p, q) for p, q in zip(plain.model.parameters(), refit.model.parameters()))
+    with pytest.raises(ConfigError, match="validation split"):
+        fit("tiny_mlp", _splits()["train"], refit=True, device="cpu")
+
+
+def test_non_finite_loss_is_a_training_error() -> None:
+    with pytest.raises(TrainingError, match="became nan"):
+        _fit("tiny_nan")
+
+
+def test_wrong_output_shape_is_a_training_error() -> None:
+    class Bad(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.lin = torch.nn.Linear(4, 5)
+
+        def forward(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
+            return self.lin(x.mean((1, 2)))
+
+    with pytest.raises(TrainingError, match=r"shape \(32, 5\).*num_classes=3"):
+        fit(Bad(), _splits()["train"], device="cpu")
+
+
+def test_mse_rate_probabilities_are_normalised_rates() -> None:
+    res = _fit("tiny_rate")
+    assert res.recipe.loss == "mse_rate"
+    probs = torch.tensor(res.probabilities)
+    torch.testing.assert_close(probs.sum(-1), torch.ones(len(probs)))
+    assert res.metrics["accuracy"] > 0.5
+
+
+def test_a_module_and_a_plain_dataset_of_samples_work() -> None:
+    s = _splits()
+
+    class Plain(torch.utils.data.Dataset):
+        def __init__(self, ds: Any) -> None:
+            self.ds, self.spec = ds, ds.spec
+
+        def __len__(self) -> int:
+            return len(self.ds)
+
+        def __getitem__(self, i: int) -> TactileSample:
+            return self.ds[i]
+
+    torch.manual_seed(0)
+    model = tz.create_model("tiny_mlp", s["train"].spec)
+    res = fit(model, Plain(s["train"]), val_dataset=Plain(s["val"]), device="cpu", epochs=3)
+    assert res.model is model and res.epochs_run == 3
+    assert res.metrics == res.val.metrics  # no test split: the validation numbers of the selected model
+    ev = tz.evaluate(model, Plain(s["test"]))
+    assert ev.metrics["n"] == len(s["test"]) and len(ev.probabilities) == len(s["test"])
+
+
+def test_evaluate_repeats_the_fit_test_numbers() -> None:
+    res = _fit("tiny_rate", seed=4)
+    ev = tz.evaluate(res.model, _splits()["test"])  # knows the loss from fit: rates, not softmax
+    assert ev.metrics == res.test.metrics and ev.probabilities == res.probabilities
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="tests the error without a GPU")
+def test_cuda_without_a_gpu_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="CUDA is not available"):
+        _fit(device="cuda")

@@ -1,0 +1,91 @@
+"""Tacformer: shapes, gradients, frame binning, streaming equals the forward on every prefix, registry metadata."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from tactile_zoo.data.sensors import NEUTOUCH, USKIN_ALLEGRO
+from tactile_zoo.data.spec import DatasetSpec
+from tactile_zoo.errors import ConfigError
+from tactile_zoo.models.tacformer import Tacformer, bin_frames
+from tactile_zoo.registry import create_model, get_model_entry
+
+SMALL = dict(dim=16, heads=2, v_th=0.5)
+
+
+def spec(num_globals: int = 0, sensor=NEUTOUCH, channels: int = 2, steps: int = 10) -> DatasetSpec:
+    return DatasetSpec("toy", 3, ("a", "b", "c"), steps, sensor.num_nodes, channels, num_globals, sensor)
+
+
+def events(b: int, t: int, n: int, c: int, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return (torch.rand(b, t, n, c, generator=g) < 0.3).float()
+
+
+def test_bin_frames_sums_and_averages_with_a_partial_last_bin() -> None:
+    x = torch.arange(14.0).view(1, 7, 2)  # (B, T, F)
+    s = bin_frames(x, 3, "sum")
+    torch.testing.assert_close(s, torch.tensor([[[6.0, 9.0], [24.0, 27.0], [12.0, 13.0]]]))
+    m = bin_frames(x, 3, "mean")
+    torch.testing.assert_close(m, torch.tensor([[[2.0, 3.0], [8.0, 9.0], [12.0, 13.0]]]))
+    assert bin_frames(x, 1) is x
+
+
+@pytest.mark.parametrize("bin_size", [1, 3])
+def test_forward_shapes_and_finite_gradients(bin_size: int) -> None:
+    torch.manual_seed(0)
+    model = Tacformer(spec(), bin_size=bin_size, **SMALL)
+    x = events(4, 10, 39, 2)
+    logits = model(x)
+    assert logits.shape == (4, 3) and torch.isfinite(logits).all()
+    torch.nn.functional.cross_entropy(logits, torch.tensor([0, 1, 2, 0])).backward()
+    for name, p in model.named_parameters():
+        assert p.grad is not None and torch.isfinite(p.grad).all(), name
+    assert model.spatial.gc.parameters().__next__().grad.abs().sum() > 0  # gradient reaches the first layer
+
+
+def test_globals_are_used_and_required() -> None:
+    torch.manual_seed(1)
+    model = Tacformer(spec(num_globals=4, sensor=USKIN_ALLEGRO, channels=3), bin_size=2, **SMALL).eval()
+    x = torch.randn(2, 10, 60, 3)
+    g = torch.randn(2, 10, 4)
+    out = model(x, g)
+    assert out.shape == (2, 3)
+    assert not torch.allclose(out, model(x, g + 3.0))
+    with pytest.raises(ConfigError, match="g must be"):
+        model(x)
+    with pytest.raises(ConfigError, match="x must be"):
+        model(torch.randn(2, 10, 39, 3), g)
+
+
+@pytest.mark.parametrize("bin_size", [1, 3])
+def test_streaming_equals_forward_on_every_prefix(bin_size: int) -> None:
+    torch.manual_seed(2)
+    model = Tacformer(spec(), bin_size=bin_size, **SMALL).double().eval()
+    x = events(2, 8, 39, 2, seed=3).double() * 2.0
+    state = model.init_state(2)
+    for t in range(x.shape[1]):
+        scores, state = model.step(x[:, t], None, state)
+        torch.testing.assert_close(scores, model(x[:, :t + 1]), msg=f"step {t}")
+
+
+def test_streaming_with_globals() -> None:
+    torch.manual_seed(4)
+    model = Tacformer(spec(num_globals=2), bin_size=2, **SMALL).double().eval()
+    x, g = events(1, 5, 39, 2).double(), torch.randn(1, 5, 2, dtype=torch.float64)
+    state = model.init_state(1)
+    for t in range(5):
+        scores, state = model.step(x[:, t], g[:, t], state)
+        torch.testing.assert_close(scores, model(x[:, :t + 1], g[:, :t + 1]))
+
+
+def test_registered_with_recipe_and_streaming_meta() -> None:
+    meta = get_model_entry("tacformer").meta
+    assert meta["causal"] is True and meta["streaming"] is True
+    assert {"spiking", "graph", "attention"} <= set(meta["tags"])
+    assert {"loss", "optimizer", "lr", "max_epochs", "patience", "batch_size"} <= set(meta["recipe"])
+    model = create_model("Tacformer", spec(), dim=8, heads=2)
+    assert isinstance(model, Tacformer)
+    with pytest.raises(ConfigError, match="bin_size"):
+        Tacformer(spec(), bin_size=0)

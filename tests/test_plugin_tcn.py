@@ -1,0 +1,179 @@
+"""The example plugin ``plugins/tactile-zoo-tcn``, installed for real and used exactly like a built-in model.
+
+The module fixture builds and installs the distribution with pip (offline: ``--no-index --no-deps
+--no-build-isolation``, using the setuptools of the test environment) into a temporary ``--target`` folder that goes
+on ``sys.path``. So the test sees what a user's ``pip install`` produces: the entry point comes from the plugin's own
+``setup.cfg``, and the code is imported from the installed copy, not from the source tree. The source is copied
+first, because building in place would leave ``build/`` and ``*.egg-info`` in the repository.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import torch
+
+from tactile_zoo import registry
+from tactile_zoo.cli import main
+from tactile_zoo.data import DatasetSpec
+from tactile_zoo.errors import ConfigError
+from tactile_zoo.registry import create_model, get_model_entry, get_sensor, list_datasets, list_models, load_dataset
+
+pytestmark = pytest.mark.xdist_group("plugin_tcn")  # one worker installs it once
+
+PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "tactile-zoo-tcn"
+DIST, VERSION = "tactile-zoo-tcn", "0.1.0"
+
+# (sensor, channels, globals) of the four sensor families
+FAMILIES = [("neutouch", 2, 0), ("biotac_sp", 1, 0), ("optoforce3", 4, 3), ("uskin_allegro", 3, 8)]
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    assert importlib.util.find_spec("setuptools") is not None, \
+        "building the plugin offline needs setuptools in the test environment: pip install -e '.[test]'"
+    work = tmp_path_factory.mktemp("tcn_plugin")
+    source, target = work / "src", work / "site"
+    shutil.copytree(PLUGIN, source, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+    proc = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-index", "--no-deps", "--no-build-isolation",
+         "--disable-pip-version-check", "--no-input", "--quiet", "--target", str(target), str(source)],
+        capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, f"pip could not install {PLUGIN}:\n{proc.stdout}\n{proc.stderr}"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
+        mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
+        mp.syspath_prepend(str(target))
+        registry.reset_plugins()
+        yield target
+        for name in [m for m in sys.modules if m == "tactile_zoo_tcn" or m.startswith("tactile_zoo_tcn.")]:
+            del sys.modules[name]
+    registry.reset_plugins()
+
+
+def _spec(sensor: str, channels: int, globals_: int, steps: int = 12, classes: int = 3) -> DatasetSpec:
+    s = get_sensor(sensor)
+    return DatasetSpec(f"tcn_{sensor}", classes, tuple(f"c{i}" for i in range(classes)), steps, s.num_nodes,
+                       channels, globals_, s)
+
+
+def _batch(spec: DatasetSpec, batch: int = 4, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor | None]:
+    gen = torch.Generator().manual_seed(seed)
+    x = torch.randn(batch, spec.num_steps, spec.num_nodes, spec.num_channels, generator=gen)
+    g = torch.randn(batch, spec.num_steps, spec.num_globals, generator=gen) if spec.num_globals else None
+    return x, g
+
+
+def test_the_distribution_installs_only_its_package(installed):
+    assert sorted(p.name for p in installed.iterdir()) == ["tactile_zoo_tcn", f"tactile_zoo_tcn-{VERSION}.dist-info"]
+    entry_points = (installed / f"tactile_zoo_tcn-{VERSION}.dist-info" / "entry_points.txt").read_text()
+    assert "[tactile_zoo.models]" in entry_points and "tcn = tactile_zoo_tcn:TCN" in entry_points
+
+
+def test_tcn_is_discovered_with_its_metadata(installed):
+    assert "tcn" in list_models() and list_models("*tcn*", tags=["temporal", "convolutional"]) == ["tcn"]
+    entry = get_model_entry("TCN")
+    assert (entry.dist, entry.version, entry.qualified_name) == (DIST, VERSION, f"{DIST}:tcn")
+    assert Path(sys.modules["tactile_zoo_tcn"].__file__).is_relative_to(installed)  # the installed copy
+    meta = entry.meta
+    assert meta["year"] == 2018 and "Sequence Modeling" in meta["paper"] and meta["causal"] is True
+    assert meta["tags"] == ["convolutional", "temporal"] and meta["inputs"] == ["globals"]
+    assert {"loss", "optimizer", "lr", "max_epochs", "patience", "batch_size"} <= set(meta["recipe"])
+    assert meta["recipe"]["loss"] == "ce" and meta["recipe"]["optimizer"] == "adam"
+    [info] = [i for i in registry.plugins() if i.dist == DIST]
+    assert (info.version, info.group, info.name, info.value, info.status) == \
+        (VERSION, "tactile_zoo.models", "tcn", "tactile_zoo_tcn:TCN", "ok")
+
+
+@pytest.mark.parametrize("sensor, channels, globals_", FAMILIES)
+def test_tcn_gives_logits_on_every_sensor_family(installed, sensor, channels, globals_):
+    spec = _spec(sensor, channels, globals_, steps=40)
+    model = create_model("tcn", spec, hidden=8)
+    x, g = _batch(spec)
+    logits = model(x, g)
+    assert logits.shape == (4, 3) and logits.dtype == torch.float32 and torch.isfinite(logits).all()
+    assert model.receptive_field >= 40  # the default depth covers the whole recording
+    assert isinstance(create_model(f"{DIST}:tcn", spec, hidden=8, levels=2, readout="last"), type(model))
+    if globals_:  # the global features reach the logits
+        model.eval()
+        assert not torch.allclose(model(x, g), model(x, g + 1.0))
+
+
+def test_tcn_trains(installed):
+    """A few Adam steps on a task where the class is which taxel patch fires, and when: the loss falls."""
+    torch.manual_seed(0)
+    spec = _spec("neutouch", 2, 0, steps=16)
+    gen = torch.Generator().manual_seed(1)
+    y = torch.arange(48) % 3
+    x = (torch.rand(48, 16, 39, 2, generator=gen) < 0.02).float()  # (B, T, N, C) background events
+    for i, label in enumerate(y.tolist()):
+        start = int(torch.randint(0, 8, (1,), generator=gen))
+        x[i, start:start + 4, 8 * label:8 * label + 8, 0] = 1.0  # an ON burst on patch `label`
+    model = create_model("tcn", spec, hidden=16)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-2)
+    losses = []
+    for _ in range(30):
+        loss = torch.nn.functional.cross_entropy(model(x), y)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert sum(losses[-3:]) / 3 < 0.5 * losses[0], losses
+    model.eval()
+    assert (model(x).argmax(1) == y).float().mean() > 0.9
+
+
+@pytest.mark.parametrize("readout", ["mean", "last"])
+@pytest.mark.parametrize("sensor, channels, globals_", [FAMILIES[0], FAMILIES[3]])
+def test_tcn_streams_the_scores_of_every_prefix(installed, readout, sensor, channels, globals_):
+    spec = _spec(sensor, channels, globals_, steps=10)
+    model = create_model("tcn", spec, hidden=8, readout=readout)
+    x, g = _batch(spec, batch=3)
+    model.train()
+    model(x, g)  # give the input BatchNorm running statistics other than the initial ones
+    model.eval()
+    state = model.init_state(3)
+    with torch.no_grad():
+        for t in range(spec.num_steps):
+            scores, state = model.step(x[:, t], None if g is None else g[:, t], state)
+            prefix = model(x[:, :t + 1], None if g is None else g[:, :t + 1])
+            torch.testing.assert_close(scores, prefix, atol=1e-5, rtol=1e-4)
+
+
+def test_tcn_rejects_bad_input_with_one_clear_error(installed):
+    spec = _spec("uskin_allegro", 3, 8)
+    model = create_model("tcn", spec, hidden=8)
+    x, g = _batch(spec)
+    with pytest.raises(ConfigError, match="global features"):
+        model(x)
+    with pytest.raises(ConfigError, match=r"x must be \(B, T, 60, 3\)"):
+        model(x[:, :, :30], g)
+    with pytest.raises(ConfigError, match="readout"):
+        create_model("tcn", spec, readout="max")
+    with pytest.raises(ConfigError, match="kernel_size"):
+        create_model("tcn", spec, kernel_size=1)
+
+
+def test_tcn_in_the_cli(installed, capsys):
+    assert main(["plugins"]) == 0
+    [row] = [line for line in capsys.readouterr().out.splitlines() if line.startswith(DIST)]
+    assert row.split()[:3] == [DIST, VERSION, "tactile_zoo.models"]
+    assert "tcn = tactile_zoo_tcn:TCN" in row and row.endswith("[ok]")
+    assert main(["list", "models"]) == 0
+    [row] = [line for line in capsys.readouterr().out.splitlines() if line.split()[0] == "tcn"]
+    assert "convolutional, temporal" in row and "Sequence Modeling" in row
+    assert main(["info", "tcn", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "model" and info["name"] == f"{DIST}:tcn" and info["year"] == 2018
+    simulated = list_datasets("sim_*")
+    if simulated:  # `info` builds the model for the first simulated dataset and counts its parameters
+        spec = load_dataset(simulated[0], split="train").spec
+        assert info["built_for"] == simulated[0]
+        assert info["parameters"] == sum(p.numel() for p in create_model("tcn", spec).parameters())
