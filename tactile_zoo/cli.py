@@ -245,6 +245,8 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", default=None, help="torch threads per cell (default: cores / workers)")
     p.add_argument("--config", default=None, metavar="FILE.yaml", help="settings file (flags given here win)")
     p.add_argument("--dry-run", action="store_true", help="print the grid of cells and exit")
+    p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "
+                                                           "(`tactile-zoo report DIR` draws them later)")
     _add_recipe_flags(p)
     p.set_defaults(handler=_cmd_bench)
 
@@ -262,7 +264,7 @@ def _bench_config(args: argparse.Namespace) -> Any:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from .bench import run_bench
 
-    outcome = run_bench(_bench_config(args), dry_run=args.dry_run, quiet=args.quiet)
+    outcome = run_bench(_bench_config(args), dry_run=args.dry_run, quiet=args.quiet, plots=not args.no_plots)
     return outcome.exit_code
 
 

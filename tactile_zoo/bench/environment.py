@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import platform
 import socket
 import subprocess
@@ -33,20 +34,20 @@ def git_commit() -> str | None:
     return commit + ("+dirty" if dirty.stdout.strip() else "")
 
 
-def environment() -> dict[str, Any]:
+@functools.lru_cache(maxsize=1)
+def _static() -> dict[str, Any]:
     import sys
 
-    for mod in ("torch_geometric", "snntorch"):  # record their versions when the zoo's models imported them
-        if mod not in sys.modules:
-            try:
-                __import__(mod)
-            except Exception:  # noqa: BLE001 - optional in a plugin-only environment
-                pass
     gpu = None
     if torch.cuda.is_available():
-        gpu = {"count": torch.cuda.device_count(), "name": torch.cuda.get_device_name(0),
-               "cuda": torch.version.cuda, "memory_gb": round(torch.cuda.get_device_properties(0).total_memory / 2**30,
-                                                               1)}
+        props = torch.cuda.get_device_properties(0)
+        gpu = {"count": torch.cuda.device_count(), "name": torch.cuda.get_device_name(0), "cuda": torch.version.cuda,
+               "memory_gb": round(props.total_memory / 2**30, 1)}
     return {"versions": versions(), "python": sys.version.split()[0], "platform": platform.platform(),
-            "hostname": socket.gethostname(), "cpu_model": cpu_model(), "cpu_cores": cpu_count(),
-            "torch_threads": torch.get_num_threads(), "gpu": gpu, "git_commit": git_commit()}
+            "hostname": socket.gethostname(), "cpu_model": cpu_model(), "cpu_cores": cpu_count(), "gpu": gpu,
+            "git_commit": git_commit()}
+
+
+def environment() -> dict[str, Any]:
+    """Package versions, CPU model and cores, torch threads, GPU, git commit (computed once per process)."""
+    return {**_static(), "torch_threads": torch.get_num_threads()}

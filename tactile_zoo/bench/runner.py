@@ -103,7 +103,7 @@ def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: 
 
 
 def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False, out: TextIO | None = None,
-              err: TextIO | None = None, report: bool = True) -> BenchOutcome:
+              err: TextIO | None = None, report: bool = True, plots: bool = True) -> BenchOutcome:
     """Run (or with ``dry_run`` only list) the grid ``config`` describes. Raises ConfigError for bad input."""
     out, err = out or sys.stdout, err or sys.stderr
     if os.getcwd() not in sys.path and "" not in sys.path:
@@ -160,7 +160,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
                 from .report import write_outputs
 
                 with run.table_lock():
-                    write_outputs(run.path, plots=status == "finished")
+                    write_outputs(run.path, plots=plots and status == "finished")
             _run_json(run, config, grid, status, {"started": started_text, "executor": executor.describe(),
                                                   "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                                                   "counts": counts})
@@ -221,7 +221,7 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                     claim.release()
                     finish(cell, record, by_us=False)
                     continue
-                inflight[executor.submit(_task(cell, config, executor))] = (cell, claim)
+                _submit(executor, cell, claim, config, inflight)
             if inflight:
                 for future in executor.wait(list(inflight)):
                     cell, claim = inflight.pop(future)
@@ -255,11 +255,20 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                 claim.release()
                 finish(cell, record, by_us=False)
             else:  # its holder stopped without finishing it
-                inflight[executor.submit(_task(cell, config, executor))] = (cell, claim)
+                _submit(executor, cell, claim, config, inflight)
     finally:
         for _, claim in inflight.values():
             claim.release()
     return None
+
+
+def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, inflight: dict[Any, Any]) -> None:
+    try:
+        future = executor.submit(_task(cell, config, executor))
+    except BaseException:  # Ctrl-C inside a local cell: its claim must not outlive it
+        claim.release()
+        raise
+    inflight[future] = (cell, claim)
 
 
 def _worker_failure(cell: Cell, exc: BaseException) -> dict[str, Any]:

@@ -471,7 +471,7 @@ def _uskin_rub(rng: np.random.Generator, y: np.ndarray, steps: int) -> tuple[np.
     height, slope = height[:, :, line], slope[:, :, line]  # (S, T, 60)
 
     # fingertip contact profile: a Gaussian patch that widens on compliant fabric, total force preserved
-    centre = np.array([3.2, 2.5]) + rng.normal(0.0, 0.4, (s, 2))
+    centre = np.array([3.2, 2.5]) + rng.normal(0.0, 0.25, (s, 2))
     width = 1.2 * (1.0 + 0.5 * comp)
     dist2 = ((local[None] - centre[:, None]) ** 2).sum(-1)  # (S, 60)
     profile = np.exp(-0.5 * dist2 / width[:, None] ** 2)

@@ -9,6 +9,7 @@ since the process started (an upper bound for the cell); :attr:`PeakMemory.sourc
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import random
@@ -106,14 +107,22 @@ class PeakMemory:
 
 def versions() -> dict[str, str]:
     """Versions of the packages a result depends on."""
+    return dict(_versions())
+
+
+@functools.lru_cache(maxsize=1)
+def _versions() -> dict[str, str]:
+    from importlib import metadata
+
     from .. import __version__
 
     out = {"tactile_zoo": __version__, "torch": torch.__version__, "numpy": np.__version__,
            "python": platform.python_version()}
-    for mod in ("torch_geometric", "snntorch"):
-        module = sys.modules.get(mod)
-        if module is not None:
-            out[mod] = getattr(module, "__version__", "?")
+    for dist in ("torch_geometric", "snntorch"):  # from the installed metadata: importing them costs seconds
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
     return out
 
 

@@ -37,7 +37,7 @@ def bin_frames(x: Tensor, bin_size: int, reduce: str = "sum") -> Tensor:
     pad = nb * bin_size - t
     if pad:
         x = torch.cat([x, x.new_zeros(b, pad, *x.shape[2:])], dim=1)
-    out = x.view(b, nb, bin_size, *x.shape[2:]).sum(2)  # (B, T', ...)
+    out = x.reshape(b, nb, bin_size, *x.shape[2:]).sum(2)  # (B, T', ...)
     if reduce == "mean":
         counts = torch.full((nb,), float(bin_size), dtype=x.dtype, device=x.device)
         counts[-1] = bin_size - pad

@@ -125,7 +125,8 @@ class FrameGraphConv(nn.Module):
         self.register_buffer("edge_index", edge_index, persistent=False)
         self.register_buffer("edge_weight", None if edge_weight is None else edge_weight.float(), persistent=False)
         propagator = dense_propagator(self.conv, edge_index, num_nodes, edge_weight) if backend == "dense" else None
-        self.register_buffer("propagator", None if propagator is None else propagator.float(), persistent=False)
+        # kept in float64 (cast per call, it is tiny) so a float64 module matches PyG to float64 rounding
+        self.register_buffer("propagator", propagator, persistent=False)
 
     def extra_repr(self) -> str:
         return f"kind={self.kind}, num_nodes={self.num_nodes}, backend={self.backend}"

@@ -72,9 +72,10 @@ class Surrogate:
         if self.kind == "atan":  # snntorch.surrogate.ATan.backward: alpha / 2 / (1 + (pi / 2 * alpha * u) ** 2)
             torch.mul(u, math.pi / 2 * self.param, out=out).pow_(2).add_(1)
             return torch.reciprocal(out, out=out).mul_(self.param / 2)
-        if self.kind == "sigmoid":  # k s (1 - s), s = sigmoid(k u): finite where snnTorch's form overflows
-            s = torch.sigmoid(torch.mul(u, self.param, out=out), out=out)
-            return torch.addcmul(s, s, s, value=-1.0, out=s).mul_(self.param)
+        if self.kind == "sigmoid":  # k sigmoid(k u) sigmoid(-k u): finite where snnTorch's form overflows
+            ku = torch.mul(u, self.param, out=out)
+            tail = torch.sigmoid(-ku)  # 1 - sigmoid(k u) without the cancellation near 1
+            return torch.sigmoid(ku, out=out).mul_(tail).mul_(self.param)
         # an arbitrary snnTorch surrogate: its backward is elementwise, so one call with unit output grads gives dS/dU
         with torch.enable_grad():
             leaf = u.detach().requires_grad_(True)

@@ -117,11 +117,13 @@ class TemporalAttention(nn.Module):
 
     Shapes:
         input ``f``: ``(T, B, F)``; output: ``(B, F)`` and the weights ``alpha`` ``(T, B)`` (sum to one over T).
+
+    The scoring network's last layer has no bias: softmax over frames ignores a constant added to every score.
     """
 
     def __init__(self, features: int, attn_dim: int = 32) -> None:
         super().__init__()
-        self.score = nn.Sequential(nn.Linear(features, attn_dim), nn.Tanh(), nn.Linear(attn_dim, 1))
+        self.score = nn.Sequential(nn.Linear(features, attn_dim), nn.Tanh(), nn.Linear(attn_dim, 1, bias=False))
 
     def forward(self, f: Tensor) -> tuple[Tensor, Tensor]:
         alpha = torch.softmax(self.score(f).squeeze(-1), dim=0)  # (T, B)

@@ -18,7 +18,7 @@ from tactile_zoo.cli import main
 TESTS = Path(__file__).resolve().parents[1]
 #: a small grid: 2 models x (tiny_blobs: 1 fold + tiny_kfold: 2 of its 3 folds) x seed 0 = 6 cells
 SMALL = ["--models", "tiny_mlp,tiny_rate", "--datasets", "tiny_blobs,tiny_kfold", "--folds", "2", "--seeds", "0",
-         "--threads", "1"]
+         "--threads", "1", "--no-plots"]
 
 
 @pytest.fixture(autouse=True)
@@ -60,5 +60,5 @@ def reference_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The SMALL grid run once, uninterrupted, locally in this process."""
     out = tmp_path_factory.mktemp("reference") / "run"
     tiny_zoo.register()
-    assert run_cli([*SMALL, "--out", str(out), "-q"]) == 0
+    assert run_cli([*[a for a in SMALL if a != "--no-plots"], "--out", str(out), "-q"]) == 0  # with plots
     return out

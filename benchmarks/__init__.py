@@ -1,0 +1,17 @@
+"""tactile-zoo's performance suite: each benchmark times a fast path and its naive counterpart in the same process.
+
+Run everything with ``python -m benchmarks.run`` (``make benchmarks``); see benchmarks/README.md. Absolute times on a
+shared machine drift; the ratios of side-by-side medians are what the suite reports.
+"""
+
+#: benchmark name -> module (under ``benchmarks``), in the order ``benchmarks.run`` runs them
+BENCHMARKS = {
+    "lif": "lif",
+    "graph_conv": "graph_conv",
+    "sgnet_epoch": "sgnet_epoch",
+    "epoch_all_models": "epoch_all_models",
+    "inference": "inference",
+    "streaming_latency": "streaming_latency",
+    "scaling": "scaling",
+    "bench_wall": "bench_wall",
+}

@@ -1,0 +1,78 @@
+"""ConvLSTM classifier (Zapata-Impata et al. 2019): the source's layers, read-out of the last hidden state, streaming."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import tactile_zoo as tz
+from tactile_zoo.data.spec import DatasetSpec
+from tactile_zoo.errors import ConfigError
+
+
+def spec_for(sensor: str, channels: int, globals_: int = 0, steps: int = 10) -> DatasetSpec:
+    s = tz.get_sensor(sensor)
+    return DatasetSpec("t", 4, ("a", "b", "c", "d"), steps, s.num_nodes, channels, globals_, s)
+
+
+def test_layers_follow_the_source() -> None:
+    model = tz.create_model("convlstm", spec_for("biotac_sp", 1))
+    layers = model.convlstm.layers
+    assert len(layers) == 2
+    assert all(layer.hidden_channels == 16 and layer.hidden_conv.kernel_size == (3, 3) for layer in layers)
+    assert (model.fc.in_features, model.fc.out_features, model.head.out_features) == (16, 16, 4)
+    assert model.grid.grid_shape == (12, 11) and model.grid.fill_passes == 2  # the source's BioTac image
+
+
+def test_forward_is_pooled_last_hidden_state_through_the_head() -> None:
+    torch.manual_seed(0)
+    spec = spec_for("neutouch", 2)
+    model = tz.create_model("convlstm", spec).eval()
+    x = torch.rand(3, 10, 39, 2)
+    with torch.no_grad():
+        seq, _ = model.convlstm(model.grid(x))  # (B, T, 16, 9, 13)
+        pooled = seq[:, -1].mean(dim=(-2, -1))
+        want = model.head(torch.relu(model.fc(pooled)))
+        assert torch.allclose(model(x), want, atol=1e-6)
+
+
+def test_globals_join_after_pooling_at_the_last_step() -> None:
+    torch.manual_seed(1)
+    model = tz.create_model("convlstm", spec_for("optoforce3", 4, globals_=3)).eval()
+    assert model.fc.in_features == 16 + 3
+    x, g = torch.rand(2, 10, 3, 4), torch.rand(2, 10, 3)
+    with torch.no_grad():
+        base = model(x, g)
+        early = g.clone()
+        early[:, :-1] += 5.0
+        assert torch.equal(model(x, early), base)  # only g_T is read
+        late = g.clone()
+        late[:, -1] += 5.0
+        assert not torch.allclose(model(x, late), base)
+    with pytest.raises(ConfigError, match="3 global features"):
+        model(x)
+
+
+@pytest.mark.parametrize(("sensor", "channels", "globals_"), [("biotac_sp", 1, 0), ("uskin_allegro", 3, 8)])
+def test_streaming_matches_forward_on_every_prefix(sensor: str, channels: int, globals_: int) -> None:
+    torch.manual_seed(2)
+    spec = spec_for(sensor, channels, globals_)
+    model = tz.create_model("convlstm", spec).eval()
+    x, g = torch.rand(2, 10, spec.num_nodes, channels), torch.rand(2, 10, globals_)
+    with torch.no_grad():
+        state = model.init_state(2)
+        for t in range(10):
+            scores, state = model.step(x[:, t], g[:, t] if globals_ else None, state)
+            assert torch.allclose(scores, model(x[:, : t + 1], g[:, : t + 1]), atol=1e-5)
+    # the state is one (h, c) pair per layer on the grid: constant in T
+    assert [tuple(h.shape) for h, _ in state] == [(2, 16, *spec.sensor.grid_shape)] * 2
+    meta = tz.registry.get_model_entry("convlstm").meta
+    assert meta["causal"] and meta["streaming"] and meta["recipe"]["batch_size"] == 32
+
+
+def test_wrong_input_shape_is_named() -> None:
+    model = tz.create_model("convlstm", spec_for("neutouch", 2))
+    with pytest.raises(ConfigError, match="convlstm"):
+        model(torch.rand(2, 10, 38, 2))
+    with pytest.raises(ConfigError, match="convlstm"):
+        model.step(torch.rand(2, 10, 39, 2), None, model.init_state(2))
