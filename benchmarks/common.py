@@ -97,21 +97,31 @@ class Context:
 
 
 # --------------------------------------------------------------------------------------------------------- timing
+def _median(values: Sequence[float]) -> float:
+    s = sorted(values)
+    n = len(s)
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
 @dataclass
 class Timing:
-    """Seconds of each timed run of one implementation."""
+    """Wall-clock seconds of each timed run of one implementation, and the process CPU seconds of each (all threads;
+    steadier than wall time when other processes compete for the cores)."""
 
     times: list[float]
+    cpu: list[float] = field(default_factory=list)
 
     @property
     def median(self) -> float:
-        s = sorted(self.times)
-        n = len(s)
-        return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+        return _median(self.times)
 
     @property
     def min(self) -> float:
         return min(self.times)
+
+    @property
+    def cpu_median(self) -> float:
+        return _median(self.cpu) if self.cpu else float("nan")
 
     def __len__(self) -> int:
         return len(self.times)
@@ -126,16 +136,17 @@ def time_interleaved(fns: dict[str, Callable[[], object]], repeats: int, ctx: Co
         for _ in range(warmup):
             fns[name]()
     ctx.sync()
-    out: dict[str, list[float]] = {name: [] for name in names}
+    out = {name: Timing([], []) for name in names}
     for r in range(repeats):
         order = names[r % len(names):] + names[:r % len(names)]
         for name in order:
             ctx.sync()
-            start = time.perf_counter()
+            cpu, start = time.process_time(), time.perf_counter()
             fns[name]()
             ctx.sync()
-            out[name].append(time.perf_counter() - start)
-    return {name: Timing(times) for name, times in out.items()}
+            out[name].times.append(time.perf_counter() - start)
+            out[name].cpu.append(time.process_time() - cpu)
+    return out
 
 
 def time_calls(fn: Callable[[], object], repeats: int, ctx: Context, warmup: int = 1) -> Timing:
@@ -263,14 +274,17 @@ def write_csv(ctx: Context, name: str, columns: Sequence[str], rows: Sequence[di
 
 # ------------------------------------------------------------------------------------------------ shared pieces
 #: the columns of a side-by-side comparison (fast path vs naive counterpart)
-PAIR_COLUMNS = ("fast", "naive", "fast_median_s", "fast_min_s", "naive_median_s", "naive_min_s", "ratio", "repeats")
+PAIR_COLUMNS = ("fast", "naive", "fast_median_s", "fast_min_s", "naive_median_s", "naive_min_s", "ratio", "repeats",
+                "fast_cpu_s", "naive_cpu_s", "ratio_cpu")
 
 
 def pair_row(case: str, fast: str, naive: str, t_fast: Timing, t_naive: Timing, **extra: Any) -> dict[str, Any]:
-    """One CSV row comparing two timings; ``ratio`` = naive median / fast median (how many times faster)."""
+    """One CSV row comparing two timings: ``ratio`` = naive median / fast median (how many times faster), and the
+    same for the medians of process CPU seconds (``ratio_cpu``)."""
     return {"case": case, "fast": fast, "naive": naive, "fast_median_s": t_fast.median, "fast_min_s": t_fast.min,
             "naive_median_s": t_naive.median, "naive_min_s": t_naive.min, "ratio": t_naive.median / t_fast.median,
-            "repeats": min(len(t_fast), len(t_naive)), **extra}
+            "repeats": min(len(t_fast), len(t_naive)), "fast_cpu_s": t_fast.cpu_median,
+            "naive_cpu_s": t_naive.cpu_median, "ratio_cpu": t_naive.cpu_median / t_fast.cpu_median, **extra}
 
 
 def model_recipe(name: str) -> Any:

@@ -311,7 +311,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     config = _single_config(args)
     import_plugin_modules(config.plugin_modules)
-    seeds = parse_seeds(args.seed)
+    try:
+        seeds = parse_seeds(args.seed)
+    except ConfigError as exc:  # name the flag this command has (--seed), not bench's --seeds
+        raise ConfigError(str(exc).replace("--seeds", "--seed", 1)) from None
     if len(seeds) != 1:
         raise ConfigError(f"--seed takes one seed, got {args.seed!r}")
     fold = _fold_arg(args.fold)

@@ -108,6 +108,21 @@ class ProcessExecutor(Executor):
         return f"process ({self.workers} workers x {self.threads} threads)"
 
 
+def _check_reachable(address: str) -> None:
+    """Fail in a second on a refused ``tcp://HOST:PORT`` instead of waiting out the Dask connect timeout."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme != "tcp" or not parts.hostname or not parts.port:
+        return  # other transports (tls, inproc, ucx): let Dask decide
+    try:
+        socket.create_connection((parts.hostname, parts.port), timeout=10).close()
+    except OSError as exc:
+        raise ConfigError(f"--scheduler {address}: cannot connect to the Dask scheduler: "
+                          f"{exc.strerror or exc}") from None
+
+
 def _dask_task(task: CellTask) -> dict[str, Any]:
     return run_cell(task)
 
@@ -130,7 +145,8 @@ class DaskExecutor(Executor):
         self._cluster = None
         try:
             if scheduler:
-                self._client = distributed.Client(scheduler, timeout="20s")
+                _check_reachable(scheduler)
+                self._client = distributed.Client(scheduler, timeout="30s")
             else:
                 import logging
 

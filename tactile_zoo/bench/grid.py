@@ -95,8 +95,9 @@ class Grid:
         for info in self.datasets:
             lines.append(f"  {info.name}: protocol {info.protocol}, folds {_ranges(info.folds)} of {info.num_folds}")
         lines.append(f"  models: {', '.join(self.models)}")
+        broken = {s.dataset for s in self.skipped if s.status == "failed"}
         for name, note in self.dataset_notes.items():
-            lines.append(f"  skipped dataset {name}: {note}")
+            lines.append(f"  {'failed' if name in broken else 'skipped'} dataset {name}: {note}")
         return lines
 
 
@@ -184,6 +185,7 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
     kwargs = config.kwargs_for(name)
     obj = entry.obj
     obtain = _obtain_hint(entry, name)
+    present = False
     if isinstance(obj, type) and issubclass(obj, TactileDataset):
         present, reason = obj.availability(config.root)
         if not present and not (config.download and getattr(obj, "downloadable", False)):
@@ -200,6 +202,8 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
                 from None
         return "failed", f"loading {name} failed: {type(exc).__name__}: {exc}", obtain
     except (DatasetError, FileNotFoundError) as exc:
+        if present:  # the raw files are there but cannot be read: broken data fails loudly, it is not "absent"
+            return "failed", str(exc), ""
         return "skipped", str(exc), obtain
     except Exception as exc:  # a broken dataset must not stop the other datasets
         return "failed", f"loading {name} failed: {type(exc).__name__}: {exc}", obtain

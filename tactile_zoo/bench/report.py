@@ -57,7 +57,8 @@ def load_run(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[dict[s
 
 
 def write_outputs(path: str | os.PathLike, plots: bool = True) -> dict[str, Path]:
-    """Write leaderboard.csv, summary.csv, report.md (and the plots) of the run directory ``path``."""
+    """Write leaderboard.csv, summary.csv, report.md (and the plots) of the run directory ``path``, holding the
+    folder's table lock (another bench process on the same folder waits; it never sees half a table)."""
     from ..errors import ConfigError
 
     run = RunDir(path)
@@ -65,6 +66,15 @@ def write_outputs(path: str | os.PathLike, plots: bool = True) -> dict[str, Path
         raise ConfigError(f"{run.path} is not a folder (expected a bench output folder with cells/)")
     if not run.cells_dir.is_dir():
         raise ConfigError(f"{run.path} has no cells/ folder: not a tactile-zoo bench output")
+    with run.table_lock():
+        for name in ("leaderboard.csv", "summary.csv", "report.md"):
+            run.remove_torn(run.path, name)
+        for torn in run.plots_dir.rglob(".*.tmp") if run.plots_dir.is_dir() else ():
+            torn.unlink(missing_ok=True)
+        return _write_outputs(run, plots)
+
+
+def _write_outputs(run: RunDir, plots: bool) -> dict[str, Path]:
     records, skipped, info, ignored = load_run(run.path)
     board, board_cols = leaderboard_rows(records, skipped)
     summary, summary_cols = summary_rows(board, board_cols)
@@ -211,8 +221,8 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
     def save(fig: Any, rel: str) -> str:
         target = run.path / rel
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(f".{target.name}.tmp.png")
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
+        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
         plt.close(fig)
         os.replace(tmp, target)
         return rel

@@ -194,6 +194,16 @@ class RunDir:
                 return Claim(path, fd)
             os.close(fd)
 
+    def remove_torn(self, folder: Path, name: str) -> int:
+        """Delete temporary files a killed writer of ``folder/name`` left behind. Only call this while holding what
+        serialises those writes (the cell's claim, or the table lock), so no live writer's file is touched."""
+        removed = 0
+        for tmp in folder.glob(f".{name}.*.tmp"):
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+                removed += 1
+        return removed
+
     def claim_holder(self, cell_id: str) -> str:
         """``"pid P on HOST since T"`` of the process holding a claim (best effort)."""
         try:

@@ -99,6 +99,7 @@ def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: 
                         "cells": [c.cell_id for c in grid.cells], "skipped": [s.to_dict() for s in grid.skipped],
                         "dataset_notes": grid.dataset_notes}, **extra}
     with run.table_lock():
+        run.remove_torn(run.path, "run.json")
         atomic_write_json(run.path / "run.json", payload)
 
 
@@ -136,8 +137,12 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         console = _Console(len(todo), quiet, out, err)
         console.line(f"tactile-zoo bench: {len(grid.cells)} cells, {len(outcome.reused)} already finished, "
                      f"{len(todo)} to run on {executor.describe()} -> {out_dir}")
+        broken = {s.dataset for s in grid.skipped if s.status == "failed"}
         for name, note in grid.dataset_notes.items():
-            console.line(f"skipped dataset {name}: {note}", always=True)
+            if name in broken:  # present but unreadable: an error, not a skip
+                console.error(f"tactile-zoo: error: dataset {name} failed to load: {note}")
+            else:
+                console.line(f"skipped dataset {name}: {note}", always=True)
         status = "finished"
         try:
             write_error = _loop(todo, run, config, executor, console, outcome, started)
@@ -159,8 +164,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
             if report:
                 from .report import write_outputs
 
-                with run.table_lock():
-                    write_outputs(run.path, plots=plots and status == "finished")
+                write_outputs(run.path, plots=plots and status == "finished")
             _run_json(run, config, grid, status, {"started": started_text, "executor": executor.describe(),
                                                   "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                                                   "counts": counts})
@@ -168,7 +172,8 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
             write_error = write_error or f"cannot write the tables in {out_dir}: {exc.strerror or exc}"
         summary = (f"done: {counts['ok']} ok, {counts['failed']} failed, {counts['skipped']} skipped"
                    + (f", {counts['pending']} not run" if counts["pending"] else "")
-                   + (f"; {len(grid.dataset_notes)} dataset(s) skipped" if grid.dataset_notes else "")
+                   + (f"; {counts['datasets_skipped']} dataset(s) skipped" if counts["datasets_skipped"] else "")
+                   + (f"; {counts['datasets_failed']} dataset(s) failed" if counts["datasets_failed"] else "")
                    + f" -> {out_dir / 'leaderboard.csv'}")
         console.line(summary, always=True)
         if write_error:
@@ -221,6 +226,7 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                     claim.release()
                     finish(cell, record, by_us=False)
                     continue
+                run.remove_torn(run.cells_dir, f"{cell.cell_id}.json")  # a killed writer's half file
                 _submit(executor, cell, claim, config, inflight)
             if inflight:
                 for future in executor.wait(list(inflight)):
@@ -241,6 +247,8 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                         return str(exc.strerror)
                     claim.release()
                     finish(cell, record, by_us=True)
+                continue
+            if not deferred:  # the last pending cells were found finished by another process
                 continue
             # everything left is claimed by other processes: wait for them, then take over what they left undone
             cell = deferred.popleft()

@@ -491,7 +491,7 @@ def _uskin_rub(rng: np.random.Generator, y: np.ndarray, steps: int) -> tuple[np.
     forces = np.stack([shear_x, shear_y, normal], axis=-1)  # (S, T, 60, 3)
 
     # sensor: gain, offset, normal-to-shear crosstalk, noise
-    forces = forces * rng.lognormal(0.0, 0.08, (s, 1, 60, 3)) + rng.normal(0.0, 0.02, (s, 1, 60, 3))
+    forces = forces * rng.lognormal(0.0, 0.05, (s, 1, 60, 3)) + rng.normal(0.0, 0.015, (s, 1, 60, 3))
     forces[..., :2] += 0.05 * forces[..., 2:3]
     forces += rng.normal(0.0, 0.025, forces.shape)
 

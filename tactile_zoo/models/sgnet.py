@@ -52,7 +52,7 @@ class SGNetState:
     tags=["spiking", "graph"],
     inputs=["graph", "globals"],
     # the reference's recipe (MSE on rates, Adam amsgrad 1e-3, x0.1 at epochs 40 and 80, 100 epochs) at batch 8
-    # instead of 1 (see the model card: same accuracy on Ev-Objects, about 8x fewer optimiser steps)
+    # instead of 1 (see the model card), no early stopping: the reference trains the whole schedule
     recipe={"loss": "mse_rate", "optimizer": "adam", "amsgrad": True, "lr": 1e-3, "weight_decay": 0.0,
             "schedule": {"type": "multistep", "milestones": [40, 80], "gamma": 0.1}, "max_epochs": 100,
             "patience": None, "batch_size": 8},
@@ -90,15 +90,25 @@ class SGNet(nn.Module):
 
     **Choices and departures.**
 
-    - Batch size 8 instead of the reference's 1 (our choice): same recipe otherwise; measured on Ev-Objects (see the
-      report in docs/models.md) it learns as fast per epoch, with about 8x fewer optimiser steps and far less time.
+    - Initialisation (our choice): the Linear weights are He-normal (``kaiming_normal_``, fan-in, gain sqrt 2);
+      ``init="default"`` keeps PyTorch's default uniform(+-1/sqrt(fan_in)), the framework default the reference
+      runs with. With the default, activity dies out layer by layer at initialisation (spike rates on real
+      Ev-Objects: 0.058, 0.0055, 0, 0 for the four LIF layers), so the last two weight matrices get no gradient
+      until training revives them, and on some sensors they never start in a short run; with He-normal the rates are
+      0.058, 0.072, 0.079, 0.069. In a 5-epoch check (one seed, 468 train / 108 held-out train samples, batch 8)
+      both learn alike: held-out accuracy 0.39, 0.54, 0.69, 0.75, 0.78 (default) and 0.38, 0.62, 0.70, 0.81, 0.79
+      (He).
+    - Batch size 8 instead of the reference's 1 (our choice): the rest of the recipe unchanged; it learns at the
+      pace above (0.79 held-out accuracy after 5 epochs) with 8x fewer optimiser steps, and an epoch costs a small
+      fraction of a batch-1 epoch. ``batch_size=1`` restores the reference.
     - All frames go through the graph convolution and each linear layer in one call, with a precomputed dense
       normalised adjacency equal to PyG's TAGConv (tests/nn/test_graph.py); the reference rebuilds a PyG ``Batch``
-      and calls every layer once per time step. Same function, different schedule.
+      and calls every layer once per time step. Same function, different schedule (tests/models/test_sgnet.py
+      compares against a per-step, per-sample computation).
     - The membrane recurrences run fused (one autograd node per layer, hand-written backward through time), tested
       to give snnTorch's spikes and gradients.
-    - Global features (datasets with ``num_globals > 0``; the reference has none): ``g_t`` is concatenated to the
-      flattened spiking graph features of frame ``t`` before Linear 128, as real values (our choice: the layer that
+    - Global features (datasets with ``num_globals > 0``; the reference has none): ``g_t`` is concatenated, as real
+      values, to the flattened spiking graph features of frame ``t`` before Linear 128 (our choice: the layer that
       mixes all taxels is the first place a per-frame vector fits).
     - Other sensors: the same network on their default graph; the flattened width follows ``N``.
 
@@ -111,6 +121,7 @@ class SGNet(nn.Module):
             1.0, False).
         graph: the sensor graph kind (``"default"``, ``"mst"``, ``"knn"``...), with ``graph_kwargs``.
         lif_backend: ``"fused"`` or ``"snntorch"``; graph_backend: ``"dense"`` or ``"pyg"``.
+        init: ``"he"`` (He-normal Linear weights) or ``"default"`` (PyTorch's, as the reference).
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> rates ``(B, K)`` in [0, 1]; streaming:
@@ -120,8 +131,10 @@ class SGNet(nn.Module):
     def __init__(self, spec: DatasetSpec, graph_channels: int = 64, hops: int = 3, hidden: tuple[int, ...] = (128, 256),
                  beta: float = 0.2, threshold: float = 0.5, surrogate: str = "rect", surrogate_width: float = 1.0,
                  detach_reset: bool = False, graph: str = "default", graph_kwargs: dict[str, Any] | None = None,
-                 lif_backend: str = "fused", graph_backend: str = "dense") -> None:
+                 lif_backend: str = "fused", graph_backend: str = "dense", init: str = "he") -> None:
         super().__init__()
+        if init not in ("he", "default"):
+            raise ConfigError(f"sgnet: init must be 'he' or 'default', got {init!r}")
         hidden = tuple(int(h) for h in hidden)
         if not hidden or min(hidden) < 1 or graph_channels < 1:
             raise ConfigError(f"sgnet: widths must be positive, got graph_channels={graph_channels}, hidden={hidden}")
@@ -132,6 +145,9 @@ class SGNet(nn.Module):
                                  backend=graph_backend)
         widths = (n * graph_channels + spec.num_globals, *hidden, spec.num_classes)
         self.fcs = nn.ModuleList(nn.Linear(a, b) for a, b in zip(widths[:-1], widths[1:]))
+        if init == "he":  # keeps every layer spiking at initialisation (see the model card)
+            for fc in self.fcs:
+                nn.init.kaiming_normal_(fc.weight)
         lif_kw = dict(beta=beta, threshold=threshold, reset="zero", surrogate=surrogate,
                       surrogate_width=surrogate_width, detach_reset=detach_reset, backend=lif_backend)
         self.lifs = nn.ModuleList(MultiStepLIF(**lif_kw) for _ in range(len(widths)))

@@ -21,16 +21,11 @@ is the same neuron in the shifted variable ``U = V - V_reset``: ``beta = 1 - 1/t
 
 Two backends compute the same thing: ``"snntorch"`` steps ``snntorch.Leaky`` once per time step (the reference
 definition; autograd records every step) and ``"fused"`` (default) runs the whole time loop inside one
-``torch.autograd.Function`` with a hand-written backward through time. The fused forward does two kernels per step
-and keeps only the membrane potentials; its backward evaluates every surrogate derivative in one vectorised call and
-then runs one multiply-add per step. The two give bit-identical spikes (same rounding: ``(beta * U) * keep + I``)
-and the same gradients to float rounding (tests/nn/test_lif.py).
-
-Surrogates: ``"rect"`` (dS/dU = 1 where ``|U - U_thr| < width / 2``, TactileSGNet's rectangle; snnTorch has none,
-so the snnTorch backend wraps it in ``snntorch.surrogate.custom_surrogate``), ``"atan"`` (``snntorch.surrogate.atan``,
-alpha), ``"sigmoid"`` (``snntorch.surrogate.sigmoid``, slope; the fused backend evaluates the same derivative as
-``k s (1 - s)``, which stays finite where snnTorch's ``k e^{-kU} / (e^{-kU} + 1)^2`` overflows to NaN, U < -88/k),
-or any snnTorch surrogate callable (the fused backward then asks it for dS/dU once over all steps).
+``torch.autograd.Function`` with a hand-written backward through time: two kernels per step forward, one
+multiply-add per step backward, everything else vectorised over cache-sized blocks of steps (see :class:`_FusedLIF`).
+On CPU the two give bit-identical spikes (the same rounding, ``(beta * U) * (1 - R) + I``) and the same gradients to
+float rounding (tests/nn/test_lif.py); on GPU a fused multiply-add may round a membrane that lands within one ulp of
+the threshold differently. Surrogates: :mod:`tactile_zoo.nn.surrogate`.
 """
 
 from __future__ import annotations
@@ -43,77 +38,12 @@ import torch
 from torch import Tensor, nn
 
 from ..errors import ConfigError
+from .surrogate import Surrogate, make_surrogate, open_interval_mask
 
-__all__ = ["MultiStepLIF", "Surrogate", "make_surrogate"]
+__all__ = ["MultiStepLIF"]
 
 _RESETS = ("zero", "subtract")
 _BACKENDS = ("fused", "snntorch")
-
-
-class Surrogate:
-    """A surrogate gradient: the snnTorch spike function (``spike_fn``) and its derivative as a tensor (``grad``).
-
-    Args:
-        kind: ``"rect"``, ``"atan"``, ``"sigmoid"`` or ``"custom"`` (an snnTorch surrogate callable).
-        param: rectangle width, atan alpha or sigmoid slope.
-        fn: the callable for ``"custom"``.
-    """
-
-    def __init__(self, kind: str, param: float = 1.0, fn: Callable[[Tensor], Tensor] | None = None) -> None:
-        self.kind, self.param, self._fn = kind, float(param), fn
-
-    def grad(self, u: Tensor, out: Tensor | None = None) -> Tensor:
-        """dS/dU at ``u = U - U_thr`` (elementwise), into ``out`` if given."""
-        if out is None:
-            out = torch.empty_like(u)
-        if self.kind == "rect":  # |u| < width / 2, as a 0/1 mask in one kernel
-            return _hardtanh_backward(u.new_ones(()).expand_as(u), u, -self.param / 2, self.param / 2,
-                                      grad_input=out)
-        if self.kind == "atan":  # snntorch.surrogate.ATan.backward: alpha / 2 / (1 + (pi / 2 * alpha * u) ** 2)
-            torch.mul(u, math.pi / 2 * self.param, out=out).pow_(2).add_(1)
-            return torch.reciprocal(out, out=out).mul_(self.param / 2)
-        if self.kind == "sigmoid":  # k sigmoid(k u) sigmoid(-k u): finite where snnTorch's form overflows
-            ku = torch.mul(u, self.param, out=out)
-            tail = torch.sigmoid(-ku)  # 1 - sigmoid(k u) without the cancellation near 1
-            return torch.sigmoid(ku, out=out).mul_(tail).mul_(self.param)
-        # an arbitrary snnTorch surrogate: its backward is elementwise, so one call with unit output grads gives dS/dU
-        with torch.enable_grad():
-            leaf = u.detach().requires_grad_(True)
-            (g,) = torch.autograd.grad(self.spike_fn(leaf), leaf, torch.ones_like(leaf))
-        return out.copy_(g)
-
-    @property
-    def spike_fn(self) -> Callable[[Tensor], Tensor]:
-        """The callable ``snntorch.Leaky(spike_grad=...)`` takes."""
-        if self._fn is None:
-            from snntorch import surrogate
-
-            if self.kind == "rect":
-                half = self.param / 2
-                self._fn = surrogate.custom_surrogate(lambda u, grad, spk: grad * (u.abs() < half).to(grad.dtype))
-            elif self.kind == "atan":
-                self._fn = surrogate.atan(alpha=self.param)
-            else:
-                self._fn = surrogate.sigmoid(slope=self.param)
-        return self._fn
-
-    def __repr__(self) -> str:
-        return f"Surrogate({self.kind!r}, {self.param:g})" if self.kind != "custom" else f"Surrogate({self._fn!r})"
-
-
-def make_surrogate(surrogate: str | Callable[[Tensor], Tensor], width: float = 1.0, alpha: float = 2.0,
-                   slope: float = 25.0) -> Surrogate:
-    """A :class:`Surrogate` from a name (``rect`` uses ``width``, ``atan`` ``alpha``, ``sigmoid`` ``slope``) or an
-    snnTorch surrogate callable."""
-    if callable(surrogate) and not isinstance(surrogate, str):
-        return Surrogate("custom", fn=surrogate)
-    params = {"rect": width, "atan": alpha, "sigmoid": slope}
-    if surrogate not in params:
-        raise ConfigError(f"surrogate must be one of {sorted(params)} or an snntorch.surrogate callable, "
-                          f"got {surrogate!r}")
-    if not params[surrogate] > 0:
-        raise ConfigError(f"the {surrogate} surrogate needs a positive parameter, got {params[surrogate]}")
-    return Surrogate(surrogate, params[surrogate])
 
 
 #: Sequences whose membrane history is at most this large keep it for the backward pass; longer ones keep one
@@ -122,9 +52,6 @@ def make_surrogate(surrogate: str | Callable[[Tensor], Tensor], width: float = 1
 SAVE_LIMIT_BYTES = 8 << 20
 #: Bytes per block of steps that the vectorised parts of forward and backward process at once (stays in cache).
 BLOCK_BYTES = 2 << 20
-
-_hardtanh_backward = torch.ops.aten.hardtanh_backward.grad_input  # grad * (lo < u < hi): a 0/1 mask in one kernel
-
 
 def _next_up(level: float, dtype: torch.dtype) -> float:
     """The smallest value of ``dtype`` above ``level``: ``u <= level`` is ``u < _next_up(level)`` exactly."""
@@ -140,7 +67,7 @@ def _advance(x_t: Tensor, prev: Tensor, out: Tensor, flag: Tensor, ones: Tensor,
         torch.mul(prev, beta, out=out)
         return out.add_(x_t).sub_(flag, alpha=threshold)
     # 1 - R[t] = (U <= U_thr) as 0/1 in one kernel (a comparison into a float tensor takes two)
-    _hardtanh_backward(ones, prev, -math.inf, th_up, grad_input=flag)
+    open_interval_mask(prev, -math.inf, th_up, out=flag, ones=ones)
     # one kernel for (beta * U) * (1 - R) + I: exactly the rounding of snnTorch's beta * ((1 - R) * U) + I
     return torch.addcmul(x_t, prev, flag, value=beta, out=out)
 
@@ -182,7 +109,7 @@ class _FusedLIF(torch.autograd.Function):
             for k in range(t1 - t0):
                 prev = _advance(xs[t0 + k], prev, out[k + 1], flag, ones, beta, threshold, th_up, subtract)
             # spikes U > U_thr as 0/1 in one kernel (only an infinite membrane would be missed)
-            _hardtanh_backward(ones.expand_as(rows[1:]), rows[1:], threshold, math.inf, grad_input=spikes[t0:t1])
+            open_interval_mask(rows[1:], threshold, math.inf, out=spikes[t0:t1], ones=ones.expand_as(rows[1:]))
             if not keep_all and t1 < steps:
                 rows[0].copy_(prev)  # the next block reuses the buffer, starting from this block's last membrane
         last = prev.clone()
@@ -226,7 +153,7 @@ class _FusedLIF(torch.autograd.Function):
                 else:  # beta - U_thr * S'(U[t-1])
                     decay, scale = torch.mul(sg[:-1], -th, out=decay_buf[:n]).add_(beta), 1.0
             else:
-                decay = _hardtanh_backward(ones[:n], rows[:-1], -math.inf, th_up, grad_input=decay_buf[:n])  # 1 - R
+                decay = open_interval_mask(rows[:-1], -math.inf, th_up, out=decay_buf[:n], ones=ones[:n])  # 1 - R
                 if not detach_reset:  # beta * (1 - S[t-1]) * U[t-1] also depends on U[t-1] through S[t-1]
                     decay.addcmul_(rows[:-1], sg[:-1], value=-1.0)
                 scale = beta
@@ -296,7 +223,7 @@ class MultiStepLIF(nn.Module):
         self.beta, self.threshold, self.reset = float(beta), float(threshold), reset
         self.surrogate = make_surrogate(surrogate, surrogate_width, surrogate_alpha, surrogate_slope)
         self.detach_reset, self.backend, self.input_scale = bool(detach_reset), backend, float(input_scale)
-        self._leaky: tuple[nn.Module, ...] = ()  # built on first snnTorch use; outside the state_dict on purpose
+        self._leaky: dict[tuple, nn.Module] = {}  # snnTorch neurons, built on first use; kept out of the state_dict
 
     @classmethod
     def from_tau(cls, tau: float, v_th: float, v_reset: float = 0.0, **kw: object) -> MultiStepLIF:
@@ -339,16 +266,19 @@ class MultiStepLIF(nn.Module):
         return spikes.squeeze(0), mem
 
     def _snntorch_loop(self, x: Tensor, mem: Tensor) -> tuple[Tensor, Tensor]:
-        if not self._leaky:
-            import snntorch
+        key = (x.device, x.dtype)
+        leaky = self._leaky.get(key)
+        if leaky is None:  # one neuron per device and dtype, built from float64 constants (as_tensor(0.2) would
+            import snntorch  # round beta to float32 even for float64 inputs)
 
             leaky_cls = snntorch.Leaky if self.detach_reset else _attached_leaky()
-            self._leaky = (leaky_cls(beta=self.beta, threshold=self.threshold, spike_grad=self.surrogate.spike_fn,
-                                     reset_mechanism=self.reset),)
-        leaky = self._leaky[0].to(device=x.device, dtype=x.dtype)
+            exact = dict(dtype=torch.float64)
+            leaky = leaky_cls(beta=torch.tensor(self.beta, **exact), threshold=torch.tensor(self.threshold, **exact),
+                              spike_grad=self.surrogate.spike_fn, reset_mechanism=self.reset).to(*key)
+            self._leaky[key] = leaky
         spikes = []
         for x_t in x.unbind(0):  # never x[t]: each x[t] backward would materialise a full-size gradient
             spk, mem = leaky(x_t, mem)
-            spikes.append(spk)
+            spikes.append(spk.to(x.dtype))  # snnTorch's spike functions return float32 whatever the input
         leaky.mem = torch.zeros(0, device=x.device)  # do not keep the last graph alive in snnTorch's buffer
         return torch.stack(spikes), mem

@@ -31,7 +31,7 @@ from torch import Tensor, nn
 from ..errors import ConfigError
 from .graph import FrameGraphConv
 
-__all__ = ["TGCNCell", "TGT_TGCN2Cell", "TemporalAttention", "TemporalGraphAttention"]
+__all__ = ["TGCNCell", "TGCN2Cell", "TemporalAttention", "TemporalGraphAttention"]
 
 # (taxel states h (B, N, H), running max of the scores (B,), softmax denominator (B,), weighted feature sum (B, F))
 BranchState = tuple[Tensor, Tensor, Tensor, Tensor]
@@ -80,7 +80,7 @@ class TGCNCell(nn.Module):
         return torch.stack(hs), h  # (T, B, N, H), (B, N, H)
 
 
-class TGT_TGCN2Cell(nn.Module):  # noqa: N801  (named after the class it wraps)
+class TGCN2Cell(nn.Module):
     """``torch_geometric_temporal.nn.recurrent.TGCN2`` stepped over frames, with :class:`TGCNCell`'s interface.
 
     Not eqs. 10-13: TGCN2 runs one ``GCNConv`` (with self-loops) per gate on every step. Raises
@@ -167,7 +167,7 @@ class TemporalGraphAttention(nn.Module):
                  pool: str = "mean", attn_dim: int = 32, temporal_backend: str = "native",
                  graph_backend: str = "dense") -> None:
         super().__init__()
-        cells = {"native": TGCNCell, "tgt": TGT_TGCN2Cell}
+        cells = {"native": TGCNCell, "tgt": TGCN2Cell}
         if temporal_backend not in cells:
             raise ConfigError(f"temporal_backend must be 'native' or 'tgt', got {temporal_backend!r}")
         if pool not in ("mean", "flatten"):

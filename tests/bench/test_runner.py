@@ -11,6 +11,9 @@ from tactile_zoo.bench import executors, results
 from tactile_zoo.bench.config import BenchConfig
 from tactile_zoo.bench.runner import run_bench
 
+#: these tests share the session's reference run: one xdist worker computes it once
+pytestmark = pytest.mark.xdist_group("tiny_bench")
+
 
 def _copy(reference_run: Path, tmp_path: Path) -> Path:
     out = tmp_path / "run"

@@ -7,7 +7,7 @@ import torch
 import torch.nn.functional as F
 
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig
+from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig, _FusedRecurrence
 
 
 def reference_step(cell: ConvLSTMCell, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
@@ -85,14 +85,50 @@ def test_keras_style_initialisation() -> None:
     assert cell.hidden_conv.bias is None  # one bias per gate, on the input side
 
 
-def test_gradients_match_finite_differences() -> None:
+@pytest.mark.parametrize("backend", ["fused", "autograd"])
+def test_gradients_match_finite_differences(backend: str) -> None:
     torch.manual_seed(3)
-    cell = ConvLSTMCell(1, 2).double()
+    cell = ConvLSTMCell(1, 2, backend=backend).double()
     x = torch.randn(1, 3, 1, 2, 3, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda inp: cell(inp)[0], (x,))
 
 
-@pytest.mark.parametrize("kwargs", [{"kernel_size": 2}, {"kernel_size": 0}, {"hidden_channels": 0}])
+def test_fused_time_loop_gradcheck_on_every_input() -> None:
+    torch.manual_seed(4)
+    hid = 2
+    xz = torch.randn(4, 2, 4 * hid, 3, 2, dtype=torch.float64, requires_grad=True)  # (T, B, 4h, H, W)
+    w = (0.5 * torch.randn(4 * hid, hid, 3, 3, dtype=torch.float64)).requires_grad_()
+    h0 = torch.randn(2, hid, 3, 2, dtype=torch.float64, requires_grad=True)
+    c0 = torch.randn(2, hid, 3, 2, dtype=torch.float64, requires_grad=True)
+    # both outputs, the whole hidden sequence and the last cell state, carry gradient
+    assert torch.autograd.gradcheck(lambda *a: _FusedRecurrence.apply(*a, 1), (xz, w, h0, c0))
+
+
+def test_fused_backend_equals_the_autograd_reference() -> None:
+    torch.manual_seed(5)
+    cfg = {"in_channels": 2, "hidden_channels": 4, "num_layers": 2}
+    fused = ConvLSTM(ConvLSTMConfig(**cfg, backend="fused")).double()
+    ref = ConvLSTM(ConvLSTMConfig(**cfg, backend="autograd")).double()
+    ref.load_state_dict(fused.state_dict())
+    x = torch.randn(3, 9, 2, 4, 5, dtype=torch.float64)
+    outs = []
+    for net in (fused, ref):
+        xi = x.clone().requires_grad_()
+        seq, states = net(xi)
+        # a loss on the sequence and on the last states of both layers, so every gradient path is exercised
+        loss = (seq * torch.linspace(-1, 1, seq.numel(), dtype=torch.float64).view_as(seq)).sum()
+        loss = loss + sum((h ** 2).sum() + c.sin().sum() for h, c in states)
+        loss.backward()
+        outs.append((seq.detach(), xi.grad, [p.grad for p in net.parameters()]))
+    (s1, g1, p1), (s2, g2, p2) = outs
+    assert torch.allclose(s1, s2, atol=1e-12) and torch.allclose(g1, g2, atol=1e-10)
+    assert all(torch.allclose(a, b, atol=1e-10) for a, b in zip(p1, p2))
+    with torch.no_grad():  # the inference path (no buffers for backward) gives the same sequence
+        assert torch.allclose(fused(x)[0], s1, atol=1e-12)
+
+
+@pytest.mark.parametrize("kwargs", [{"kernel_size": 2}, {"kernel_size": 0}, {"hidden_channels": 0},
+                                    {"backend": "cuda-graphs"}])
 def test_bad_arguments_are_config_errors(kwargs: dict) -> None:
     args = {"in_channels": 2, "hidden_channels": 4, **kwargs}
     with pytest.raises(ConfigError):

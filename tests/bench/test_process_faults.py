@@ -1,0 +1,85 @@
+"""Faults with real processes: SIGKILL mid-run then resume, and two bench processes on one output folder."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import time
+from pathlib import Path
+
+import pytest
+from conftest import bench_subprocess, read_board, run_cli
+
+from tactile_zoo.bench.config import BenchConfig
+from tactile_zoo.bench.runner import run_bench
+
+#: 2 models x (tiny_blobs + 2 folds of tiny_kfold) = 6 cells; tiny_slow sleeps in training, ~1 s per cell
+GRID = ["--models", "tiny_slow,tiny_mlp", "--datasets", "tiny_blobs,tiny_kfold", "--folds", "2", "--seeds", "0",
+        "--threads", "1", "--no-plots"]
+CONFIG = {"models": ["tiny_slow", "tiny_mlp"], "datasets": ["tiny_blobs", "tiny_kfold"], "folds": 2, "threads": 1}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    import tiny_zoo
+
+    tiny_zoo.register()
+    out = tmp_path_factory.mktemp("uninterrupted") / "run"
+    assert run_cli([*GRID, "--out", str(out), "-q"]) == 0
+    return out
+
+
+def _wait_for_first_cell(proc: object, cells: Path, timeout: float = 240) -> None:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if cells.is_dir() and any(cells.glob("*.json")):
+            return
+        if proc.poll() is not None:
+            pytest.fail(f"bench ended before it could be killed: {proc.communicate()}")
+        time.sleep(0.01)
+    pytest.fail("no cell file appeared")
+
+
+def test_sigkill_mid_run_loses_nothing_and_resume_matches(uninterrupted: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = bench_subprocess([*GRID, "--out", str(out), "-q"])
+    try:
+        _wait_for_first_cell(proc, out / "cells")
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == -signal.SIGKILL
+    survivors = {p.stem: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
+    assert 1 <= len(survivors) < 6
+    outcome = run_bench(BenchConfig(**CONFIG, out=str(out)), quiet=True)
+    assert outcome.exit_code == 0
+    assert set(survivors) <= set(outcome.reused)  # finished cells are not recomputed...
+    assert not set(survivors) & set(outcome.ran) and len(outcome.ran) + len(outcome.reused) == 6
+    after = {p.stem: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
+    assert all(after[k] == v for k, v in survivors.items())  # ...nor touched
+    assert read_board(out) == read_board(uninterrupted)
+
+
+_LINE = re.compile(r"^\[\d+/\d+\] \w+\s+(\S+) x (\S+) fold (\d+) seed (\d+)(.*)$")
+
+
+def test_two_processes_on_one_out_share_the_work(uninterrupted: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    procs = [bench_subprocess([*GRID, "--out", str(out)]) for _ in range(2)]
+    try:
+        results = [p.communicate(timeout=400) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    assert [p.returncode for p in procs] == [0, 0], results
+    ran = []
+    for stdout, _ in results:
+        ran.append({m.groups()[:4] for line in stdout.splitlines() if (m := _LINE.match(line))
+                    and "another process" not in m.group(5)})
+    assert not ran[0] & ran[1]  # no cell computed twice
+    assert len(ran[0] | ran[1]) == 6
+    both = "".join(s for s, _ in results)
+    assert "another tactile-zoo bench" in both or "finished by another process" in both  # says what happens
+    assert read_board(out) == read_board(uninterrupted)

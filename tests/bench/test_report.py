@@ -1,0 +1,46 @@
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from tactile_zoo.cli import main
+
+#: these tests share the session's reference run: one xdist worker computes it once
+pytestmark = pytest.mark.xdist_group("tiny_bench")
+
+PLOTS = ["heatmap.png", "bars_tiny_blobs.png", "bars_tiny_kfold.png", "curves_tiny_blobs.png", "curves_tiny_kfold.png",
+         "early_tiny_blobs.png", "early_tiny_kfold.png", "confusion/tiny_blobs__tiny_mlp.png",
+         "confusion/tiny_blobs__tiny_rate.png", "confusion/tiny_kfold__tiny_mlp.png",
+         "confusion/tiny_kfold__tiny_rate.png"]
+
+
+def test_report_regenerates_everything_from_the_cell_files(reference_run: Path, tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(reference_run / "cells", out / "cells")  # nothing but the cell files (no run.json)
+    assert main(["report", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    for name in ("leaderboard.csv", "summary.csv"):
+        assert (out / name).read_text() == (reference_run / name).read_text(), name
+    for plot in PLOTS:
+        data = (out / "plots" / plot).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000, plot
+    report = (out / "report.md").read_text()
+    for text in ("## Summary", "| tiny_mlp | tiny_blobs | 1 |", "## tiny_kfold", "plots/heatmap.png",
+                 "plots/early_tiny_blobs.png", "Early classification", "| tiny_rate | yes |",
+                 "| tiny_mlp | no (truncated) |", "plots/confusion/tiny_kfold__tiny_rate.png"):
+        assert text in report, text
+
+
+def test_report_uses_the_cells_of_the_run_grid(reference_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(reference_run, out)
+    foreign = next((out / "cells").glob("tiny_mlp__tiny_blobs*.json"))
+    shutil.copy(foreign, out / "cells" / "stale.json")  # same content, a cell id that the grid does not list:
+    text = foreign.read_text().replace('"cell_id": "tiny_mlp__tiny_blobs', '"cell_id": "stale__tiny_mlp__tiny_blobs')
+    (out / "cells" / "stale.json").write_text(text)
+    assert main(["report", str(out), "--no-plots"]) == 0
+    assert (out / "leaderboard.csv").read_text() == (reference_run / "leaderboard.csv").read_text()
+    assert "1 cell file(s) in the folder belong to another configuration" in (out / "report.md").read_text()
