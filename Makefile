@@ -26,7 +26,7 @@ lint: install
 	$(BIN)/ruff check tactile_zoo tests benchmarks examples plugins
 
 benchmarks: install
-	$(BIN)/python -m benchmarks.run
+	$(BIN)/python -m benchmarks.run $(BENCHMARK_ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info

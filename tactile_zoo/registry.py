@@ -59,9 +59,11 @@ MODEL_INPUTS = frozenset({"graph", "grid", "globals"})
 RECIPE_KEYS = frozenset({
     "loss", "optimizer", "lr", "weight_decay", "amsgrad", "schedule", "max_epochs", "patience", "batch_size",
     "grad_clip",
+    # optional keys the engine also reads (tactile_zoo.engine.recipe.Recipe; keep the two lists equal)
+    "momentum", "nesterov", "monitor", "eval_batch_size", "label_smoothing", "rate_targets",
 })
 _RECIPE_CHOICES = {"loss": {"ce", "mse_rate"}, "optimizer": {"adam", "adamw", "sgd"}}
-_SCHEDULE_TYPES = {"multistep", "cosine"}
+_SCHEDULE_TYPES = {"multistep", "cosine", "step", "exponential"}
 
 
 class PluginWarning(UserWarning):

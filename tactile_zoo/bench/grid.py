@@ -165,15 +165,15 @@ def resolve_datasets(tokens: Iterable[str]) -> list[str]:
     return _resolve("dataset", tokens)
 
 
-def _obtain_hint(entry: registry.Entry, name: str) -> str:
+def _obtain_hint(entry: registry.Entry, name: str, root: str | None) -> str:
+    """The command (or instructions) that gets a dataset's data."""
     from ..data.base import TactileDataset
 
-    obtain = str(entry.meta.get("obtain") or getattr(entry.obj, "obtain", "") or "").strip()
     downloadable = isinstance(entry.obj, type) and issubclass(entry.obj, TactileDataset) and \
         bool(getattr(entry.obj, "downloadable", False))
     if downloadable:
-        obtain = (f"tactile-zoo bench --datasets {name} --download" + (f" (or: {obtain})" if obtain else ""))
-    return obtain
+        return f"tactile-zoo download {name}" + (f" --root {root}" if root else "") + " (or add --download)"
+    return str(entry.meta.get("obtain") or getattr(entry.obj, "obtain", "") or "").strip()
 
 
 def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, str, str]:
@@ -184,13 +184,11 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
     entry = registry.get_dataset_entry(name)
     kwargs = config.kwargs_for(name)
     obj = entry.obj
-    obtain = _obtain_hint(entry, name)
+    obtain = _obtain_hint(entry, name, config.root)
     present = False
     if isinstance(obj, type) and issubclass(obj, TactileDataset):
         present, reason = obj.availability(config.root)
         if not present and not (config.download and getattr(obj, "downloadable", False)):
-            if getattr(obj, "downloadable", False):
-                reason = f"{reason} (it can be downloaded: add --download)"
             return "skipped", reason, obtain
     try:
         splits = load_splits(name, config.root, 0, config.download, kwargs, ("train",))

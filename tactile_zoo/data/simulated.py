@@ -13,7 +13,7 @@ to the real recordings.
     radius of curvature), stiffness (Young's modulus), grip ramp duration, viscoelastic relaxation during the hold,
     how far it slips when lifted, and a surface texture (amplitude and wavelength of a periodic relief).
     *Physics*: the grip force ramps up with a smoothstep from a contact onset, holds (soft objects relax), then the
-    object is lifted and slips a little along gravity (the grip tightens 15 % against the load). Pressure on the pad
+    object is lifted and slips a little along gravity (the grip tightens 35 % against the load). Pressure on the pad
     follows Hertz contact theory: a sphere gives ``p0 sqrt(1 - r^2/a^2)`` with ``a = (3FR/4E)^(1/3)`` and
     ``p0 = 3F/(2 pi a^2)``; a cylinder, edge or rim gives the line-contact profile ``p0 sqrt(1 - d^2/b^2)`` with
     ``b = sqrt(4F'R/(pi E))``, ``p0 = 2F'/(pi b)`` and ``F'`` the force per unit contact length; a flat face gives a
@@ -43,7 +43,7 @@ T = 30 readings at 100 Hz)
     angle). Skin pile-up ahead of a moving contact adds ``beta * (p(t+1) - p(t))`` (beta ~ U(1.5, 3)), so a
     single reading already shows the motion's leading edge; slipping contacts unload by up to 15 % over the window.
     *Electrodes*: raw impedance-like integers that DROP under contact: ``E = baseline + drift * t - gain * pressure +
-    noise``, baselines U(3050, 3750), gains lognormal 0.15, thermal drift N(0, 0.4) units per reading, noise N(0, 8),
+    noise``, baselines U(3050, 3650), gains lognormal 0.15, thermal drift N(0, 0.25) units per reading, noise N(0, 8),
     rounded and clipped to the 12-bit range, so values lie roughly in 1900-3750 as in the release.
     *Normalisation* (what the real ``biotac_dos`` loader is expected to apply): per electrode, the baseline ``b`` is the
     mean of the recording's first 10 readings, taken before contact (30-120 readings before the window, so drift makes
@@ -193,12 +193,12 @@ _EV_CLASSES = (
     # name,          shape,     R/half-size mm, E,   ramp, relax, slip mm, texture amp, texture wavelength mm
     ("small_ball",   _SPHERE,   8.0,  1.00, 0.08, 0.02, 1.0, 0.00, 4.0),
     ("large_ball",   _SPHERE,  25.0,  1.00, 0.08, 0.02, 0.6, 0.00, 4.0),
-    ("foam_ball",    _SPHERE,  15.0,  0.25, 0.20, 0.25, 0.5, 0.15, 3.0),
+    ("foam_ball",    _SPHERE,  15.0,  0.25, 0.20, 0.40, 0.5, 0.15, 3.0),
     ("marker",       _CYLINDER, 6.0,  1.00, 0.08, 0.02, 1.5, 0.00, 4.0),
-    ("bottle",       _CYLINDER, 30.0, 0.50, 0.12, 0.10, 2.0, 0.05, 6.0),
+    ("bottle",       _CYLINDER, 30.0, 0.50, 0.12, 0.15, 2.0, 0.05, 6.0),
     ("box_edge",     _CYLINDER, 1.0,  1.00, 0.08, 0.03, 0.8, 0.00, 4.0),
     ("cracker_box",  _FLAT,    12.0,  0.80, 0.10, 0.05, 1.2, 0.05, 8.0),
-    ("sponge",       _FLAT,    12.0,  0.15, 0.25, 0.30, 0.4, 0.30, 2.5),
+    ("sponge",       _FLAT,    12.0,  0.15, 0.25, 0.45, 0.4, 0.30, 2.5),
     ("cup_rim",      _RING,     2.0,  1.00, 0.08, 0.02, 1.0, 0.00, 4.0),
     ("rubiks_cube",  _FLAT,    12.0,  1.00, 0.08, 0.02, 1.5, 0.50, 5.5),
 )
@@ -231,7 +231,7 @@ def _evtouch_pressure(rng: np.random.Generator, y: np.ndarray, t: np.ndarray) ->
     u = _smoothstep((tt - onset[:, None]) / ramp[:, None])
     hold = np.clip(tt - (onset + ramp)[:, None], 0.0, None)
     w = _smoothstep((tt - lift[:, None]) / 0.12)  # lift phase, 0 -> 1
-    f = force[:, None] * u * (1.0 - relax[:, None] * (1.0 - np.exp(-hold / 0.15))) * (1.0 + 0.15 * w)  # (S, T)
+    f = force[:, None] * u * (1.0 - relax[:, None] * (1.0 - np.exp(-hold / 0.15))) * (1.0 + 0.35 * w)  # (S, T)
     f = np.maximum(f, 1e-9)
 
     tremor = np.cumsum(rng.normal(0.0, 0.03, (s, len(t), 2)), axis=1)
@@ -365,8 +365,8 @@ def _biotac_raw(rng: np.random.Generator, y: np.ndarray, steps: int) -> tuple[np
     pressure = np.clip(p, 0.0, None) * load[..., None]
 
     # electrodes: baseline + drift - gain * pressure + noise, in raw ADC units
-    base = rng.uniform(3050.0, 3750.0, (s, n_e))
-    drift = rng.normal(0.0, 0.4, (s, n_e))
+    base = rng.uniform(3050.0, 3650.0, (s, n_e))
+    drift = rng.normal(0.0, 0.25, (s, n_e))
     gain = rng.lognormal(0.0, 0.15, (s, n_e))
     gap = rng.integers(30, 121, s)  # readings between the pre-contact baseline and the window
     pre_t = np.arange(_DOS_BASELINE_READINGS)

@@ -53,6 +53,8 @@ class ConvLSTMNet(nn.Module):
         kernel_size: ConvLSTM kernel side (source: 3).
         fc_units: width of the hidden fully connected layer (source: 16).
         fill_passes: empty-cell fill passes of the sensor image; ``None`` takes the sensor's (BioTac SP: 2).
+        backend: the recurrence's implementation, ``"fused"`` (default) or ``"autograd"`` (the reference); same
+            results, see :mod:`tactile_zoo.nn.convlstm`.
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming:
@@ -60,11 +62,12 @@ class ConvLSTMNet(nn.Module):
     """
 
     def __init__(self, spec: DatasetSpec, hidden_channels: int = 16, num_layers: int = 2, kernel_size: int = 3,
-                 fc_units: int = 16, fill_passes: int | None = None) -> None:
+                 fc_units: int = 16, fill_passes: int | None = None, backend: str = "fused") -> None:
         super().__init__()
         self.spec = spec
         self.grid = SensorGrid(spec.sensor, fill_passes)
-        self.convlstm = ConvLSTM(ConvLSTMConfig(spec.num_channels, hidden_channels, num_layers, kernel_size))
+        self.convlstm = ConvLSTM(ConvLSTMConfig(spec.num_channels, hidden_channels, num_layers, kernel_size,
+                                                backend=backend))
         self.fc = nn.Linear(hidden_channels + spec.num_globals, fc_units)
         self.head = nn.Linear(fc_units, spec.num_classes)
 

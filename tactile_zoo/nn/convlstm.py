@@ -61,7 +61,7 @@ _WGRAD_CHUNK = 25  # steps per weight-gradient call: large enough to amortise, s
 
 def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, padding: int, keep: bool
                 ) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor, Tensor] | None]:
-    """Run the time loop without autograd: ``xz (T, B, 4h, H, W)`` -> ``hs (T+1, B, h, H, W)`` (``hs[0] = h0``), ``c_T``.
+    """The time loop without autograd: ``xz (T, B, 4h, H, W)`` -> ``hs (T+1, B, h, H, W)`` (``hs[0] = h0``), ``c_T``.
 
     With ``keep`` every step's activated gates, cell states and ``tanh(c)`` stay in buffers for the backward pass;
     without it (inference) three per-step scratch tensors are reused.

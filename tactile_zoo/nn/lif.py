@@ -97,13 +97,14 @@ class _FusedLIF(torch.autograd.Function):
         hist = torch.empty((rows_total, *mem0.shape), dtype=x.dtype, device=x.device)  # row 0: membrane before
         hist[0] = mem0
         starts = list(range(0, steps, block))
-        ckpts = []  # the membrane entering each block, when the history is not kept
+        # the membrane entering each block, when the history is not kept
+        ckpts = None if keep_all else x.new_empty((len(starts), *mem0.shape))
         xs = x.unbind(0)
-        for t0 in starts:
+        for j, t0 in enumerate(starts):
             t1 = min(t0 + block, steps)
             rows = hist[t0:t1 + 1] if keep_all else hist[:t1 - t0 + 1]  # (n + 1, ...) with the entering membrane
-            if not keep_all:
-                ckpts.append(rows[0].clone())
+            if ckpts is not None:
+                ckpts[j].copy_(rows[0])
             out = rows.unbind(0)
             prev = out[0]
             for k in range(t1 - t0):
@@ -113,7 +114,7 @@ class _FusedLIF(torch.autograd.Function):
             if not keep_all and t1 < steps:
                 rows[0].copy_(prev)  # the next block reuses the buffer, starting from this block's last membrane
         last = prev.clone()
-        ctx.save_for_backward(hist if keep_all else torch.stack(ckpts), x)
+        ctx.save_for_backward(hist if keep_all else ckpts, x)
         ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, block, keep_all, starts)
         ctx.set_materialize_grads(False)  # an unused output needs no zero-filled gradient
         return spikes, last
@@ -133,6 +134,7 @@ class _FusedLIF(torch.autograd.Function):
             rows_buf, flag = saved.new_empty((block + 1, *shape)), saved.new_empty(shape)
             xs = x.unbind(0)
         carry = grad_mem  # dL/dU[t1 - 1], the gradient reaching the end of the current block from later blocks
+        carry_buf = saved.new_empty(shape)
         for j in range(len(starts) - 1, -1, -1):
             t0 = starts[j]
             n = min(t0 + block, steps) - t0
@@ -171,7 +173,10 @@ class _FusedLIF(torch.autograd.Function):
                     rows_g[k].add_(rows_g[k + 1], alpha=scale)
                 else:
                     rows_g[k].addcmul_(rows_g[k + 1], decay[k + 1], value=scale)
-            carry = rows_g[0] * scale if decay is None else torch.mul(rows_g[0], decay[0]).mul_(scale)
+            if decay is None:
+                carry = torch.mul(rows_g[0], scale, out=carry_buf)
+            else:
+                carry = torch.mul(rows_g[0], decay[0], out=carry_buf).mul_(scale)
         return grad, (carry if ctx.needs_input_grad[1] else None), None, None, None, None, None
 
 

@@ -8,6 +8,7 @@ import torch
 from sklearn.linear_model import LogisticRegression
 from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
+from threadpoolctl import threadpool_limits
 
 from tactile_zoo.data import simulated
 from tactile_zoo.errors import ConfigError
@@ -39,8 +40,9 @@ def _probe(name: str, shuffle_labels: bool = False) -> float:
     if shuffle_labels:
         y_train = np.random.default_rng(0).permutation(y_train)
     clf = make_pipeline(StandardScaler(), LogisticRegression(C=0.1, max_iter=2000))
-    clf.fit(_features(train.x.numpy(), train.g.numpy()), y_train)
-    return float(clf.score(_features(test.x.numpy(), test.g.numpy()), test.y.numpy()))
+    with threadpool_limits(1):  # a multi-threaded BLAS on a busy machine can be 40x slower on this tiny problem
+        clf.fit(_features(train.x.numpy(), train.g.numpy()), y_train)
+        return float(clf.score(_features(test.x.numpy(), test.g.numpy()), test.y.numpy()))
 
 
 def test_registered_with_metadata() -> None:
@@ -93,15 +95,16 @@ def test_splits_disjoint_and_complete(name: str) -> None:
 @pytest.mark.parametrize("name", NAMES)
 def test_deterministic_by_seed(name: str) -> None:
     cls = _cls(name)
-    a, b, c = cls.generate(seed=0), cls.generate(seed=0), cls.generate(seed=1)
+    small = {"n_train_per_class": 3, "n_test_per_class": 2}
+    a, b, c = cls.generate(seed=0, **small), cls.generate(seed=0, **small), cls.generate(seed=1, **small)
     assert torch.equal(a.x, b.x) and torch.equal(a.g, b.g) and torch.equal(a.y, b.y)
     assert not torch.equal(a.x, c.x)
-    assert torch.equal(load_dataset(name, seed=0).x, a.x)
-    assert not torch.equal(load_dataset(name, seed=1, split="test").x, load_dataset(name, seed=0, split="test").x)
+    assert torch.equal(load_dataset(name, seed=0, **small).x, a.x)
+    assert torch.equal(load_dataset(name, seed=1, **small).x, c.x)
     # train and test come from separate streams: a different test size leaves the training samples unchanged
-    d = cls.generate(seed=0, n_test_per_class=2)
-    n_train = len(cls.class_names) * cls.default_train
-    assert torch.equal(d.x[:n_train], a.x[:n_train])
+    d = cls.generate(seed=0, n_train_per_class=3, n_test_per_class=1)
+    n_train = len(cls.class_names) * 3
+    assert torch.equal(d.x[:n_train], a.x[:n_train]) and len(d.y) == n_train + len(cls.class_names)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -144,7 +147,7 @@ def test_biotac_raw_range_and_normalisation() -> None:
     rng = np.random.default_rng(0)
     y = np.repeat(np.arange(7), 4)
     raw, baseline = simulated._biotac_raw(rng, y, 30)
-    assert raw.min() >= 1700 and raw.max() <= 3800  # the release's range is roughly 1900-3750
+    assert raw.min() >= 1800 and raw.max() <= 3850  # the release's range is roughly 1900-3750
     assert np.all(raw == np.rint(raw))  # integer ADC readings
     assert np.all((baseline[:, None, :] - raw).max(axis=(1, 2)) > 200)  # contact drops the values
     x = load_dataset("sim_biotac_slip").x

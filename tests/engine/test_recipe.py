@@ -44,3 +44,17 @@ def test_schedules_as_pure_functions_of_the_epoch() -> None:
     warm = Recipe.from_dict({"schedule": {"type": "step", "step_size": 10, "gamma": 0.1, "warmup_epochs": 4}})
     assert [lr_factor(warm, e) for e in range(5)] == [0.25, 0.5, 0.75, 1.0, 1.0]
     assert lr_factor(Recipe(), 100) == 1.0
+
+
+def test_registry_accepts_exactly_the_engine_recipe_keys() -> None:
+    from tactile_zoo import registry
+
+    assert registry.RECIPE_KEYS == frozenset(RECIPE_KEYS)
+
+
+def test_every_registered_model_recipe_resolves() -> None:
+    from tactile_zoo import registry
+
+    for name in registry.list_models():
+        recipe = registry.get_model_entry(name).meta.get("recipe")
+        resolve_recipe(recipe, where=f"recipe of {name}")  # raises ConfigError naming the model if a value is bad

@@ -1,4 +1,4 @@
-"""ConvLSTM classifier (Zapata-Impata et al. 2019): the source's layers, read-out of the last hidden state, streaming."""
+"""ConvLSTM classifier (Zapata-Impata et al. 2019): source layers, read-out of the last hidden state, streaming."""
 
 from __future__ import annotations
 
@@ -76,3 +76,19 @@ def test_wrong_input_shape_is_named() -> None:
         model(torch.rand(2, 10, 38, 2))
     with pytest.raises(ConfigError, match="convlstm"):
         model.step(torch.rand(2, 10, 39, 2), None, model.init_state(2))
+
+
+def test_backends_agree_through_the_model() -> None:
+    spec = spec_for("uskin_allegro", 3, globals_=8)
+    torch.manual_seed(3)
+    fused = tz.create_model("convlstm", spec)
+    ref = tz.create_model("convlstm", spec, backend="autograd")
+    ref.load_state_dict(fused.state_dict())
+    x, g, y = torch.rand(2, 10, 60, 3), torch.rand(2, 10, 8), torch.tensor([1, 3])
+    grads = []
+    for model in (fused, ref):
+        torch.nn.functional.cross_entropy(model(x, g), y).backward()
+        grads.append([p.grad for p in model.parameters()])
+    assert all(torch.allclose(a, b, atol=1e-5) for a, b in zip(*grads))
+    with pytest.raises(ConfigError, match="backend"):
+        tz.create_model("convlstm", spec, backend="cuda-graphs")
