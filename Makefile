@@ -20,7 +20,8 @@ bench: install
 	$(BIN)/tactile-zoo bench --models all
 
 test: install
-	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
+	# one BLAS/OpenMP thread per xdist worker: two workers on two cores, no oversubscription
+	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
 lint: install
 	$(BIN)/ruff check tactile_zoo tests benchmarks examples plugins

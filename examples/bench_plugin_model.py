@@ -70,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"plugin model {entry.qualified_name} from {entry.dist or 'this checkout'}: "
           f"{entry.meta.get('paper', '')}")
 
-    builtins = [m for m in tz.list_models(args.models) if not tz.registry.get_model_entry(m).is_plugin]
+    patterns = ["*" if p.strip() == "all" else p.strip() for p in args.models.split(",") if p.strip()]
+    builtins = [m for m in tz.list_models(patterns) if not tz.registry.get_model_entry(m).is_plugin]
     models = [PLUGIN_MODEL, *[m for m in builtins if m != PLUGIN_MODEL]]
     out = args.out or f"tactile-zoo-results/plugin-{PLUGIN_MODEL}-vs-{args.models.replace('*', 'x')}" \
                       f"{'-quick' if args.quick else ''}"

@@ -279,7 +279,7 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
             ax.set_title(title)
             ax.set_xlabel("epoch")
         axes[2].set_ylim(0, 1.02)
-        axes[2].legend(fontsize=7, loc="lower right")
+        axes[2].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
         fig.suptitle(f"{dataset}: training curves (best cell per model)", y=1.04)
         figures["curves"][dataset] = save(fig, f"plots/curves_{safe_name(dataset)}.png")
 
@@ -303,7 +303,7 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
             ax.set_ylabel("test accuracy")
             ax.set_ylim(0, 1.02)
             ax.set_title(f"{dataset}: early classification")
-            ax.legend(fontsize=7, loc="lower right")
+            ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
             figures["early"][dataset] = save(fig, f"plots/early_{safe_name(dataset)}.png")
         else:
             plt.close(fig)

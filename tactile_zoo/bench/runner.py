@@ -93,7 +93,9 @@ def _task(cell: Cell, config: BenchConfig, executor: Executor) -> CellTask:
 
 
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
-    payload = {"status": status, "command": ["tactile-zoo", *sys.argv[1:]], "config": config.to_dict(),
+    argv0 = os.path.basename(sys.argv[0]) if sys.argv else ""
+    command = ["tactile-zoo", *sys.argv[1:]] if argv0 in ("tactile-zoo", "cli.py", "__main__.py") else list(sys.argv)
+    payload = {"status": status, "command": command, "config": config.to_dict(),
                "out": str(run.path), "environment": environment(),
                "grid": {"models": grid.models, "datasets": [d.name for d in grid.datasets],
                         "cells": [c.cell_id for c in grid.cells], "skipped": [s.to_dict() for s in grid.skipped],

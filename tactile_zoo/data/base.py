@@ -120,6 +120,7 @@ class TactileDataset(torch.utils.data.Dataset):
     simulated: ClassVar[bool] = False
     obtain: ClassVar[str] = ""  # how a user gets the raw files (shown when they are missing)
     downloadable: ClassVar[bool] = False  # download=True can fetch the raw files (the harness needs --download)
+    frame_period: ClassVar[float | None] = None  # seconds between time steps, when known (`tactile-zoo stream`)
 
     def __init__(self, root: str | os.PathLike | None = None, split: str | None = None, fold: int = 0,
                  download: bool = False, *, transform: Callable[[TactileSample], TactileSample] | None = None,

@@ -149,50 +149,67 @@ class FrameGraphConv(nn.Module):
         return out.reshape(*lead, self.num_nodes, self.out_channels)
 
     def _dense(self, x: Tensor) -> Tensor:
-        prop = self.propagator.to(x.dtype)  # (H, N, N) hop matrices A^k
+        prop = self.propagator  # (H, N, N) hop matrices A^k, float64: cast only where used (_kron caches its cast)
         hops, n, m = prop.shape[0], self.num_nodes, x.shape[0]
         f_in, f_out = self.in_channels, self.out_channels
         weights = self._weights()
         if f_in <= f_out:
             # hops first, on the narrow input: Z[m, i, k, f] = sum_j A^k[i, j] x[m, j, f]
-            z = _hop(x, prop)  # (M, N, H, F_in)
+            z = _hop(x, prop, self._kron(f_in, x.dtype, adjoint=False))  # (M, N, H, F_in)
             return F.linear(z.reshape(m, n, hops * f_in), torch.cat(weights, dim=1), self.conv.bias)  # (M, N, F_out)
         # weights first, on the narrow output: out[m, i, f] = sum_{k, j} A^k[i, j] (x W_k^T)[m, j, f]
         y = F.linear(x, torch.cat(weights, dim=0)).view(m, n, hops, f_out)  # (M, N, H, F_out)
-        out = _hop_sum(y, prop)  # (M, N, F_out)
+        out = _hop_sum(y, prop, self._kron(f_out, x.dtype, adjoint=True))  # (M, N, F_out)
         return out if self.conv.bias is None else out + self.conv.bias
+
+    def _kron(self, f: int, dtype: torch.dtype, adjoint: bool) -> Tensor | None:
+        """The Kronecker propagation matrix for ``f`` features (None above :data:`KRON_LIMIT`), cached: it depends
+        on the fixed graph only, and rebuilding it costs more than a streaming step's whole convolution."""
+        hops, n = self.propagator.shape[0], self.num_nodes
+        if (n * f) * (n * hops * f) > KRON_LIMIT:
+            return None
+        key = (f, adjoint, dtype, self.propagator.device, self.propagator.data_ptr(), KRON_LIMIT)
+        cache = self.__dict__.setdefault("_kron_cache", {})
+        if key not in cache:
+            prop = self.propagator.to(dtype)
+            eye = torch.eye(f, dtype=prop.dtype, device=prop.device)
+            if adjoint:  # rows (j, k, f), cols (i, g): kron[(j, k, f), (i, g)] = A^k[i, j] [f == g]
+                kron = torch.einsum("kij,fg->jkfig", prop, eye).reshape(n * hops * f, n * f)
+            else:  # rows (j, f), cols (i, k, g): kron[(j, f), (i, k, g)] = A^k[i, j] [f == g]
+                kron = torch.einsum("kij,fg->jfikg", prop, eye).reshape(n * f, n * hops * f)
+            cache.clear()  # one graph, one dtype in use at a time: keep the cache from growing
+            cache[key] = kron.contiguous()
+        return cache[key]
 
 
 #: Largest Kronecker propagation matrix (entries) used; above it the hop runs as one product in a transposed layout.
 KRON_LIMIT = 1 << 20
 
 
-def _hop(x: Tensor, prop: Tensor) -> Tensor:
+def _hop(x: Tensor, prop: Tensor, kron: Tensor | None) -> Tensor:
     """``Z[m, i, k, f] = sum_j prop[k, i, j] x[m, j, f]`` for ``x (M, N, F)``, ``prop (H, N, N)``; returns
     ``(M, N, H, F)``.
 
     With few features it is one matrix product on the flat frames, ``x (M, N*F) @ kron (N*F, N*H*F)``: no copies and
     no tiny batched products (the Kronecker factor wastes a factor F of multiplications, cheap while F is small).
-    Otherwise the nodes move to the front, ``(N, M*F)``, for one product with the stacked hop matrices.
+    Otherwise (``kron`` None) the nodes move to the front, ``(N, M*F)``, for one product with the stacked hops.
     """
     m, n, f = x.shape
     hops = prop.shape[0]
-    if (n * f) * (n * hops * f) <= KRON_LIMIT:
-        eye = torch.eye(f, dtype=x.dtype, device=x.device)
-        kron = torch.einsum("kij,fg->jfikg", prop, eye).reshape(n * f, n * hops * f)  # rows (j, f), cols (i, k, g)
+    if kron is not None:
         return (x.reshape(m, n * f) @ kron).view(m, n, hops, f)
+    prop = prop.to(x.dtype)
     xt = x.transpose(0, 1).reshape(n, m * f)  # (N, M * F)
     z = (prop.reshape(hops * n, n) @ xt).view(hops, n, m, f)  # (H, N, M, F)
     return z.permute(2, 1, 0, 3)  # (M, N, H, F), a view; the caller's reshape copies
 
 
-def _hop_sum(y: Tensor, prop: Tensor) -> Tensor:
+def _hop_sum(y: Tensor, prop: Tensor, kron: Tensor | None) -> Tensor:
     """``out[m, i, f] = sum_{k, j} prop[k, i, j] y[m, j, k, f]`` for ``y (M, N, H, F)``; returns ``(M, N, F)``."""
     m, n, hops, f = y.shape
-    if (n * hops * f) * (n * f) <= KRON_LIMIT:
-        eye = torch.eye(f, dtype=y.dtype, device=y.device)
-        kron = torch.einsum("kij,fg->jkfig", prop, eye).reshape(n * hops * f, n * f)  # rows (j, k, f), cols (i, g)
+    if kron is not None:
         return (y.reshape(m, n * hops * f) @ kron).view(m, n, f)
+    prop = prop.to(y.dtype)
     yt = y.permute(1, 2, 0, 3).reshape(n * hops, m * f)  # (N * H, M * F), rows (j, k)
     cat = prop.permute(1, 2, 0).reshape(n, n * hops)  # (N, N * H): cat[i, (j, k)] = A^k[i, j]
     return (cat @ yt).view(n, m, f).transpose(0, 1)  # (M, N, F)

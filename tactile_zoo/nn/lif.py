@@ -53,6 +53,7 @@ SAVE_LIMIT_BYTES = 8 << 20
 #: Bytes per block of steps that the vectorised parts of forward and backward process at once (stays in cache).
 BLOCK_BYTES = 2 << 20
 
+@functools.lru_cache(maxsize=64)
 def _next_up(level: float, dtype: torch.dtype) -> float:
     """The smallest value of ``dtype`` above ``level``: ``u <= level`` is ``u < _next_up(level)`` exactly."""
     return torch.nextafter(torch.tensor(level, dtype=dtype), torch.tensor(math.inf, dtype=dtype)).item()
@@ -72,6 +73,37 @@ def _advance(x_t: Tensor, prev: Tensor, out: Tensor, flag: Tensor, ones: Tensor,
     return torch.addcmul(x_t, prev, flag, value=beta, out=out)
 
 
+def _run(x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, for_backward: bool
+         ) -> tuple[Tensor, Tensor, Tensor | None, tuple[int, bool, list[int]]]:
+    """The forward time loop: spikes ``[T, ...]``, the last membrane, what the backward pass needs (the membrane
+    history with ``mem0`` as row 0 when small, else the membrane entering each block) and the block layout."""
+    steps, step_bytes = x.shape[0], max(1, mem0.numel() * x.element_size())
+    block = max(1, min(steps, BLOCK_BYTES // step_bytes))
+    keep_all = for_backward and (steps + 1) * step_bytes <= SAVE_LIMIT_BYTES
+    spikes = torch.empty_like(x)
+    flag, ones = torch.empty_like(mem0), mem0.new_ones(()).expand_as(mem0)
+    th_up = _next_up(threshold, x.dtype)
+    hist = x.new_empty((steps + 1 if keep_all else block + 1, *mem0.shape))  # row 0: the membrane entering
+    hist[0] = mem0
+    starts = list(range(0, steps, block))
+    ckpts = x.new_empty((len(starts), *mem0.shape)) if for_backward and not keep_all else None
+    xs = x.unbind(0)
+    for j, t0 in enumerate(starts):
+        t1 = min(t0 + block, steps)
+        rows = hist[t0:t1 + 1] if keep_all else hist[:t1 - t0 + 1]  # (n + 1, ...) with the entering membrane
+        if ckpts is not None:
+            ckpts[j].copy_(rows[0])
+        out = rows.unbind(0)
+        prev = out[0]
+        for k in range(t1 - t0):
+            prev = _advance(xs[t0 + k], prev, out[k + 1], flag, ones, beta, threshold, th_up, subtract)
+        # spikes U > U_thr as 0/1 in one kernel (only an infinite membrane would be missed)
+        open_interval_mask(rows[1:], threshold, math.inf, out=spikes[t0:t1], ones=ones.expand_as(rows[1:]))
+        if not keep_all and t1 < steps:
+            rows[0].copy_(prev)  # the next block reuses the buffer, starting from this block's last membrane
+    return spikes, prev.clone(), (hist if keep_all else ckpts), (block, keep_all, starts)
+
+
 class _FusedLIF(torch.autograd.Function):
     """The whole LIF time loop as one autograd node. Inputs ``x [T, ...]``, ``mem0 [...]``; outputs spikes
     ``[T, ...]`` and the last membrane potential ``[...]``.
@@ -87,35 +119,9 @@ class _FusedLIF(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
                 surrogate: Surrogate) -> tuple[Tensor, Tensor]:
-        steps, step_bytes = x.shape[0], max(1, mem0.numel() * x.element_size())
-        block = max(1, min(steps, BLOCK_BYTES // step_bytes))
-        keep_all = (steps + 1) * step_bytes <= SAVE_LIMIT_BYTES
-        spikes = torch.empty_like(x)
-        flag, ones = torch.empty_like(mem0), mem0.new_ones(()).expand_as(mem0)
-        th_up = _next_up(threshold, x.dtype)
-        rows_total = steps + 1 if keep_all else block + 1
-        hist = torch.empty((rows_total, *mem0.shape), dtype=x.dtype, device=x.device)  # row 0: membrane before
-        hist[0] = mem0
-        starts = list(range(0, steps, block))
-        # the membrane entering each block, when the history is not kept
-        ckpts = None if keep_all else x.new_empty((len(starts), *mem0.shape))
-        xs = x.unbind(0)
-        for j, t0 in enumerate(starts):
-            t1 = min(t0 + block, steps)
-            rows = hist[t0:t1 + 1] if keep_all else hist[:t1 - t0 + 1]  # (n + 1, ...) with the entering membrane
-            if ckpts is not None:
-                ckpts[j].copy_(rows[0])
-            out = rows.unbind(0)
-            prev = out[0]
-            for k in range(t1 - t0):
-                prev = _advance(xs[t0 + k], prev, out[k + 1], flag, ones, beta, threshold, th_up, subtract)
-            # spikes U > U_thr as 0/1 in one kernel (only an infinite membrane would be missed)
-            open_interval_mask(rows[1:], threshold, math.inf, out=spikes[t0:t1], ones=ones.expand_as(rows[1:]))
-            if not keep_all and t1 < steps:
-                rows[0].copy_(prev)  # the next block reuses the buffer, starting from this block's last membrane
-        last = prev.clone()
-        ctx.save_for_backward(hist if keep_all else ckpts, x)
-        ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, block, keep_all, starts)
+        spikes, last, saved, layout = _run(x, mem0, beta, threshold, subtract, for_backward=True)
+        ctx.save_for_backward(saved, x)
+        ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, *layout)
         ctx.set_materialize_grads(False)  # an unused output needs no zero-filled gradient
         return spikes, last
 
@@ -131,7 +137,7 @@ class _FusedLIF(torch.autograd.Function):
         decay_buf = saved.new_empty((block, *shape))
         ones, th_up = saved.new_ones(()).expand(block + 1, *shape), _next_up(th, saved.dtype)
         if not keep_all:
-            rows_buf, flag = saved.new_empty((block + 1, *shape)), saved.new_empty(shape)
+            rows_buf = saved.new_empty((block + 1, *shape))
             xs = x.unbind(0)
         carry = grad_mem  # dL/dU[t1 - 1], the gradient reaching the end of the current block from later blocks
         carry_buf = saved.new_empty(shape)
@@ -145,7 +151,8 @@ class _FusedLIF(torch.autograd.Function):
                 out = rows.unbind(0)
                 prev = out[0].copy_(saved[j])
                 for k in range(n):
-                    prev = _advance(xs[t0 + k], prev, out[k + 1], flag, ones[0], beta, th, th_up, subtract)
+                    # the step's reset flags land in decay_buf, where the zero reset's factors start from them
+                    prev = _advance(xs[t0 + k], prev, out[k + 1], decay_buf[k], ones[0], beta, th, th_up, subtract)
             u = torch.sub(rows, th, out=u_buf[:n + 1])  # U - U_thr, exactly what snnTorch feeds its surrogate
             sg = surrogate.grad(u, out=sg_buf[:n + 1])  # dS/dU of U[t0-1 .. t0+n-1]
             # dU[t]/dU[t-1] for the block's steps, in units of beta where that helps: the step-to-step path
@@ -155,7 +162,9 @@ class _FusedLIF(torch.autograd.Function):
                 else:  # beta - U_thr * S'(U[t-1])
                     decay, scale = torch.mul(sg[:-1], -th, out=decay_buf[:n]).add_(beta), 1.0
             else:
-                decay = open_interval_mask(rows[:-1], -math.inf, th_up, out=decay_buf[:n], ones=ones[:n])  # 1 - R
+                decay = decay_buf[:n]  # 1 - R[t] = (U[t-1] <= U_thr), left there by the recomputation
+                if keep_all:
+                    open_interval_mask(rows[:-1], -math.inf, th_up, out=decay, ones=ones[:n])
                 if not detach_reset:  # beta * (1 - S[t-1]) * U[t-1] also depends on U[t-1] through S[t-1]
                     decay.addcmul_(rows[:-1], sg[:-1], value=-1.0)
                 scale = beta
@@ -257,9 +266,11 @@ class MultiStepLIF(nn.Module):
                               f"{tuple(x.shape[1:])}")
         if self.input_scale != 1.0:
             x = x * self.input_scale
-        if self.backend == "fused":
+        if self.backend == "fused" and torch.is_grad_enabled() and (x.requires_grad or mem.requires_grad):
             spikes, last = _FusedLIF.apply(x, mem, self.beta, self.threshold, self.reset == "subtract",
                                            self.detach_reset, self.surrogate)
+        elif self.backend == "fused":  # nothing to differentiate: the same loop without the autograd node
+            spikes, last, _, _ = _run(x, mem, self.beta, self.threshold, self.reset == "subtract", False)
         else:
             spikes, last = self._snntorch_loop(x, mem)
         return (spikes, last) if return_mem else spikes

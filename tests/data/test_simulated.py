@@ -138,7 +138,7 @@ def test_events_binary_and_plausible() -> None:
     assert set(torch.unique(x).tolist()) == {0.0, 1.0}
     on, off = x[..., 0].mean().item(), x[..., 1].mean().item()
     assert 0.005 < off < on < 0.2  # sparse, both polarities, more ON (grasp onset) than OFF
-    # grasp onset: events in the first half outnumber those of the last fifth (hold, before release-free end)
+    # the grasp (onset, squeeze) is busier than the late hold: the first half has more events than the last fifth
     t = x.shape[1]
     assert x[:, : t // 2].sum() > x[:, -t // 5:].sum()
 

@@ -93,6 +93,7 @@ class BioTacDoS(TactileDataset):
     sensor = BIOTAC_SP
     class_names = CLASSES
     extra_splits = ("test_solids", "test_small", "test_textures")
+    frame_period = 0.01  # the release's 100 Hz readings
     obtain = f"Copy the csvs/ folder of {REPOSITORY} to <root>/biotac_dos/raw/csvs/."
 
     def __init__(self, root: str | os.PathLike | None = None, split: str | None = None, fold: int = 0,
