@@ -15,7 +15,7 @@ The full grid trains every model with its whole recipe and takes long; ``--quick
 
 from __future__ import annotations
 
-import csv
+import json
 import os
 import subprocess
 import sys
@@ -27,7 +27,7 @@ from .common import Context, write_csv
 
 NAME = "bench_wall"
 TITLE = "Wall-clock and peak RSS of `tactile-zoo bench --models all` on the embedded default (simulated data)"
-COLUMNS = ("command", "exit_code", "cells", "wall_s", "cpu_s", "peak_rss_mb", "rss_source")
+COLUMNS = ("command", "exit_code", "cells", "cells_not_ok", "wall_s", "cpu_s", "peak_rss_mb", "rss_source")
 
 # the console script's main(), then the process's own peak RSS (VmHWM of its address space since exec) into argv[1]
 _LAUNCH = """
@@ -43,6 +43,13 @@ except (OSError, IndexError):
     pass
 sys.exit(code)
 """
+
+
+def _status(path: Path) -> str:
+    try:
+        return str(json.loads(path.read_text()).get("status"))
+    except (OSError, ValueError):
+        return "unreadable"
 
 
 def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: tuple[str, ...] = ()) -> Path:
@@ -70,11 +77,8 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
                 raise
             wall = time.perf_counter() - start
         proc.returncode = code = os.waitstatus_to_exitcode(status)  # reaped here, so Popen must not wait again
-        board = tmp_path / "out" / "leaderboard.csv"
-        cells = 0
-        if board.exists():
-            with board.open() as fh:
-                cells = sum(1 for _ in csv.DictReader(fh))
+        statuses = [_status(p) for p in sorted((tmp_path / "out" / "cells").glob("*.json"))]
+        cells, failed = statuses.count("ok"), sum(1 for s in statuses if s != "ok")
         hwm = tmp_path / "vmhwm"
         rss_kb, rss_source = (int(hwm.read_text()), "vmhwm") if hwm.exists() else (usage.ru_maxrss, "ru_maxrss")
         if code != 0:  # a failed run is no measurement
@@ -84,9 +88,11 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
     cpu = usage.ru_utime + usage.ru_stime
     command = "tactile-zoo " + " ".join(a if "tz-bench-wall-" not in a else "<fresh tmp dir>" for a in args)
     row = {"case": "quick" if ctx.quick else "full", "command": command, "exit_code": code,
-           "cells": cells, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss_kb / 1024, "rss_source": rss_source,
+           "cells": cells, "cells_not_ok": failed, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss_kb / 1024,
+           "rss_source": rss_source,
            "note": "empty data home (simulated datasets only), fresh cache (includes generating them)"}
-    ctx.log(f"  {command}: {wall:.0f} s wall, {cpu:.0f} s CPU, {cells} cells, peak RSS {rss_kb / 1024:.0f} MB")
+    ctx.log(f"  {command}: {wall:.0f} s wall, {cpu:.0f} s CPU, {cells} cells ok ({failed} not), peak RSS "
+            f"{rss_kb / 1024:.0f} MB")
     return write_csv(ctx, NAME, COLUMNS, [row])
 
 

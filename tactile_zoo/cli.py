@@ -242,7 +242,9 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
                    help="local (default), process (local worker processes), dask (a Dask cluster)")
     p.add_argument("--workers", default=None, help="worker processes (process executor; dask without --scheduler)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler, e.g. tcp://HOST:8786")
-    p.add_argument("--threads", default=None, help="torch threads per cell (default: cores / workers)")
+    p.add_argument("--threads", default=None, help="torch threads per cell, under every executor (default 1, so "
+                                                   "local and distributed runs give identical numbers; run cells "
+                                                   "side by side with --executor process --workers N)")
     p.add_argument("--config", default=None, metavar="FILE.yaml", help="settings file (flags given here win)")
     p.add_argument("--dry-run", action="store_true", help="print the grid of cells and exit")
     p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "
@@ -276,6 +278,8 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fold", default="0", help="fold of a k-fold protocol (default 0)")
     p.add_argument("--save", default=None, metavar="MODEL.pt", help="write a checkpoint (weights + resolved config)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--threads", default="1", help="torch threads (default 1, as bench runs each cell, so the numbers "
+                                                  "match the leaderboard's)")
     _add_recipe_flags(p)
     p.set_defaults(handler=_cmd_train)
 
@@ -311,6 +315,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     config = _single_config(args)
     import_plugin_modules(config.plugin_modules)
+    from .bench.config import BenchConfig
+    from .engine.runtime import set_threads
+
+    set_threads(BenchConfig(threads=args.threads).threads)
     try:
         seeds = parse_seeds(args.seed)
     except ConfigError as exc:  # name the flag this command has (--seed), not bench's --seeds

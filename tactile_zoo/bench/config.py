@@ -15,7 +15,7 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     executor: process               # local | process | dask
     workers: 2
     scheduler: null                 # tcp://HOST:PORT for dask (default: a local cluster of `workers` processes)
-    threads: null                   # torch threads per cell (default: local = torch's choice, else cores / workers)
+    threads: 1                      # torch threads per cell, the same under every executor (default 1)
     plugin_modules: [my_models]
     root: null                      # data home
     download: false

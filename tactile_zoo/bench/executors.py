@@ -5,9 +5,12 @@ The runner talks to every executor the same way: :meth:`Executor.submit` a :clas
 runner, which alone writes files, so workers (on other machines, for Dask) never need the output folder; they only
 need the package, the plugin modules and the data home (``--root``) at the same path.
 
-Seeding is per cell (model initialisation, dropout and batch order depend only on the cell's seed), so where a cell
-runs does not change its numbers; on CPU a cell's numbers are bit-identical across executors when the cells use the
-same number of torch threads (``--threads``; tiny models never use more than one anyway).
+Seeding is per cell (model initialisation, dropout and batch order depend only on the cell's seed), and every
+executor runs a cell with the same number of torch threads, ``--threads`` (default 1): on CPU the result of a
+convolution or matrix product depends on how many threads split it, so a thread count that followed the executor
+(all cores in-process, cores / workers in a pool) would make the same cell differ between a local and a distributed
+run. With one thread per cell, local, process and dask runs give identical numbers for the same seeds; parallelism
+comes from running cells side by side (``--executor process --workers N``, or a Dask cluster).
 """
 
 from __future__ import annotations
@@ -22,7 +25,10 @@ from ..engine.runtime import cpu_count
 from ..errors import ConfigError
 from .cell import CellTask, run_cell, setup_worker
 
-__all__ = ["Executor", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor"]
+__all__ = ["Executor", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor", "DEFAULT_THREADS"]
+
+#: torch threads per cell unless --threads says otherwise (see the module docstring)
+DEFAULT_THREADS = 1
 
 
 class Executor:
@@ -56,12 +62,24 @@ class LocalExecutor(Executor):
     name = "local"
 
     def __init__(self, threads: int | None = None, progress: bool = False) -> None:
-        self.threads, self.progress = threads, progress
+        import torch
+
+        self.threads, self.progress = threads or DEFAULT_THREADS, progress
+        self._caller_threads = torch.get_num_threads()  # restored afterwards: this is the caller's process
 
     def submit(self, task: CellTask) -> cf.Future:
         future: cf.Future = cf.Future()
         future.set_result(run_cell(task, progress=self.progress))  # KeyboardInterrupt propagates from here
         return future
+
+    def shutdown(self, cancel: bool = False) -> None:
+        import torch
+
+        if torch.get_num_threads() != self._caller_threads:
+            torch.set_num_threads(self._caller_threads)
+
+    def describe(self) -> str:
+        return f"local ({self.threads} thread{'s' if self.threads > 1 else ''})"
 
 
 def _init_process_worker(plugin_modules: tuple[str, ...], threads: int, sys_path: tuple[str, ...]) -> None:
@@ -81,7 +99,7 @@ class ProcessExecutor(Executor):
     def __init__(self, workers: int | None, threads: int | None, plugin_modules: tuple[str, ...]) -> None:
         cores = cpu_count()
         self.workers = workers or max(1, min(cores, 4))
-        self.threads = threads or max(1, cores // self.workers)
+        self.threads = threads or DEFAULT_THREADS
         self.slots = self.workers
         self._args = (tuple(plugin_modules), self.threads, tuple(sys.path))
         self._pool = self._new_pool()
@@ -105,7 +123,7 @@ class ProcessExecutor(Executor):
         self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
 
     def describe(self) -> str:
-        return f"process ({self.workers} workers x {self.threads} threads)"
+        return f"process ({self.workers} workers x {self.threads} thread{'s' if self.threads > 1 else ''})"
 
 
 def _check_reachable(address: str) -> None:
@@ -158,9 +176,7 @@ class DaskExecutor(Executor):
             raise ConfigError(f"--scheduler {scheduler}: cannot connect to the Dask scheduler: {exc}") from None
         nthreads = self._client.nthreads()
         self.slots = max(1, sum(nthreads.values()))
-        if threads is None:  # cores per worker thread, like the process executor
-            threads = max(1, cpu_count() // max(1, self.slots)) if not scheduler else 1
-        self.threads = threads
+        self.threads = threads or DEFAULT_THREADS
         self._plugins = tuple(plugin_modules)
         self.address = self._client.scheduler.address
 

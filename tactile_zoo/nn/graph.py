@@ -9,11 +9,15 @@ adjacency PyG builds (``gcn_norm``; ``TAGConv`` without self-loops, ``GCNConv`` 
     TAGConv:  X' = sum_{k=0..K} A^k X W_k + b
     GCNConv:  X' = A X W + b
 
-The ``"dense"`` backend (default; faster for sensor-sized graphs, see benchmarks/) precomputes ``A^k`` as dense
-``N x N`` matrices from PyG's own ``gcn_norm`` output and applies them as matrix products. It holds the very same
-PyG module and reads its weights, so parameters and ``state_dict`` are interchangeable with ``backend="pyg"``, and it
-equals PyG's output and gradients to float rounding (tests/nn/test_graph.py). Hops are applied before the weights
-when ``F_in <= F_out`` (cheaper; PyG's ``TAGConv`` always does so) and after them otherwise (PyG's ``GCNConv`` order).
+The ``"dense"`` backend (default) precomputes ``A^k`` as dense ``N x N`` matrices from PyG's own ``gcn_norm`` output
+and applies them as matrix products: with few features per node as one product of the flat frames ``(M, N*F)`` with
+a cached Kronecker matrix ``A^k (x) I_F``, otherwise in a nodes-first layout. It holds the very same PyG module and
+reads its weights, so parameters and ``state_dict`` are interchangeable with ``backend="pyg"``, and it equals PyG's
+output and gradients to float rounding (tests/nn/test_graph.py). Hops are applied before the weights when
+``F_in <= F_out`` (cheaper; PyG's ``TAGConv`` always does so) and after them otherwise (PyG's ``GCNConv`` order).
+Measured (1 thread, forward + backward, TAGConv K=3, 2 -> 64 channels, a loaded machine): the dense backend is about
+5x faster than one batched PyG call at N = 39 (8000 frames), still 3x at N = 312, and about 100x faster than one PyG
+call per frame.
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ from torch import Tensor, nn
 from ..errors import ConfigError
 from .surrogate import Surrogate, make_surrogate, open_interval_mask
 
-__all__ = ["MultiStepLIF"]
+__all__ = ["MultiStepLIF", "Surrogate", "make_surrogate"]  # the surrogates live in .surrogate
 
 _RESETS = ("zero", "subtract")
 _BACKENDS = ("fused", "snntorch")

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.xdist_group("tiny_bench")
 def test_process_executor_matches_local(reference_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "run"
     assert run_cli([*SMALL, "--executor", "process", "--workers", "2", "--out", str(out)]) == 0
-    assert "process (2 workers x 1 threads)" in capsys.readouterr().out
+    assert "process (2 workers x 1 thread)" in capsys.readouterr().out
     assert read_board(out) == read_board(reference_run)
 
 
