@@ -109,15 +109,17 @@ def replay(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None = Non
         y: the true class, if known (for :attr:`StreamTrace.settled`).
         loss: ``"ce"`` or ``"mse_rate"`` (default: what the model was trained with, see ``model_loss``).
         frame_period: seconds between frames, if known.
-        device: where to run (default: where the model's parameters are).
+        device: where to run (the model is moved there; default: where its parameters are).
         warmup: run one untimed step on a throw-away state first, so one-off costs (allocator, lazy init) do not
             land in the first step's latency.
     """
     check_streaming(type(model).__name__, model=model)
-    if x.dim() != 3:
-        raise ConfigError(f"replay takes one sample x of shape (T, N, C), got {tuple(x.shape)}")
+    if x.dim() != 3 or x.shape[0] == 0:
+        raise ConfigError(f"replay takes one sample x of shape (T, N, C) with T >= 1, got {tuple(x.shape)}")
     if device is None:
         device = next((t.device for t in (*model.parameters(), *model.buffers())), torch.device("cpu"))
+    else:
+        model.to(device)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     frames = x.to(device).unsqueeze(1).unbind(0)  # T x (1, N, C)
     globs: Sequence[torch.Tensor | None] = (
@@ -127,7 +129,7 @@ def replay(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None = Non
     scores, seconds = [], []
     try:
         with torch.inference_mode():
-            if warmup and frames:
+            if warmup:
                 model.step(frames[0], globs[0], model.init_state(1))
             state = model.init_state(1)
             for x_t, g_t in zip(frames, globs):

@@ -14,6 +14,10 @@ Protocol:
 5. evaluate on the test split when one is given.
 
 Without a validation split there is no selection: every epoch runs and the last state is kept.
+
+Reproducibility: on CPU the same seed gives the same numbers for the same torch thread count (``torch.get_num_threads``;
+how many threads split a convolution or matrix product changes its rounding). The harness runs every cell with one
+thread unless told otherwise, so its numbers do not depend on where a cell runs.
 """
 
 from __future__ import annotations

@@ -87,3 +87,25 @@ def test_a_model_that_cannot_stream_is_refused_by_name() -> None:
     with pytest.raises(ConfigError, match="Linear has no init_state/step"):
         replay(torch.nn.Linear(2, 2), torch.zeros(5, 1, 2))
     check_streaming("sgnet", dict(get_model_entry("sgnet").meta))  # a streaming model passes
+
+
+class _Counter(torch.nn.Module):
+    """Streams the running sum of its input's first channel as the score of class 1 (class 0 scores 0)."""
+
+    def init_state(self, batch_size: int) -> torch.Tensor:
+        return torch.zeros(batch_size)
+
+    def step(self, x_t: torch.Tensor, g_t: torch.Tensor | None, state: torch.Tensor
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+        state = state + x_t[:, :, 0].sum(-1)  # (B,)
+        return torch.stack([torch.zeros_like(state), state], dim=-1), state
+
+
+def test_replay_feeds_frames_in_order_and_rejects_a_batch_or_an_empty_sample() -> None:
+    x = torch.tensor([-1.0, -1.0, 3.0, 1.0]).reshape(4, 1, 1)  # running sums -1, -2, 1, 2
+    trace = replay(_Counter(), x, None, 1, loss="ce")
+    assert trace.scores[:, 1].tolist() == [-1.0, -2.0, 1.0, 2.0] and trace.settled == 3
+    with pytest.raises(ConfigError, match=r"shape \(T, N, C\) with T >= 1, got \(2, 4, 1, 1\)"):
+        replay(_Counter(), x[None].expand(2, -1, -1, -1))
+    with pytest.raises(ConfigError, match="T >= 1"):
+        replay(_Counter(), x[:0])
