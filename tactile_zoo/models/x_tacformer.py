@@ -70,7 +70,7 @@ class XTacformer(Tacformer):
                  hops: int = 3, tau: float = 2.0, v_th: float = 1.0, surrogate: str = "atan",
                  detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, pool: str = "flatten",
                  readout_norm: bool = True, hidden: int = 32, temporal_pool: str = "flatten", attn_dim: int = 32,
-                 temporal_backend: str = "native", dropout: float = 0.1, attn_dropout: float = 0.0,
+                 temporal_backend: str = "native", dropout: float = 0.3, attn_dropout: float = 0.0,
                  graph: str = "default", graph_backend: str = "dense", lif_backend: str = "fused") -> None:
         super().__init__(spec, dim=dim, heads=heads, depth=depth, mlp_ratio=mlp_ratio, hops=hops, tau=tau, v_th=v_th,
                          surrogate=surrogate, detach_reset=detach_reset, bin_size=bin_size,
