@@ -50,6 +50,7 @@ MODEL_META_KEYS = frozenset({
 DATASET_META_KEYS = frozenset({
     "sensor", "num_classes", "class_names", "num_steps", "num_nodes", "num_channels", "num_globals", "num_samples",
     "folds", "protocol", "splits", "source_url", "citation", "licence", "description", "simulated", "obtain",
+    "max_epochs",  # the protocol's epoch budget: caps every model's recipe on this dataset (the simulators use it)
 })
 SENSOR_META_KEYS = frozenset({"description", "citation"})
 _META_KEYS = {"model": MODEL_META_KEYS, "dataset": DATASET_META_KEYS, "sensor": SENSOR_META_KEYS}

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
-from ..engine.recipe import resolve_recipe
+from ..engine.recipe import Recipe, cap_epochs, resolve_recipe
 from ..errors import ConfigError, DatasetError, UnknownNameError
 from .config import BenchConfig
 
@@ -77,6 +77,7 @@ class DatasetInfo:
     extra_splits: tuple[str, ...]
     kwargs: dict[str, Any]
     num_classes: int
+    max_epochs: int | None = None  # the dataset's epoch budget (meta "max_epochs"); --epochs overrides it
 
 
 @dataclass
@@ -214,7 +215,8 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
     extra = tuple(getattr(ds, "extra_splits", ()) or ())
     if not extra:
         extra = tuple(s for s in entry.meta.get("splits", ()) if s not in ("train", "val", "test"))
-    return DatasetInfo(name, num_folds, folds, protocol, extra, kwargs, ds.spec.num_classes)
+    return DatasetInfo(name, num_folds, folds, protocol, extra, kwargs, ds.spec.num_classes,
+                       entry.meta.get("max_epochs"))
 
 
 def _model_config(model: str, config: BenchConfig) -> dict[str, Any]:
@@ -224,6 +226,13 @@ def _model_config(model: str, config: BenchConfig) -> dict[str, Any]:
                             where=f"recipe of model {model!r}")
     return {"model": model, "model_source": entry.dist or "builtin", "hparams": hparams, "recipe": recipe.to_dict(),
             "causal": bool(entry.meta.get("causal", False))}
+
+
+def _budgeted(recipe: dict[str, Any], info: DatasetInfo, config: BenchConfig) -> dict[str, Any]:
+    """The recipe within the dataset's epoch budget, unless ``--epochs`` (or ``--quick``) already set the epochs."""
+    if config.effective_epochs() is not None or info.max_epochs is None:
+        return recipe
+    return cap_epochs(Recipe.from_dict(recipe), int(info.max_epochs)).to_dict()
 
 
 def build_grid(config: BenchConfig) -> Grid:
@@ -247,7 +256,8 @@ def build_grid(config: BenchConfig) -> Grid:
         for model in models:
             mc = model_configs[model]
             cfg = {"model": model, "model_source": mc["model_source"], "hparams": mc["hparams"],
-                   "recipe": mc["recipe"], "dataset": info.name, "dataset_kwargs": info.kwargs,
+                   "recipe": _budgeted(mc["recipe"], info, config), "dataset": info.name,
+                   "dataset_kwargs": info.kwargs,
                    "refit": config.refit, "subset": config.subset, "prefixes": config.prefixes}
             digest = config_hash(cfg)
             cfg = {**cfg, "causal": mc["causal"]}

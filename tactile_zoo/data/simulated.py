@@ -93,7 +93,12 @@ from .base import Augmentation, TactileDataset, TensorData
 from .sensors import BIOTAC_SP, NEUTOUCH, USKIN_ALLEGRO, Sensor
 from .spec import TactileSample
 
-__all__ = ["SimEvTouch", "SimBiotacSlip", "SimUskinTextures"]
+__all__ = ["SimEvTouch", "SimBiotacSlip", "SimUskinTextures", "SIM_EPOCH_BUDGET"]
+
+#: The simulators' protocol trains every model for at most this many epochs (the bench caps each recipe, compressing
+#: its schedule; ``--epochs`` overrides): the embedded default must finish ``tactile-zoo bench --models all`` in
+#: minutes on two cores, and these small, clean datasets do not need the hundreds of epochs real data gets.
+SIM_EPOCH_BUDGET = 15
 
 # generated data is a pure function of (class, options): keep the last few in memory, because the harness builds
 # the train, val and test split of one dataset as three objects and each would otherwise regenerate everything
@@ -291,7 +296,7 @@ def _log_events(rng: np.random.Generator, p: np.ndarray) -> np.ndarray:
 @register_dataset(
     "sim_evtouch", sensor="neutouch", num_classes=len(_EV_CLASSES), class_names=tuple(r[0] for r in _EV_CLASSES),
     num_steps=100, num_nodes=39, num_channels=2, num_globals=0, num_samples=280, folds=1, protocol="fixed",
-    splits=("train", "val", "test"), simulated=True, licence="generated (MIT, part of tactile-zoo)",
+    splits=("train", "val", "test"), simulated=True, max_epochs=SIM_EPOCH_BUDGET, licence="generated (MIT, part of tactile-zoo)",
     description="Simulated event-based grasping on NeuTouch: Hertz contact pressure of 10 objects (shape, size, "
                 "stiffness, texture) during grasp, hold and lift-induced slip, encoded as ON/OFF log-pressure events")
 class SimEvTouch(_Simulator):
@@ -388,7 +393,7 @@ def _biotac_raw(rng: np.random.Generator, y: np.ndarray, steps: int) -> tuple[np
 @register_dataset(
     "sim_biotac_slip", sensor="biotac_sp", num_classes=7, class_names=_DOS_CLASSES, num_steps=30, num_nodes=24,
     num_channels=1, num_globals=0, num_samples=294, folds=1, protocol="fixed", splits=("train", "val", "test"),
-    simulated=True, licence="generated (MIT, part of tactile-zoo)",
+    simulated=True, max_epochs=SIM_EPOCH_BUDGET, licence="generated (MIT, part of tactile-zoo)",
     description="Simulated BioTac SP direction of slip (BioTac-DoS label order): an elliptic contact patch moving "
                 "N/S/E/W, rotating CW/CCW or still, read as baseline-removed electrode impedance drops")
 class SimBiotacSlip(_Simulator):
@@ -514,7 +519,7 @@ def _uskin_rub(rng: np.random.Generator, y: np.ndarray, steps: int) -> tuple[np.
 @register_dataset(
     "sim_uskin_textures", sensor="uskin_allegro", num_classes=len(_TEX_CLASSES),
     class_names=tuple(r[0] for r in _TEX_CLASSES), num_steps=50, num_nodes=60, num_channels=3, num_globals=8,
-    num_samples=280, folds=1, protocol="fixed", splits=("train", "val", "test"), simulated=True,
+    num_samples=280, folds=1, protocol="fixed", splits=("train", "val", "test"), simulated=True, max_epochs=SIM_EPOCH_BUDGET,
     licence="generated (MIT, part of tactile-zoo)",
     description="Simulated bidirectional fabric rubbing with two uSkin fingertips on an Allegro hand: 10 fabrics "
                 "differing in weave frequency, roughness, friction and compliance; 3-axis taxels plus 8 joint angles")

@@ -34,7 +34,7 @@ from typing import Any
 
 from ..errors import ConfigError
 
-__all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "resolve_recipe", "lr_factor"]
+__all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "resolve_recipe", "lr_factor", "cap_epochs"]
 
 LOSSES = ("ce", "mse_rate")
 OPTIMIZERS = ("adam", "adamw", "sgd")
@@ -248,6 +248,25 @@ def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Ma
 
 RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 DEFAULT_RECIPE = Recipe()
+
+
+def cap_epochs(recipe: Recipe, budget: int | None) -> Recipe:
+    """``recipe`` limited to ``budget`` epochs, its schedule compressed to fit (a dataset's epoch budget).
+
+    Multistep milestones and step sizes scale by ``budget / max_epochs`` (at least 1), so a schedule keeps its shape;
+    a cosine schedule follows ``max_epochs`` by itself. A recipe already within the budget is returned unchanged.
+    """
+    if budget is None or recipe.max_epochs <= budget:
+        return recipe
+    scale = budget / recipe.max_epochs
+    sched = dict(recipe.schedule) if recipe.schedule else None
+    if sched and sched["type"] == "multistep":
+        sched["milestones"] = sorted({max(1, round(m * scale)) for m in sched["milestones"]})
+    elif sched and sched["type"] == "step":
+        sched["step_size"] = max(1, round(sched["step_size"] * scale))
+    elif sched and sched["type"] == "cosine" and sched.get("t_max"):
+        sched["t_max"] = max(1, round(sched["t_max"] * scale))
+    return recipe.replace(max_epochs=budget, schedule=sched)
 
 
 def lr_factor(recipe: Recipe, epoch: int) -> float:

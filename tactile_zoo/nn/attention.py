@@ -29,6 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ..errors import ConfigError
 from .lif import MultiStepLIF
 
 __all__ = ["LIFConfig", "SpikingSelfAttention"]
@@ -69,8 +70,8 @@ class SpikingSelfAttention(nn.Module):
 
     def __init__(self, dim: int, num_heads: int = 4, lif: LIFConfig | None = None, attn_dropout: float = 0.0) -> None:
         super().__init__()
-        if dim % num_heads:
-            raise ValueError(f"dim={dim} is not divisible by num_heads={num_heads}")
+        if dim < 1 or num_heads < 1 or dim % num_heads:
+            raise ConfigError(f"SpikingSelfAttention: dim={dim} must be a positive multiple of num_heads={num_heads}")
         lif = lif or LIFConfig()
         self.dim, self.num_heads, self.attn_dropout = dim, num_heads, attn_dropout
         # eq. 7, stage 1 for Q, K and V at once: Linear (dim -> 3 dim), a LayerNorm per branch, LIF
@@ -102,11 +103,11 @@ class SpikingSelfAttention(nn.Module):
         *_, n_tok, d = x.shape
         h, dh = self.num_heads, d // self.num_heads
         a = self.qkv_in(x).unflatten(-1, (3, d))  # (T, *, L, 3, D)
-        a = F.layer_norm(a, (d,)) * self.qkv_in_norm_w + self.qkv_in_norm_b
+        a = torch.addcmul(self.qkv_in_norm_b, F.layer_norm(a, (d,)), self.qkv_in_norm_w)  # per-branch affine
         s, mem = self.qkv_lif(a, mem, return_mem=True)  # spikes (T, *, L, 3, D)
         s = s.reshape(-1, 3, d).transpose(0, 1)  # (3, M, D) with M = T * prod(*) * L
         qkv = torch.baddbmm(self.qkv_out_b, s, self.qkv_out_w.transpose(1, 2))  # (3, M, D)
-        qkv = F.layer_norm(qkv, (d,)) * self.qkv_out_norm_w + self.qkv_out_norm_b
+        qkv = torch.addcmul(self.qkv_out_norm_b, F.layer_norm(qkv, (d,)), self.qkv_out_norm_w)
         q, k, v = (z.view(-1, n_tok, h, dh).transpose(1, 2) for z in qkv.unbind(0))  # (T * prod(*), H, L, dh)
         return q, k, v, mem
 

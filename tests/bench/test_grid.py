@@ -102,3 +102,17 @@ def test_default_out_dir_is_stable_and_depends_on_the_grid(tmp_path: Path) -> No
 
 def test_cell_ids_are_file_names() -> None:
     assert cell_id("my-dist:tcn", "ds", 1, 2, "abc") == "my-dist-tcn__ds__f1__s2__abc"
+
+
+def test_a_dataset_epoch_budget_caps_recipes_unless_epochs_are_given(tmp_path: Path) -> None:
+    from tactile_zoo.data.simulated import SIM_EPOCH_BUDGET
+
+    grid = _grid(tmp_path, models=["sgnet", "tiny_mlp"], datasets=["sim_biotac_slip", "tiny_blobs"])
+    recipes = {(c.model, c.dataset): c.config["recipe"] for c in grid.cells}
+    sgnet_sim = recipes[("sgnet", "sim_biotac_slip")]
+    assert sgnet_sim["max_epochs"] == SIM_EPOCH_BUDGET < 100
+    budget = SIM_EPOCH_BUDGET
+    assert sgnet_sim["schedule"]["milestones"] == [round(40 * budget / 100), round(80 * budget / 100)]
+    assert recipes[("tiny_mlp", "tiny_blobs")]["max_epochs"] == 8  # a dataset without a budget keeps the recipe's
+    explicit = _grid(tmp_path, models=["sgnet"], datasets=["sim_biotac_slip"], epochs=40)
+    assert explicit.cells[0].config["recipe"]["max_epochs"] == 40  # --epochs wins over the budget

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from tactile_zoo.engine.recipe import DEFAULT_RECIPE, RECIPE_KEYS, Recipe, lr_factor, resolve_recipe
+from tactile_zoo.engine.recipe import DEFAULT_RECIPE, RECIPE_KEYS, Recipe, cap_epochs, lr_factor, resolve_recipe
 from tactile_zoo.errors import ConfigError
 
 
@@ -58,3 +58,15 @@ def test_every_registered_model_recipe_resolves() -> None:
     for name in registry.list_models():
         recipe = registry.get_model_entry(name).meta.get("recipe")
         resolve_recipe(recipe, where=f"recipe of {name}")  # raises ConfigError naming the model if a value is bad
+
+
+def test_cap_epochs_compresses_the_schedule_and_leaves_short_recipes_alone() -> None:
+    sgnet_like = Recipe.from_dict({"loss": "mse_rate", "max_epochs": 100,
+                                   "schedule": {"type": "multistep", "milestones": [40, 80], "gamma": 0.1}})
+    capped = cap_epochs(sgnet_like, 15)
+    assert capped.max_epochs == 15
+    assert capped.schedule["milestones"] == [6, 12]  # 40 and 80 of 100 epochs -> the same fractions of 15
+    assert lr_factor(capped, 5) == 1.0 and abs(lr_factor(capped, 12) - 0.01) < 1e-12
+    assert capped.loss == "mse_rate" and sgnet_like.max_epochs == 100  # the original is untouched
+    short = Recipe.from_dict({"max_epochs": 10})
+    assert cap_epochs(short, 15) is short and cap_epochs(sgnet_like, None) is sgnet_like

@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from tactile_zoo.errors import ConfigError
 from tactile_zoo.nn.attention import LIFConfig, SpikingSelfAttention
 
 TAU, V_TH = 2.0, 0.3
@@ -81,7 +82,7 @@ def test_shapes_heads_and_weights_sum_to_one() -> None:
     w = m.attention_weights(x)
     assert w.shape == (3, 2, 4, 2, 7, 7)
     torch.testing.assert_close(w.sum(-1), torch.ones(w.shape[:-1]))
-    with pytest.raises(ValueError, match="divisible"):
+    with pytest.raises(ConfigError, match="multiple of num_heads"):
         SpikingSelfAttention(10, 4)
 
 
