@@ -296,7 +296,8 @@ def _log_events(rng: np.random.Generator, p: np.ndarray) -> np.ndarray:
 @register_dataset(
     "sim_evtouch", sensor="neutouch", num_classes=len(_EV_CLASSES), class_names=tuple(r[0] for r in _EV_CLASSES),
     num_steps=100, num_nodes=39, num_channels=2, num_globals=0, num_samples=280, folds=1, protocol="fixed",
-    splits=("train", "val", "test"), simulated=True, max_epochs=SIM_EPOCH_BUDGET, licence="generated (MIT, part of tactile-zoo)",
+    splits=("train", "val", "test"), simulated=True, max_epochs=SIM_EPOCH_BUDGET,
+    licence="generated (MIT, part of tactile-zoo)",
     description="Simulated event-based grasping on NeuTouch: Hertz contact pressure of 10 objects (shape, size, "
                 "stiffness, texture) during grasp, hold and lift-induced slip, encoded as ON/OFF log-pressure events")
 class SimEvTouch(_Simulator):
@@ -519,7 +520,8 @@ def _uskin_rub(rng: np.random.Generator, y: np.ndarray, steps: int) -> tuple[np.
 @register_dataset(
     "sim_uskin_textures", sensor="uskin_allegro", num_classes=len(_TEX_CLASSES),
     class_names=tuple(r[0] for r in _TEX_CLASSES), num_steps=50, num_nodes=60, num_channels=3, num_globals=8,
-    num_samples=280, folds=1, protocol="fixed", splits=("train", "val", "test"), simulated=True, max_epochs=SIM_EPOCH_BUDGET,
+    num_samples=280, folds=1, protocol="fixed", splits=("train", "val", "test"), simulated=True,
+    max_epochs=SIM_EPOCH_BUDGET,
     licence="generated (MIT, part of tactile-zoo)",
     description="Simulated bidirectional fabric rubbing with two uSkin fingertips on an Allegro hand: 10 fabrics "
                 "differing in weave frequency, roughness, friction and compliance; 3-axis taxels plus 8 joint angles")
