@@ -193,7 +193,7 @@ def test_list_patterns_wildcards_and_tags():
     ({"recipe": {"optimizer": "lbfgs"}}, "recipe.optimizer"),
     ({"recipe": {"lr": -0.1}}, "recipe.lr"),
     ({"recipe": {"batch_size": 0}}, "recipe.batch_size"),
-    ({"recipe": {"schedule": {"type": "step"}}}, "recipe.schedule"),
+    ({"recipe": {"schedule": {"type": "sawtooth"}}}, "recipe.schedule"),
 ])
 def test_bad_model_metadata_is_a_config_error(meta, culprit):
     name = unique("bad_meta")

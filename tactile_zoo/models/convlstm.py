@@ -39,7 +39,7 @@ State = list[tuple[Tensor, Tensor]]
     inputs=["grid", "globals"],
     # the source gives Adam 1e-3, batch 32, cross-entropy; epochs and patience are ours (docs/models.md)
     recipe={"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
-            "max_epochs": 60, "patience": 15, "batch_size": 32, "grad_clip": 1.0},
+            "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0},
     causal=True,
     streaming=True,
 )

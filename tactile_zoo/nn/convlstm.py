@@ -18,9 +18,10 @@ layer, so layer ``l+1``'s input convolution is again one call over all frames. T
 
 ``"fused"`` (default)
     one autograd Function over the whole time loop. Its forward writes gates, cell states and hidden states into
-    preallocated time-major buffers with in-place ops (7 ops per step, no autograd graph); its hand-written backward
-    walks the steps in reverse (the gate derivatives and one convolution per step) and computes the
-    hidden kernel's gradient in a few large calls over many steps at once.
+    preallocated time-major buffers (per step: the convolution and 7 in-place or ``out=`` ops, no autograd graph);
+    its hand-written backward walks the steps in reverse (the gate derivatives and one convolution per step) and
+    computes the hidden kernel's gradient in a few large calls over many steps at once. Without gradients
+    (inference) the same loop runs on reused scratch tensors.
 ``"autograd"``
     the same update written with ordinary differentiable ops, stepped in Python: the reference the fused backend
     is tested against, and the path for double backward.

@@ -10,6 +10,8 @@ streaming equal to the full forward on every prefix (streaming models), and comp
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -19,7 +21,17 @@ import tactile_zoo as tz
 from tactile_zoo.data.spec import DatasetSpec
 from tactile_zoo.registry import get_model_entry
 
-MODELS = tz.list_models()
+TESTS_DIR = Path(__file__).resolve().parents[1]
+
+
+def _zoo_member(name: str) -> bool:
+    """Built-ins and installed plugins, not the deliberately broken fixture models other test modules register."""
+    module = sys.modules.get(getattr(get_model_entry(name).obj, "__module__", ""), None)
+    path = getattr(module, "__file__", None)
+    return path is None or TESTS_DIR not in Path(path).resolve().parents
+
+
+MODELS = [name for name in tz.list_models() if _zoo_member(name)]
 SENSORS = tz.list_sensors()
 STREAMING = [m for m in MODELS if get_model_entry(m).meta.get("streaming")]
 
@@ -27,9 +39,10 @@ NUM_STEPS, NUM_CLASSES = 12, 5
 #: global features of the built-in sensors' real datasets (Augment8000: 3 finger positions; ALU-Textures: 8 joints)
 GLOBALS = {"optoforce3": 3, "uskin_allegro": 8}
 RECIPE_KEYS = {"loss", "optimizer", "lr", "max_epochs", "patience", "batch_size"}
-#: Adam budget to overfit a tiny batch, per recipe loss (never per model): (max steps, learning rate). Spike-rate
-#: outputs move in steps of 1/T and learn more slowly. One lr for all: recipes are tuned for epochs over real data.
-OVERFIT_BUDGET = {"ce": (60, 1e-2), "mse_rate": (150, 1e-2)}
+#: Adam budget to overfit a tiny batch, per recipe loss (never per model): (max steps, learning rate). Recipes' own
+#: learning rates are tuned for epochs over real data, so the test fixes its own. Rate-coded spiking outputs fall
+#: silent (rate 0 everywhere, MSE stuck at 1/K) at 1e-2, so "mse_rate" gets a smaller rate and more steps.
+OVERFIT_BUDGET = {"ce": (60, 1e-2), "mse_rate": (100, 1e-3)}
 OVERFIT_FACTOR = 0.3  # the loss must fall below this fraction of its initial value
 
 
@@ -139,7 +152,7 @@ def test_overfits_a_tiny_batch(name: str, sensor: str) -> None:
             torch.nn.utils.clip_grad_norm_(model.parameters(), recipe["grad_clip"])
         opt.step()
         losses.append(loss.item())
-        if loss.item() < OVERFIT_FACTOR * losses[0] / 2:
+        if loss.item() < OVERFIT_FACTOR * losses[0]:
             break
     assert all(math.isfinite(v) for v in losses)
     best_late = min(losses[-5:])
