@@ -17,7 +17,7 @@ $(BIN)/tactile-zoo: setup.cfg pyproject.toml constraints.txt
 install: $(BIN)/tactile-zoo
 
 bench: install
-	$(BIN)/tactile-zoo bench --models all
+	$(BIN)/tactile-zoo bench --models all --executor process --workers 2
 
 test: install
 	# one BLAS/OpenMP thread per xdist worker: two workers on two cores, no oversubscription

@@ -39,7 +39,7 @@ def test_layer_sizes_follow_the_source(spec: DatasetSpec, flat: int) -> None:
     # "same" convs keep the size, each "same" pool halves it rounding up: 50x15 -> 25x8 -> 13x4 -> 7x2
     assert [(d.in_features, d.out_features) for d in dense] == [(flat, 103), (103, 138), (138, spec.num_classes)]
     bns = [m for m in model.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
-    assert len(bns) == 5 and all(b.momentum == 0.01 and b.eps == 1e-3 for b in bns)  # Keras defaults
+    assert len(bns) == 5 and all(b.momentum == 0.1 and b.eps == 1e-3 for b in bns)  # Keras eps, see the card
     assert all(torch.equal(m.bias, torch.zeros_like(m.bias)) for m in convs + dense)
     assert model(torch.rand(3, spec.num_steps, spec.num_nodes, spec.num_channels),
                  torch.rand(3, spec.num_steps, spec.num_globals)).shape == (3, spec.num_classes)
@@ -88,3 +88,11 @@ def test_not_causal_and_channels_last_inside() -> None:
     model = tz.create_model("dcnn", EV_OBJECTS)
     conv = model.features[1][1]
     assert conv.weight.is_contiguous(memory_format=torch.channels_last)
+
+
+def test_keras_running_statistics_on_request() -> None:
+    keras = tz.create_model("dcnn", AUGMENT8000, bn_momentum=0.01)  # Keras' momentum=0.99
+    bns = [m for m in keras.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    assert all(b.momentum == 0.01 and b.eps == 1e-3 for b in bns)
+    with pytest.raises(ConfigError, match="bn_momentum"):
+        tz.create_model("dcnn", AUGMENT8000, bn_momentum=0.0)
