@@ -47,6 +47,37 @@ KERAS_BN_MOMENTUM = 0.01  # Keras' BatchNormalization(momentum=0.99) in PyTorch 
 BN_EPS = 1e-3  # Keras' BatchNormalization epsilon
 
 
+class _FirstBatchStats:
+    """Batch norm whose running statistics start from the first training batch instead of (mean 0, var 1).
+
+    The running averages are exponential moving averages; started at (0, 1) they carry that start for ~1/momentum
+    updates. On Ev-Objects the first block's activation variance is ~0.003, so with Keras' momentum the eval-mode
+    statistics stay hundreds of times too large for ~150 epochs (4 updates per epoch) and validation sits at chance.
+    Taking the first batch's statistics whole (momentum 1 once) removes the start value, as bias correction does for
+    Adam; every later update is the ordinary moving average.
+    """
+
+    momentum: float | None
+    num_batches_tracked: Tensor | None
+
+    def forward(self, x: Tensor) -> Tensor:
+        if self.training and self.num_batches_tracked is not None and int(self.num_batches_tracked) == 0:
+            momentum, self.momentum = self.momentum, 1.0
+            try:
+                return super().forward(x)  # type: ignore[misc]
+            finally:
+                self.momentum = momentum
+        return super().forward(x)  # type: ignore[misc]
+
+
+class _BatchNorm2d(_FirstBatchStats, nn.BatchNorm2d):
+    pass
+
+
+class _BatchNorm1d(_FirstBatchStats, nn.BatchNorm1d):
+    pass
+
+
 def _pooled(size: int, times: int) -> int:
     for _ in range(times):
         size = math.ceil(size / 2)
@@ -61,7 +92,7 @@ class _ConvBlock(nn.Sequential):
         # Keras/TF "same": total padding k - 1, the odd cell of an even kernel after (right/bottom)
         pad = (((kw - 1) // 2), kw - 1 - (kw - 1) // 2, (kh - 1) // 2, kh - 1 - (kh - 1) // 2)
         super().__init__(nn.ZeroPad2d(pad), nn.Conv2d(cin, cout, kernel), nn.ReLU(inplace=True),
-                         nn.BatchNorm2d(cout, eps=BN_EPS, momentum=bn_momentum), nn.MaxPool2d(2, ceil_mode=True))
+                         _BatchNorm2d(cout, eps=BN_EPS, momentum=bn_momentum), nn.MaxPool2d(2, ceil_mode=True))
 
 
 @register_model(
@@ -111,8 +142,8 @@ class DCNN(nn.Module):
         flat = filters[-1] * _pooled(self.num_steps, 3) * _pooled(self.num_features, 3)
         self.classifier = nn.Sequential(
             nn.Flatten(),
-            nn.Linear(flat, dense[0]), nn.ReLU(inplace=True), nn.BatchNorm1d(dense[0], **bn),
-            nn.Linear(dense[0], dense[1]), nn.ReLU(inplace=True), nn.BatchNorm1d(dense[1], **bn),
+            nn.Linear(flat, dense[0]), nn.ReLU(inplace=True), _BatchNorm1d(dense[0], **bn),
+            nn.Linear(dense[0], dense[1]), nn.ReLU(inplace=True), _BatchNorm1d(dense[1], **bn),
             nn.Linear(dense[1], spec.num_classes),
         )
         for m in self.modules():

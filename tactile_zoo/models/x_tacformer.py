@@ -42,10 +42,10 @@ class XTacformer(Tacformer):
       LayerNorm-ed spike rate ``(B, D)`` (``(B, 2D)`` with globals).
     * Temporal branch (:class:`~tactile_zoo.nn.tgcn.TemporalGraphAttention`) on the same binned frames
       ``(T' = 50, B, N, C)``: GCNConv ``C -> H`` on every frame in one call, the T-GCN cell (eqs. 10-13) with an
-      ``H``-wide state per taxel -> ``(T', B, N, H)``; frame feature = the taxel states flattened ``(T', B, N * H)``;
+      ``H``-wide state per taxel -> ``(T', B, N, H)``; frame feature = the taxel states averaged ``(T', B, H)``;
       additive attention over frames (score ``w^T tanh(W f_t + b)``, softmax over the frames seen) -> weighted sum
-      ``(B, N * H)`` -> LayerNorm.
-    * Fusion: concatenation ``(B, D + N * H)`` -> dropout -> Linear -> logits ``(B, num_classes)``.
+      ``(B, H)`` -> LayerNorm.
+    * Fusion: concatenation ``(B, D + H)`` -> dropout -> Linear -> logits ``(B, num_classes)``.
 
     Causal: both branches only look back (LIFs, the GRU recurrence, and a softmax over the frames seen so far that
     is updated online), so :meth:`step` streams in constant memory and equals :meth:`forward` on every prefix.
@@ -55,7 +55,8 @@ class XTacformer(Tacformer):
             pool, readout_norm, attn_dropout, graph, graph_backend, lif_backend: as
             :class:`~tactile_zoo.models.tacformer.Tacformer`.
         hidden: T-GCN state width per taxel ``H``.
-        temporal_pool: frame feature of the temporal branch: ``"flatten"`` (``N * H``) or ``"mean"`` over taxels.
+        temporal_pool: frame feature of the temporal branch: ``"mean"`` over taxels (``H``) or ``"flatten"``
+            (``N * H``; on Ev-Objects it over-fitted: val loss 0.50 against 0.24, see docs/models.md).
         attn_dim: hidden width of the frame-scoring network.
         temporal_backend: ``"native"`` (eqs. 10-13) or ``"tgt"`` (torch_geometric_temporal's TGCN2, a different cell;
             only where that optional package imports).
@@ -69,8 +70,8 @@ class XTacformer(Tacformer):
     def __init__(self, spec: DatasetSpec, dim: int = 64, heads: int = 4, depth: int = 1, mlp_ratio: float = 0.0,
                  hops: int = 3, tau: float = 2.0, v_th: float = 1.0, surrogate: str = "atan",
                  detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, pool: str = "flatten",
-                 readout_norm: bool = True, hidden: int = 32, temporal_pool: str = "flatten", attn_dim: int = 32,
-                 temporal_backend: str = "native", dropout: float = 0.3, attn_dropout: float = 0.0,
+                 readout_norm: bool = True, hidden: int = 32, temporal_pool: str = "mean", attn_dim: int = 32,
+                 temporal_backend: str = "native", dropout: float = 0.1, attn_dropout: float = 0.0,
                  graph: str = "default", graph_backend: str = "dense", lif_backend: str = "fused") -> None:
         super().__init__(spec, dim=dim, heads=heads, depth=depth, mlp_ratio=mlp_ratio, hops=hops, tau=tau, v_th=v_th,
                          surrogate=surrogate, detach_reset=detach_reset, bin_size=bin_size,
