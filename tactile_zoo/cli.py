@@ -378,25 +378,32 @@ def _add_evaluate(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_cmd_evaluate)
 
 
-def _cmd_evaluate(args: argparse.Namespace) -> int:
-    from .bench.cell import import_plugin_modules
+def _checkpoint_dataset(args: argparse.Namespace, config: dict[str, Any], flag: str) -> tuple[Any, str, int]:
+    """The split a checkpoint is evaluated or replayed on: the checkpoint's own dataset (with its fold and keyword
+    arguments) unless ``args.dataset`` names another; ``--dataset-arg`` and ``--fold`` override."""
     from .bench.config import parse_assignment
-    from .engine import build_from_checkpoint, evaluate, load_checkpoint
     from .errors import ConfigError
 
-    import_plugin_modules(args.plugin_modules)
-    blob = load_checkpoint(args.checkpoint)
-    config = blob["config"]
     dataset = args.dataset or config.get("dataset")
     if not dataset:
-        raise ConfigError(f"{args.checkpoint} does not name its dataset; give DATASET")
+        raise ConfigError(f"{args.checkpoint} does not name its dataset; give {flag}")
     same = registry.normalize_name(dataset) == registry.normalize_name(str(config.get("dataset")))
     kwargs = dict(config.get("dataset_kwargs") or {}) if same and not args.dataset_args else {}
     for text in args.dataset_args:
         _, key, value = parse_assignment("--dataset-arg", text)
         kwargs[key] = value
     fold = _fold_arg(args.fold) if args.fold is not None else (int(config.get("fold", 0)) if same else 0)
-    ds = registry.load_dataset(dataset, root=args.root, split=args.split, fold=fold, **kwargs)
+    return registry.load_dataset(dataset, root=args.root, split=args.split, fold=fold, **kwargs), dataset, fold
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from .bench.cell import import_plugin_modules
+    from .engine import build_from_checkpoint, evaluate, load_checkpoint
+
+    import_plugin_modules(args.plugin_modules)
+    blob = load_checkpoint(args.checkpoint)
+    config = blob["config"]
+    ds, dataset, fold = _checkpoint_dataset(args, config, "DATASET")
     model = build_from_checkpoint(blob, ds.spec, where=f"checkpoint {args.checkpoint}")
     result = evaluate(model, ds, device=args.device or "auto")
     metrics = {k: v for k, v in result.metrics.items() if k != "confusion"}
@@ -453,7 +460,6 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     import torch
 
     from .bench.cell import import_plugin_modules
-    from .bench.config import parse_assignment
     from .engine import build_from_checkpoint, load_checkpoint, resolve_device
     from .engine.runtime import set_threads
     from .engine.stream import check_streaming, replay
@@ -468,16 +474,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     name = config["model"]
     meta = dict(registry.get_model_entry(name).meta)
     check_streaming(name, meta)  # before any data is loaded
-    dataset = args.dataset or config.get("dataset")
-    if not dataset:
-        raise ConfigError(f"{args.checkpoint} does not name its dataset; give --dataset")
-    same = registry.normalize_name(dataset) == registry.normalize_name(str(config.get("dataset")))
-    kwargs = dict(config.get("dataset_kwargs") or {}) if same and not args.dataset_args else {}
-    for text in args.dataset_args:
-        _, key, value = parse_assignment("--dataset-arg", text)
-        kwargs[key] = value
-    fold = _fold_arg(args.fold) if args.fold is not None else (int(config.get("fold", 0)) if same else 0)
-    ds = registry.load_dataset(dataset, root=args.root, split=args.split, fold=fold, **kwargs)
+    ds, dataset, fold = _checkpoint_dataset(args, config, "--dataset")
     if not 0 <= args.index < len(ds):
         raise ConfigError(f"--index {args.index} is out of range: split {args.split!r} of {dataset} (fold {fold}) has "
                           f"{len(ds)} samples (0..{len(ds) - 1})")

@@ -96,3 +96,23 @@ def test_keras_running_statistics_on_request() -> None:
     assert all(b.momentum == 0.01 and b.eps == 1e-3 for b in bns)
     with pytest.raises(ConfigError, match="bn_momentum"):
         tz.create_model("dcnn", AUGMENT8000, bn_momentum=0.0)
+
+
+def test_running_statistics_start_from_the_first_batch() -> None:
+    torch.manual_seed(1)
+    model = tz.create_model("dcnn", AUGMENT8000).train()
+    bn = model.features[0][3]  # the first block's batch norm
+    x, g = torch.rand(8, 50, 3, 4) * 0.05, torch.rand(8, 50, 3) * 0.05
+    acts = []
+    hook = model.features[0][2].register_forward_hook(lambda m, i, o: acts.append(o.detach().clone()))
+    with torch.no_grad():
+        model(x, g)
+        first_mean, first_var = bn.running_mean.clone(), bn.running_var.clone()
+        model(x.flip(0) * 2, g)
+    hook.remove()
+    a1, a2 = acts[0], acts[1]  # the ReLU outputs the batch norm saw
+    mean1, var1 = a1.mean((0, 2, 3)), a1.var((0, 2, 3), unbiased=True)
+    assert torch.allclose(first_mean, mean1, atol=1e-6) and torch.allclose(first_var, var1, rtol=1e-4)
+    mean2 = a2.mean((0, 2, 3))  # afterwards an ordinary moving average with the configured momentum
+    assert torch.allclose(bn.running_mean, 0.9 * mean1 + 0.1 * mean2, atol=1e-6)
+    assert bn.momentum == 0.1
