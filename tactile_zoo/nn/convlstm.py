@@ -60,24 +60,59 @@ def _gates(z: Tensor, c: Tensor) -> State:
 _WGRAD_CHUNK = 25  # steps per weight-gradient call: large enough to amortise, small enough to stay in cache
 
 
-def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, padding: int, keep: bool
-                ) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor, Tensor] | None]:
+def _tap_index(channels: int, height: int, width: int, kernel: int) -> Tensor:
+    """Gather index of the im2col matrix of a "same" convolution over one flattened sample.
+
+    Entry ``(c * k*k + dr * k + dc) * H*W + p`` (the order of a conv kernel flattened to ``(C_out, C*k*k)``) holds
+    the flat position of tap ``(dr, dc)`` of channel ``c`` around cell ``p``, or ``C*H*W`` (a slot kept at zero)
+    where the tap falls outside the grid.
+    """
+    pad = kernel // 2
+    r = torch.arange(height).view(1, 1, height, 1)
+    c = torch.arange(width).view(1, 1, 1, width)
+    dr = torch.arange(kernel).view(kernel, 1, 1, 1) - pad
+    dc = torch.arange(kernel).view(1, kernel, 1, 1) - pad
+    rr, cc = r + dr, c + dc  # (k, k, H, W)
+    inside = (rr >= 0) & (rr < height) & (cc >= 0) & (cc < width)
+    cell = torch.where(inside, rr * width + cc, -1)  # (k, k, H, W)
+    chan = torch.arange(channels).view(channels, 1, 1, 1, 1) * height * width
+    idx = torch.where(cell >= 0, chan + cell, channels * height * width)  # (C, k, k, H, W)
+    return idx.reshape(-1)
+
+
+def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, keep: bool
+                ) -> tuple[Tensor, Tensor, Tensor, tuple[Tensor, Tensor, Tensor] | None]:
     """The time loop without autograd: ``xz (T, B, 4h, H, W)`` -> ``hs (T+1, B, h, H, W)`` (``hs[0] = h0``), ``c_T``.
 
     With ``keep`` every step's activated gates, cell states and ``tanh(c)`` stay in buffers for the backward pass;
     without it (inference) three per-step scratch tensors are reused.
+
+    The hidden convolution runs as im2col + one batched matrix product that also adds ``xz_t``: each sample's hidden
+    state sits in a row of ``hbuf (T+1, B, h*H*W + 1)`` whose last slot stays 0, one ``index_select`` with a fixed
+    index builds the im2col matrix (taps outside the grid read the 0), and ``baddbmm`` writes the pre-activations
+    straight into the gate buffer. On CPU that is about 2x faster than ``conv2d`` plus an add on these small grids
+    (measured, 16 -> 64 channels, 3x3, 9x13: 1.2 vs 2.0-2.5 ms at B = 32; 0.04 vs 0.06 ms at B = 1), and everything
+    stays NCHW, where the gate slices are cheap element-wise operands.
     """
-    steps, hid = xz.shape[0], h0.shape[1]
-    hs = xz.new_empty(steps + 1, *h0.shape)
+    steps, b, four_h, height, width = xz.shape
+    hid, k = h0.shape[1], weight.shape[-1]
+    n = hid * height * width
+    idx = _tap_index(hid, height, width, k).to(xz.device)
+    kernel = weight.reshape(four_h, hid * k * k).expand(b, four_h, hid * k * k)  # (B, 4h, h*k*k)
+    hbuf = xz.new_zeros(steps + 1, b, n + 1)
+    hs = hbuf[..., :n].view(steps + 1, b, hid, height, width)  # every row's last slot stays 0
     hs[0] = h0
     if keep:
         gates, cs, tcs = torch.empty_like(xz), xz.new_empty(steps + 1, *c0.shape), xz.new_empty(steps, *c0.shape)
         cs[0] = c0
     else:
         z_buf, c, tc = torch.empty_like(xz[0]), c0.clone(), torch.empty_like(c0)
+    # one reused im2col buffer: a fresh multi-megabyte tensor per step would cost the allocator's page faults
+    cols = xz.new_empty(b, hid * k * k, height * width)  # (B, h*k*k, H*W)
     for t in range(steps):
         z = gates[t] if keep else z_buf
-        torch.add(xz[t], F.conv2d(hs[t], weight, padding=padding), out=z)  # (B, 4h, H, W) pre-activations
+        torch.index_select(hbuf[t], 1, idx, out=cols.view(b, -1))
+        torch.baddbmm(xz[t].view(b, four_h, -1), kernel, cols, out=z.view(b, four_h, -1))  # (B, 4h, H*W)
         z[:, : 3 * hid].sigmoid_()
         z[:, 3 * hid:].tanh_()
         i, f, o, g = z.split(hid, dim=1)
@@ -89,7 +124,7 @@ def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, padding: int
         c.addcmul_(i, g)
         torch.tanh(c, out=tc)
         torch.mul(o, tc, out=hs[t + 1])
-    return hs, c, ((gates, cs, tcs) if keep else None)
+    return hbuf, hs, c, ((gates, cs, tcs) if keep else None)
 
 
 class _FusedRecurrence(torch.autograd.Function):
@@ -97,17 +132,18 @@ class _FusedRecurrence(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx: Any, xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, padding: int) -> tuple[Tensor, Tensor]:
-        hs, c_last, saved = _recurrence(xz, weight, h0, c0, padding, keep=True)
+        hbuf, hs, c_last, saved = _recurrence(xz.contiguous(), weight, h0, c0, keep=True)
         ctx.padding = padding
         # intermediates may be saved too; the version counter hs shares with the returned view guards in-place edits
-        ctx.save_for_backward(weight, hs, *saved)
+        ctx.save_for_backward(weight, hbuf, *saved)
         return hs[1:], c_last
 
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, d_hs: Tensor, d_c_last: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, None]:
-        (weight, hs, gates, cs, tcs), pad = ctx.saved_tensors, ctx.padding
+        (weight, hbuf, gates, cs, tcs), pad = ctx.saved_tensors, ctx.padding
         steps, hid = gates.shape[0], weight.shape[1]
+        hs = hbuf[..., :-1].view(steps + 1, *cs.shape[1:])  # (T+1, B, h, H, W)
         d_z = torch.empty_like(gates)  # (T, B, 4h, H, W): gradient of the pre-activations = gradient of xz
         d_h = torch.zeros_like(hs[0])
         d_c = d_c_last.clone()
@@ -194,7 +230,7 @@ class ConvLSTMCell(nn.Module):
             if torch.is_grad_enabled() and any(v.requires_grad for v in (xz, weight, h, c)):
                 hs, c = _FusedRecurrence.apply(xz, weight, h, c, self.padding)
             else:  # inference: the same loop without buffers for a backward pass
-                hs, c, _ = _recurrence(xz, weight, h, c, self.padding, keep=False)
+                _, hs, c, _ = _recurrence(xz.contiguous(), weight, h, c, keep=False)
                 hs = hs[1:]
             return hs, (hs[-1], c)  # hs: (T, B, hidden, H, W)
         out = []
