@@ -4,19 +4,23 @@ The command runs as a child process, as a new user would run it: a fresh ``--out
 (``TACTILE_ZOO_DATA``), so the grid is every model on the simulated datasets that ship with the package, and a fresh
 processed-data cache (``TACTILE_ZOO_CACHE``), so generating the simulated data is included. ``--threads`` and
 ``--device`` are passed on. Peak memory is the bench process's own resident-set high-water mark, ``VmHWM`` read from
-``/proc/self/status`` as it exits (with the default local executor every cell runs in that process). Not
+``/proc/self/status`` as it exits, and the largest per-cell peak the harness recorded (``max_cell_peak_mb``: with
+the process executor the cells run in worker processes, whose memory the parent's high-water mark does not see). Not
 ``getrusage(RUSAGE_CHILDREN).ru_maxrss``: Linux starts a spawned child's ``ru_maxrss`` at the spawning process's peak
 (recorded at ``exec``), so after the other benchmarks it would report this process's size. Where ``/proc`` is
 missing, ``ru_maxrss`` from ``os.wait4`` is used, an upper bound (``rss_source`` says which).
 
-The full grid trains every model with its whole recipe and takes long; ``--quick`` runs ``tactile-zoo bench
---quick`` instead (2 epochs on small subsets).
+The command is the README's first one (``make bench``): ``--executor process --workers N`` with N = ``--threads``,
+one torch thread per worker. The full grid trains every model with its whole recipe; ``--quick`` runs ``tactile-zoo
+bench --quick`` instead (2 epochs on small subsets). With ``BENCH_WALL_KEEP=DIR`` in the environment the run's output
+folder (leaderboard, report, plots, cell files) is copied to DIR instead of being thrown away.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -27,7 +31,8 @@ from .common import Context, write_csv
 
 NAME = "bench_wall"
 TITLE = "Wall-clock and peak RSS of `tactile-zoo bench --models all` on the embedded default (simulated data)"
-COLUMNS = ("command", "exit_code", "cells", "cells_not_ok", "wall_s", "cpu_s", "peak_rss_mb", "rss_source")
+COLUMNS = ("command", "exit_code", "cells", "cells_not_ok", "wall_s", "cpu_s", "peak_rss_mb", "rss_source",
+           "max_cell_peak_mb")
 
 # the console script's main(), then the process's own peak RSS (VmHWM of its address space since exec) into argv[1]
 _LAUNCH = """
@@ -45,11 +50,11 @@ sys.exit(code)
 """
 
 
-def _status(path: Path) -> str:
+def _record(path: Path) -> dict:
     try:
-        return str(json.loads(path.read_text()).get("status"))
+        return json.loads(path.read_text())
     except (OSError, ValueError):
-        return "unreadable"
+        return {"status": "unreadable"}
 
 
 def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: tuple[str, ...] = ()) -> Path:
@@ -57,7 +62,7 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
         tmp_path = Path(tmp)
         (tmp_path / "data").mkdir()
         args = ["bench", "--models", models, "--out", str(tmp_path / "out"), "--threads", str(ctx.threads),
-                "--device", str(ctx.device), "-q"]
+                "--device", str(ctx.device), "--executor", "process", "--workers", str(ctx.threads), "-q"]
         if datasets:
             args += ["--datasets", datasets]
         if ctx.quick:
@@ -77,8 +82,13 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
                 raise
             wall = time.perf_counter() - start
         proc.returncode = code = os.waitstatus_to_exitcode(status)  # reaped here, so Popen must not wait again
-        statuses = [_status(p) for p in sorted((tmp_path / "out" / "cells").glob("*.json"))]
+        records = [_record(p) for p in sorted((tmp_path / "out" / "cells").glob("*.json"))]
+        statuses = [str(r.get("status")) for r in records]
         cells, failed = statuses.count("ok"), sum(1 for s in statuses if s != "ok")
+        cell_peaks = [r["peak_memory_mb"] for r in records if r.get("peak_memory_mb") is not None]
+        keep = os.environ.get("BENCH_WALL_KEEP")
+        if keep:
+            shutil.copytree(tmp_path / "out", keep, dirs_exist_ok=True)
         hwm = tmp_path / "vmhwm"
         rss_kb, rss_source = (int(hwm.read_text()), "vmhwm") if hwm.exists() else (usage.ru_maxrss, "ru_maxrss")
         if code != 0:  # a failed run is no measurement
@@ -89,7 +99,7 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
     command = "tactile-zoo " + " ".join(a if "tz-bench-wall-" not in a else "<fresh tmp dir>" for a in args)
     row = {"case": "quick" if ctx.quick else "full", "command": command, "exit_code": code,
            "cells": cells, "cells_not_ok": failed, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss_kb / 1024,
-           "rss_source": rss_source,
+           "rss_source": rss_source, "max_cell_peak_mb": max(cell_peaks) if cell_peaks else None,
            "note": "empty data home (simulated datasets only), fresh cache (includes generating them)"}
     ctx.log(f"  {command}: {wall:.0f} s wall, {cpu:.0f} s CPU, {cells} cells ok ({failed} not), peak RSS "
             f"{rss_kb / 1024:.0f} MB")

@@ -17,11 +17,18 @@ for all ``B*T`` frames at once; only the hidden-side convolution and the gates r
 layer, so layer ``l+1``'s input convolution is again one call over all frames. Two backends run the recurrence:
 
 ``"fused"`` (default)
-    one autograd Function over the whole time loop. Its forward writes gates, cell states and hidden states into
-    preallocated time-major buffers (per step: the convolution and 7 in-place or ``out=`` ops, no autograd graph);
-    its hand-written backward walks the steps in reverse (the gate derivatives and one convolution per step) and
-    computes the hidden kernel's gradient in a few large calls over many steps at once. Without gradients
-    (inference) the same loop runs on reused scratch tensors.
+    one autograd Function over the whole time loop, channel-major (``(channels, B*H*W)``: each gate a contiguous
+    block, the whole batch one matrix). Its forward writes gates, cell states and hidden states into preallocated
+    time-major buffers; per step one gather builds the im2col matrix of ``h_{t-1}`` and one matrix product adds the
+    hidden convolution to the input side's, then 7 in-place or ``out=`` ops, no autograd graph. Its hand-written
+    backward walks the steps in reverse: the gate derivatives, the kernel gradient (one product) and the gradient
+    of ``h_{t-1}`` (one product and a scatter-add, the transpose of the gather). Without gradients (inference) the
+    same loop runs on reused scratch tensors. The input-side convolution runs channels-last, where oneDNN's CPU
+    backward is about 2x faster on these grids. Measured on one CPU thread, the two-layer 16-channel model on a
+    9x13 grid, B = 32, T = 100: 2.15 s forward + backward (0.64 s forward alone), against 2.29 s for the previous
+    per-step ``conv2d`` version and 2.31 s for the ``"autograd"`` backend. The matrix products dominate: about 65
+    GFLOP, whose floor at the ~60 GFLOP/s one core reaches at these sizes is about 1.1 s; the rest is memory-bound
+    element-wise work and the gather/scatter.
 ``"autograd"``
     the same update written with ordinary differentiable ops, stepped in Python: the reference the fused backend
     is tested against, and the path for double backward.
@@ -36,7 +43,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
@@ -57,65 +63,60 @@ def _gates(z: Tensor, c: Tensor) -> State:
     return o * torch.tanh(c), c
 
 
-_WGRAD_CHUNK = 25  # steps per weight-gradient call: large enough to amortise, small enough to stay in cache
+def _tap_index(batch: int, height: int, width: int, kernel: int) -> Tensor:
+    """Gather index of the im2col matrix of a "same" convolution, channel-major.
 
-
-def _tap_index(channels: int, height: int, width: int, kernel: int) -> Tensor:
-    """Gather index of the im2col matrix of a "same" convolution over one flattened sample.
-
-    Entry ``(c * k*k + dr * k + dc) * H*W + p`` (the order of a conv kernel flattened to ``(C_out, C*k*k)``) holds
-    the flat position of tap ``(dr, dc)`` of channel ``c`` around cell ``p``, or ``C*H*W`` (a slot kept at zero)
-    where the tap falls outside the grid.
+    Each channel of a batch of maps sits in one row of ``B*H*W + 1`` values (sample-major, then cells; the last slot
+    stays 0). Gathering a row with this index gives, at position ``(dr*k + dc) * B*H*W + b*H*W + p``, the value of
+    tap ``(dr, dc)`` around cell ``p`` of sample ``b``, or the zero slot where the tap falls outside the grid; over
+    ``C`` rows that is the im2col matrix ``(C*k*k, B*H*W)``, its rows in the order of a conv kernel flattened to
+    ``(C_out, C*k*k)``.
     """
     pad = kernel // 2
-    r = torch.arange(height).view(1, 1, height, 1)
-    c = torch.arange(width).view(1, 1, 1, width)
     dr = torch.arange(kernel).view(kernel, 1, 1, 1) - pad
     dc = torch.arange(kernel).view(1, kernel, 1, 1) - pad
-    rr, cc = r + dr, c + dc  # (k, k, H, W)
+    rr = torch.arange(height).view(1, 1, height, 1) + dr
+    cc = torch.arange(width).view(1, 1, 1, width) + dc  # with rr: (k, k, H, W)
     inside = (rr >= 0) & (rr < height) & (cc >= 0) & (cc < width)
-    cell = torch.where(inside, rr * width + cc, -1)  # (k, k, H, W)
-    chan = torch.arange(channels).view(channels, 1, 1, 1, 1) * height * width
-    idx = torch.where(cell >= 0, chan + cell, channels * height * width)  # (C, k, k, H, W)
+    cells = height * width
+    offset = torch.arange(batch).view(1, batch, 1) * cells
+    idx = (rr * width + cc).flatten(0, 1).unsqueeze(1).flatten(2) + offset  # (k*k, B, H*W)
+    idx = torch.where(inside.flatten(0, 1).unsqueeze(1).flatten(2), idx, batch * cells)
     return idx.reshape(-1)
 
 
-def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, keep: bool
-                ) -> tuple[Tensor, Tensor, Tensor, tuple[Tensor, Tensor, Tensor] | None]:
-    """The time loop without autograd: ``xz (T, B, 4h, H, W)`` -> ``hs (T+1, B, h, H, W)`` (``hs[0] = h0``), ``c_T``.
+def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, idx: Tensor, keep: bool
+                ) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor, Tensor] | None]:
+    """The time loop without autograd, channel-major: ``xz (T, 4h, B*H*W)`` (the input side's pre-activations),
+    ``h0, c0 (h, B*H*W)``, ``idx`` from :func:`_tap_index` -> ``hbuf (T+1, h, B*H*W + 1)`` (``hbuf[t, :, :-1]`` is
+    ``h_t``, ``hbuf[0]`` holds ``h0``, the last column stays 0) and ``c_T (h, B*H*W)``.
 
-    With ``keep`` every step's activated gates, cell states and ``tanh(c)`` stay in buffers for the backward pass;
-    without it (inference) three per-step scratch tensors are reused.
-
-    The hidden convolution runs as im2col + one batched matrix product that also adds ``xz_t``: each sample's hidden
-    state sits in a row of ``hbuf (T+1, B, h*H*W + 1)`` whose last slot stays 0, one ``index_select`` with a fixed
-    index builds the im2col matrix (taps outside the grid read the 0), and ``baddbmm`` writes the pre-activations
-    straight into the gate buffer. On CPU that is about 2x faster than ``conv2d`` plus an add on these small grids
-    (measured, 16 -> 64 channels, 3x3, 9x13: 1.2 vs 2.0-2.5 ms at B = 32; 0.04 vs 0.06 ms at B = 1), and everything
-    stays NCHW, where the gate slices are cheap element-wise operands.
+    A step is one gather and one matrix product: ``index_select`` along each channel's row builds the im2col matrix
+    ``(h*k*k, B*H*W)`` of ``h_{t-1}`` (taps outside the grid read the zero column), and ``addmm`` adds the kernel
+    times it to ``xz_t``, writing the pre-activations straight into the gate buffer. Channel-major keeps each gate a
+    contiguous block for the element-wise updates, and the whole batch is one ``4h x h*k*k x B*H*W`` product: on
+    these small grids much faster on CPU than a ``conv2d`` per step.
+    With ``keep`` the activated gates, cell states and ``tanh(c)`` of every step stay in buffers for the backward;
+    without it (inference) per-step scratch tensors are reused.
     """
-    steps, b, four_h, height, width = xz.shape
-    hid, k = h0.shape[1], weight.shape[-1]
-    n = hid * height * width
-    idx = _tap_index(hid, height, width, k).to(xz.device)
-    kernel = weight.reshape(four_h, hid * k * k).expand(b, four_h, hid * k * k)  # (B, 4h, h*k*k)
-    hbuf = xz.new_zeros(steps + 1, b, n + 1)
-    hs = hbuf[..., :n].view(steps + 1, b, hid, height, width)  # every row's last slot stays 0
-    hs[0] = h0
+    steps, four_h, cols_n = xz.shape
+    hid = four_h // 4
+    kernel = weight.reshape(four_h, -1)  # (4h, h*k*k)
+    hbuf = xz.new_zeros(steps + 1, hid, cols_n + 1)
+    hbuf[0, :, :cols_n] = h0
     if keep:
-        gates, cs, tcs = torch.empty_like(xz), xz.new_empty(steps + 1, *c0.shape), xz.new_empty(steps, *c0.shape)
+        gates, cs, tcs = torch.empty_like(xz), xz.new_empty(steps + 1, hid, cols_n), xz.new_empty(steps, hid, cols_n)
         cs[0] = c0
     else:
         z_buf, c, tc = torch.empty_like(xz[0]), c0.clone(), torch.empty_like(c0)
-    # one reused im2col buffer: a fresh multi-megabyte tensor per step would cost the allocator's page faults
-    cols = xz.new_empty(b, hid * k * k, height * width)  # (B, h*k*k, H*W)
+    cols = xz.new_empty(kernel.shape[1], cols_n)  # reused: a fresh multi-megabyte tensor per step costs page faults
     for t in range(steps):
         z = gates[t] if keep else z_buf
-        torch.index_select(hbuf[t], 1, idx, out=cols.view(b, -1))
-        torch.baddbmm(xz[t].view(b, four_h, -1), kernel, cols, out=z.view(b, four_h, -1))  # (B, 4h, H*W)
-        z[:, : 3 * hid].sigmoid_()
-        z[:, 3 * hid:].tanh_()
-        i, f, o, g = z.split(hid, dim=1)
+        torch.index_select(hbuf[t], 1, idx, out=cols.view(hid, -1))  # (h*k*k, B*H*W)
+        torch.addmm(xz[t], kernel, cols, out=z)  # (4h, B*H*W) pre-activations
+        z[: 3 * hid].sigmoid_()
+        z[3 * hid:].tanh_()
+        i, f, o, g = z.split(hid)
         if keep:
             c, tc = cs[t + 1], tcs[t]
             torch.mul(f, cs[t], out=c)
@@ -123,37 +124,38 @@ def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, keep: bool
             c.mul_(f)
         c.addcmul_(i, g)
         torch.tanh(c, out=tc)
-        torch.mul(o, tc, out=hs[t + 1])
-    return hbuf, hs, c, ((gates, cs, tcs) if keep else None)
+        torch.mul(o, tc, out=hbuf[t + 1, :, :cols_n])
+    return hbuf, c, ((gates, cs, tcs) if keep else None)
 
 
 class _FusedRecurrence(torch.autograd.Function):
-    """The ConvLSTM time loop as one autograd node: ``(xz, W_h, h0, c0) -> (hs (T, B, h, H, W), c_T)``."""
+    """The ConvLSTM time loop as one autograd node, channel-major: ``(xz (T, 4h, B*H*W), W_h (4h, h, k, k),
+    h0, c0 (h, B*H*W), idx) -> (hs (T, h, B*H*W), c_T (h, B*H*W))``."""
 
     @staticmethod
-    def forward(ctx: Any, xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, padding: int) -> tuple[Tensor, Tensor]:
-        hbuf, hs, c_last, saved = _recurrence(xz.contiguous(), weight, h0, c0, keep=True)
-        ctx.padding = padding
-        # intermediates may be saved too; the version counter hs shares with the returned view guards in-place edits
-        ctx.save_for_backward(weight, hbuf, *saved)
-        return hs[1:], c_last
+    def forward(ctx: Any, xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, idx: Tensor) -> tuple[Tensor, Tensor]:
+        hbuf, c_last, saved = _recurrence(xz, weight, h0, c0, idx, keep=True)
+        # the returned hs is a view of hbuf: the version counter they share guards against in-place edits
+        ctx.save_for_backward(weight, hbuf, idx, *saved)
+        return hbuf[1:, :, :-1], c_last
 
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, d_hs: Tensor, d_c_last: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, None]:
-        (weight, hbuf, gates, cs, tcs), pad = ctx.saved_tensors, ctx.padding
-        steps, hid = gates.shape[0], weight.shape[1]
-        hs = hbuf[..., :-1].view(steps + 1, *cs.shape[1:])  # (T+1, B, h, H, W)
-        d_z = torch.empty_like(gates)  # (T, B, 4h, H, W): gradient of the pre-activations = gradient of xz
-        d_h = torch.zeros_like(hs[0])
+        weight, hbuf, idx, gates, cs, tcs = ctx.saved_tensors
+        steps, four_h, cols_n = gates.shape
+        hid = four_h // 4
+        kernel = weight.reshape(four_h, -1)  # (4h, h*k*k)
+        d_kernel = torch.zeros_like(kernel)
+        d_z = torch.empty_like(gates)  # (T, 4h, B*H*W): gradient of the pre-activations = gradient of xz
+        d_hbuf = hbuf.new_zeros(hid, cols_n + 1)  # gradient of h_{t-1}, scattered back from the im2col columns
+        d_h = d_hbuf[:, :cols_n]
         d_c = d_c_last.clone()
-        # the input gradient of a stride-1 "same" convolution is the convolution with the flipped, transposed kernel
-        # (a plain conv2d call, a little faster on CPU than conv_transpose2d)
-        w_back = weight.flip(2, 3).transpose(0, 1).contiguous()  # (h, 4h, k, k)
+        cols, d_cols = gates.new_empty(kernel.shape[1], cols_n), gates.new_empty(kernel.shape[1], cols_n)
         for t in reversed(range(steps)):
             dh = d_h + d_hs[t]
-            i, f, o, g = gates[t].split(hid, dim=1)
-            di, df, do, dg = d_z[t].split(hid, dim=1)
+            i, f, o, g = gates[t].split(hid)
+            di, df, do, dg = d_z[t].split(hid)
             tc = tcs[t]
             torch.mul(dh, tc, out=do)
             d_tanh = dh * o
@@ -162,16 +164,16 @@ class _FusedRecurrence(torch.autograd.Function):
             torch.mul(d_c, cs[t], out=df)
             torch.mul(d_c, i, out=dg)
             d_c.mul_(f)  # on to c_{t-1}
-            sig = gates[t][:, : 3 * hid]
-            d_z[t][:, : 3 * hid].mul_(torch.addcmul(sig, sig, sig, value=-1.0))  # sigmoid' = s (1 - s)
+            sig = gates[t][: 3 * hid]
+            d_z[t][: 3 * hid].mul_(torch.addcmul(sig, sig, sig, value=-1.0))  # sigmoid' = s (1 - s)
             dg.addcmul_(dg * g, g, value=-1.0)  # tanh' = 1 - g^2
-            d_h = F.conv2d(d_z[t], w_back, padding=pad)  # on to h_{t-1}
-        d_weight = torch.zeros_like(weight)
-        for s in range(0, steps, _WGRAD_CHUNK):  # the hidden kernel's gradient, many steps per call
-            e = min(s + _WGRAD_CHUNK, steps)
-            d_weight += torch.nn.grad.conv2d_weight(hs[s:e].flatten(0, 1), weight.shape, d_z[s:e].flatten(0, 1),
-                                                    padding=pad)
-        return d_z, d_weight, d_h, d_c, None
+            # the kernel's gradient needs h_{t-1}'s im2col matrix again: one gather, cheaper than keeping T of them
+            torch.index_select(hbuf[t], 1, idx, out=cols.view(hid, -1))
+            d_kernel.addmm_(d_z[t], cols.t())
+            # on to h_{t-1}: the transpose of the gather is a scatter-add of the im2col matrix's gradient
+            torch.mm(kernel.t(), d_z[t], out=d_cols)  # (h*k*k, B*H*W)
+            d_hbuf.zero_().index_add_(1, idx, d_cols.view(hid, -1))
+        return d_z, d_kernel.view_as(weight), d_h.clone(), d_c, None
 
 
 BACKENDS = ("fused", "autograd")
@@ -224,15 +226,25 @@ class ConvLSTMCell(nn.Module):
     def forward_time_major(self, x: Tensor, state: State | None = None) -> tuple[Tensor, State]:
         steps, b = x.shape[:2]
         h, c = self.init_state(b, x.shape[-2:]) if state is None else state
-        xz = self.input_conv(x.flatten(0, 1)).unflatten(0, (steps, b))  # (T, B, 4*hidden, H, W): one call
+        # one call over all T*B frames, channels-last: there oneDNN's CPU convolution (above all its backward) runs
+        # about 2x faster than in NCHW on these small grids
+        frames = x.flatten(0, 1).contiguous(memory_format=torch.channels_last)  # (T*B, C_in, H, W)
+        xz = self.input_conv(frames).unflatten(0, (steps, b))  # (T, B, 4*hidden, H, W)
         weight = self.hidden_conv.weight
         if self.backend == "fused":
+            height, width = xz.shape[-2:]
+            # channel-major for the fused loop: (T, 4h, B*H*W), and the states (h, B*H*W)
+            xz_cm = xz.transpose(1, 2).reshape(steps, xz.shape[2], -1)
+            h_cm, c_cm = (v.transpose(0, 1).reshape(self.hidden_channels, -1) for v in (h, c))
+            idx = _tap_index(b, height, width, weight.shape[-1]).to(xz.device)
             if torch.is_grad_enabled() and any(v.requires_grad for v in (xz, weight, h, c)):
-                hs, c = _FusedRecurrence.apply(xz, weight, h, c, self.padding)
+                hs, c = _FusedRecurrence.apply(xz_cm, weight, h_cm, c_cm, idx)  # (T, h, B*H*W), (h, B*H*W)
             else:  # inference: the same loop without buffers for a backward pass
-                _, hs, c, _ = _recurrence(xz.contiguous(), weight, h, c, keep=False)
-                hs = hs[1:]
-            return hs, (hs[-1], c)  # hs: (T, B, hidden, H, W)
+                hbuf, c, _ = _recurrence(xz_cm, weight, h_cm, c_cm, idx, keep=False)
+                hs = hbuf[1:, :, :-1]
+            hs = hs.unflatten(2, (b, height, width)).transpose(1, 2)  # (T, B, hidden, H, W), a view
+            c = c.unflatten(1, (b, height, width)).transpose(0, 1)  # (B, hidden, H, W)
+            return hs, (hs[-1], c)
         out = []
         for z_x in xz.unbind(0):  # (B, 4*hidden, H, W) per step
             h, c = _gates(z_x + self.hidden_conv(h), c)

@@ -7,7 +7,7 @@ import torch
 import torch.nn.functional as F
 
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig, _FusedRecurrence
+from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig, _FusedRecurrence, _tap_index
 
 
 def reference_step(cell: ConvLSTMCell, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
@@ -96,12 +96,27 @@ def test_gradients_match_finite_differences(backend: str) -> None:
 def test_fused_time_loop_gradcheck_on_every_input() -> None:
     torch.manual_seed(4)
     hid = 2
-    xz = torch.randn(4, 2, 4 * hid, 3, 2, dtype=torch.float64, requires_grad=True)  # (T, B, 4h, H, W)
+    b, height, width = 2, 3, 2
+    cols = b * height * width  # the fused loop works channel-major: one column per (sample, cell)
+    xz = torch.randn(4, 4 * hid, cols, dtype=torch.float64, requires_grad=True)  # (T, 4h, B*H*W)
     w = (0.5 * torch.randn(4 * hid, hid, 3, 3, dtype=torch.float64)).requires_grad_()
-    h0 = torch.randn(2, hid, 3, 2, dtype=torch.float64, requires_grad=True)
-    c0 = torch.randn(2, hid, 3, 2, dtype=torch.float64, requires_grad=True)
+    h0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
+    c0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
+    idx = _tap_index(b, height, width, 3)
     # both outputs, the whole hidden sequence and the last cell state, carry gradient
-    assert torch.autograd.gradcheck(lambda *a: _FusedRecurrence.apply(*a, 1), (xz, w, h0, c0))
+    assert torch.autograd.gradcheck(lambda *a: _FusedRecurrence.apply(*a, idx), (xz, w, h0, c0))
+
+
+def test_tap_index_gathers_the_im2col_matrix_of_a_same_convolution() -> None:
+    torch.manual_seed(6)
+    b, hid, height, width, k = 2, 3, 4, 5, 3
+    h = torch.randn(b, hid, height, width, dtype=torch.float64)
+    w = torch.randn(4 * hid, hid, k, k, dtype=torch.float64)
+    rows = torch.cat([h.transpose(0, 1).reshape(hid, -1), torch.zeros(hid, 1, dtype=torch.float64)], 1)
+    cols = rows[:, _tap_index(b, height, width, k)].reshape(hid * k * k, -1)  # (h*k*k, B*H*W)
+    out = w.reshape(4 * hid, -1) @ cols  # (4h, B*H*W)
+    want = F.conv2d(h, w, padding=1).transpose(0, 1).reshape(4 * hid, -1)
+    assert torch.allclose(out, want, atol=1e-12)
 
 
 def test_fused_backend_equals_the_autograd_reference() -> None:
