@@ -2,12 +2,13 @@
 
 The command runs as a child process, as a new user would run it: a fresh ``--out`` folder, an empty data home
 (``TACTILE_ZOO_DATA``), so the grid is every model on the simulated datasets that ship with the package, and a fresh
-processed-data cache (``TACTILE_ZOO_CACHE``), so generating the simulated data is included. ``--threads`` and
-``--device`` are passed on. Peak memory is the bench process's own resident-set high-water mark, ``VmHWM`` read from
-``/proc/self/status`` as it exits, and the largest per-cell peak the harness recorded (``max_cell_peak_mb``: with
-the process executor the cells run in worker processes, whose memory the parent's high-water mark does not see). Not
-``getrusage(RUSAGE_CHILDREN).ru_maxrss``: Linux starts a spawned child's ``ru_maxrss`` at the spawning process's peak
-(recorded at ``exec``), so after the other benchmarks it would report this process's size. Where ``/proc`` is
+processed-data cache (``TACTILE_ZOO_CACHE``), so generating the simulated data is included. ``--device`` is passed
+on; ``--threads`` sets the number of worker processes. Peak memory is the bench process's own resident-set
+high-water mark, ``VmHWM`` read from ``/proc/self/status`` as it exits, and the largest per-cell peak the harness
+recorded (``max_cell_peak_mb``: with the process executor the cells run in worker processes, whose memory the
+parent's high-water mark does not see). Not ``getrusage(RUSAGE_CHILDREN).ru_maxrss``: Linux starts a spawned child's
+``ru_maxrss`` at the spawning process's peak (recorded at ``exec``), so after the other benchmarks it would report
+this process's size. Where ``/proc`` is
 missing, ``ru_maxrss`` from ``os.wait4`` is used, an upper bound (``rss_source`` says which).
 
 The command is the README's first one (``make bench``): ``--executor process --workers N`` with N = ``--threads``,
@@ -61,8 +62,9 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
     with tempfile.TemporaryDirectory(prefix="tz-bench-wall-") as tmp:
         tmp_path = Path(tmp)
         (tmp_path / "data").mkdir()
-        args = ["bench", "--models", models, "--out", str(tmp_path / "out"), "--threads", str(ctx.threads),
-                "--device", str(ctx.device), "--executor", "process", "--workers", str(ctx.threads), "-q"]
+        # the README's command: one worker process per thread of the budget, one torch thread each (bench's default)
+        args = ["bench", "--models", models, "--out", str(tmp_path / "out"), "--device", str(ctx.device),
+                "--executor", "process", "--workers", str(ctx.threads), "-q"]
         if datasets:
             args += ["--datasets", datasets]
         if ctx.quick:

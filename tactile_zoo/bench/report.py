@@ -9,8 +9,8 @@ listed as ignored), otherwise every cell file counts. Plots (matplotlib, Agg bac
   and the chance level;
 * ``plots/confusion/<dataset>__<model>.png``: the confusion matrix of the model's best cell on that dataset (highest
   test accuracy, then lowest fold and seed), class names on the axes, rows normalised;
-* ``plots/curves_<dataset>.png``: training loss, validation loss and validation accuracy per epoch of each model's
-  best cell;
+* ``plots/curves_<dataset>.png``: training loss, validation loss (both on a log scale when positive) and validation
+  accuracy per epoch of each model's best cell;
 * ``plots/early_<dataset>.png``: accuracy versus the fraction of the sequence seen (early classification), one line
   per model (mean over cells; dashed = non-causal model given the prefix as its whole input).
 """
@@ -254,8 +254,9 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
         entries = sorted((s for s in summary if s["dataset"] == dataset), key=lambda s: -(s["accuracy_mean"] or 0))
         # bars with error bars
         fig, ax = plt.subplots(figsize=(1.5 + 0.7 * len(entries), 3.6))
+        spread = any(e["accuracy_std"] is not None for e in entries)  # no error bars where every model has one cell
         ax.bar(range(len(entries)), [e["accuracy_mean"] or 0 for e in entries],
-               yerr=[e["accuracy_std"] or 0 for e in entries], capsize=4, color="tab:blue")
+               yerr=[e["accuracy_std"] or 0 for e in entries] if spread else None, capsize=4, color="tab:blue")
         ax.set_xticks(range(len(entries)), [e["model"] for e in entries], rotation=30, ha="right")
         if num_classes.get(dataset):
             ax.axhline(1 / num_classes[dataset], color="grey", ls="--", lw=1, label="chance")
@@ -278,6 +279,10 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
         for ax, title in zip(axes, ("training loss", "validation loss", "validation accuracy")):
             ax.set_title(title)
             ax.set_xlabel("epoch")
+        for ax in axes[:2]:  # losses of different models differ by orders of magnitude (CE vs rate MSE, D-CNN's start)
+            values = [y for line in ax.get_lines() for y in line.get_ydata() if not math.isnan(y)]
+            if values and min(values) > 0:
+                ax.set_yscale("log")
         axes[2].set_ylim(0, 1.02)
         axes[2].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
         fig.suptitle(f"{dataset}: training curves (best cell per model)", y=1.04)
