@@ -31,8 +31,8 @@ __all__ = ["Context", "Timing", "time_interleaved", "time_calls", "EvData", "ev_
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).resolve().parent / "results"
 #: columns appended to every row of every CSV
-ENV_COLUMNS = ("quick", "device", "threads", "gpu", "cpu_model", "cpu_cores", "python", "torch", "torch_geometric",
-               "snntorch", "tactile_zoo", "git_commit", "date")
+ENV_COLUMNS = ("quick", "device", "threads", "flush_denormals", "gpu", "cpu_model", "cpu_cores", "python", "torch",
+               "torch_geometric", "snntorch", "tactile_zoo", "git_commit", "date")
 #: the number of Ev-Objects training samples (the released train folder: our train + val splits)
 EV_TRAIN_SAMPLES = 576
 #: fraction of (time bin, taxel, polarity) cells holding an event in Ev-Objects' train folder (measured: 1436943 of
@@ -61,6 +61,7 @@ class Context:
     out: Path = RESULTS
     root: Path | None = None
     slow: bool = False
+    flush_denormals: bool = True
     log: Callable[[str], None] = print
 
     def reps(self, full: int, quick: int) -> int:
@@ -255,6 +256,7 @@ def write_csv(ctx: Context, name: str, columns: Sequence[str], rows: Sequence[di
     A row's own ``threads`` (e.g. 1 for latency rows) wins over the context's."""
     header = ["benchmark", "case", *columns, "note", *ENV_COLUMNS]
     run = {"quick": ctx.quick, "device": str(ctx.device), "threads": ctx.threads,
+           "flush_denormals": ctx.flush_denormals,
            "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"), **ctx.env}
     ctx.out.mkdir(parents=True, exist_ok=True)
     path = ctx.out / f"{name}.csv"

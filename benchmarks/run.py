@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import time
 import traceback
 from pathlib import Path
 
 import torch
+
+from tactile_zoo.engine.runtime import flush_denormals
 
 from . import BENCHMARKS
 from .common import RESULTS, Context
@@ -38,6 +41,9 @@ def _parser() -> argparse.ArgumentParser:
                         "the same shape when absent)")
     p.add_argument("--slow", action="store_true", help="also time the slow optional cases (LIF x[t] anti-pattern)")
     p.add_argument("--list", action="store_true", help="list the benchmarks and exit")
+    p.add_argument("--keep-denormals", action="store_true",
+                   help="compute with subnormal floats (sets TACTILE_ZOO_KEEP_DENORMALS=1); by default the whole suite "
+                        "runs with flush-to-zero, as tactile-zoo's training and inference do")
     return p
 
 
@@ -66,10 +72,27 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads < 1:
         parser.error("--threads must be >= 1")
     out = args.out or (RESULTS / "cuda" if device.type == "cuda" else RESULTS)
-    torch.set_num_threads(args.threads)
-    ctx = Context(device=device, threads=args.threads, quick=args.quick, repeats=args.repeats, out=out,
-                  root=args.root, slow=args.slow)
-    print(f"tactile-zoo benchmarks on {device} with {args.threads} thread(s){' (quick)' if args.quick else ''}: "
+    before = os.environ.get("TACTILE_ZOO_KEEP_DENORMALS")
+    if args.keep_denormals:
+        os.environ["TACTILE_ZOO_KEEP_DENORMALS"] = "1"  # read by every flush_denormals block, and by child processes
+    try:
+        # flush-to-zero for the whole run, fast and naive paths alike, and on before torch starts its thread pool
+        with flush_denormals() as flushing:
+            torch.set_num_threads(args.threads)
+            ctx = Context(device=device, threads=args.threads, quick=args.quick, repeats=args.repeats, out=out,
+                          root=args.root, slow=args.slow, flush_denormals=flushing)
+            return _run_all(ctx, selected, args.threads)
+    finally:
+        if args.keep_denormals:
+            if before is None:
+                os.environ.pop("TACTILE_ZOO_KEEP_DENORMALS", None)
+            else:
+                os.environ["TACTILE_ZOO_KEEP_DENORMALS"] = before
+
+
+def _run_all(ctx: Context, selected: list[str], threads: int) -> int:
+    print(f"tactile-zoo benchmarks on {ctx.device} with {threads} thread(s){' (quick)' if ctx.quick else ''}, "
+          f"flush-to-zero {'on' if ctx.flush_denormals else 'off'}: "
           f"{ctx.env['cpu_model']}, {ctx.env['cpu_cores']} cores, torch {ctx.env['torch']}, commit "
           f"{ctx.env['git_commit'] or '?'}", flush=True)
     failed = []
@@ -84,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             failed.append(name)
             continue
         finally:
-            torch.set_num_threads(args.threads)
+            torch.set_num_threads(threads)
         print(f"[{name}] wrote {path} ({time.perf_counter() - start:.0f} s)", flush=True)
     if failed:
         print(f"failed: {', '.join(failed)}", file=sys.stderr)

@@ -578,8 +578,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 0
     registry.set_plugin_policy(strict=True if args.strict_plugins else None,
                                enabled=False if args.no_plugins else None)
+    from .engine.runtime import flush_denormals
+
     try:
-        with warnings.catch_warnings():
+        # before torch starts its thread pool, so that every thread it starts inherits flush-to-zero
+        with warnings.catch_warnings(), flush_denormals():
             warnings.simplefilter("always", registry.PluginWarning)
             warnings.showwarning = _show_warning
             return int(args.handler(args) or 0)

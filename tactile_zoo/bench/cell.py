@@ -33,7 +33,7 @@ from ..engine import (
     take,
     time_inference,
 )
-from ..engine.runtime import set_threads, versions
+from ..engine.runtime import flush_denormals, set_threads, versions
 from ..errors import ConfigError, PluginError
 
 __all__ = ["CellTask", "run_cell", "load_splits", "setup_worker", "import_plugin_modules", "RECORD_FORMAT"]
@@ -135,6 +135,7 @@ def _eval_dict(result: Any) -> dict[str, Any]:
     return {"targets": result.targets, "predictions": result.predictions, "probabilities": result.probabilities}
 
 
+@flush_denormals()
 def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
     """Train and evaluate one cell; returns its record (``status`` ok, failed or skipped)."""
     record = _base_record(task)

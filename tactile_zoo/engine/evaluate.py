@@ -16,7 +16,7 @@ from typing import Any
 import torch
 
 from .metrics import classification_metrics, scores_to_probabilities
-from .runtime import resolve_device
+from .runtime import flush_denormals, resolve_device
 from .tensors import as_split
 
 __all__ = ["EvalResult", "evaluate", "predict_scores", "prefix_evaluation", "time_inference", "model_loss",
@@ -89,6 +89,7 @@ def _result(scores: torch.Tensor, y: torch.Tensor, num_classes: int, loss: str) 
     return EvalResult(metrics, pred.tolist(), probs.tolist(), y.tolist())
 
 
+@flush_denormals()
 def evaluate(model: torch.nn.Module, dataset: Any, *, loss: str | None = None, batch_size: int = 256,
              device: str | torch.device | None = None) -> EvalResult:
     """Evaluate ``model`` on a whole split: metrics (accuracy, balanced accuracy, macro F1, confusion matrix),
@@ -123,6 +124,7 @@ def earliness(fractions: Sequence[float], accuracies: Sequence[float | None], fu
     return None
 
 
+@flush_denormals()
 def prefix_evaluation(model: torch.nn.Module, dataset: Any, fractions: Sequence[float] = DEFAULT_PREFIXES, *,
                       causal: bool = False, loss: str | None = None, batch_size: int = 256,
                       device: torch.device | None = None) -> dict[str, Any]:
@@ -160,6 +162,7 @@ def prefix_evaluation(model: torch.nn.Module, dataset: Any, fractions: Sequence[
             "accuracy": accuracies, "balanced_accuracy": balanced, "earliness": earliness(fractions, accuracies, full)}
 
 
+@flush_denormals()
 def time_inference(model: torch.nn.Module, dataset: Any, samples: int = 8, device: torch.device | None = None
                    ) -> float | None:
     """Mean milliseconds per sample at batch size 1 over up to ``samples`` samples (after one warm-up call)."""

@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from ..errors import ConfigError, TactileZooError
 from .evaluate import EvalResult, evaluate, predict_scores
 from .recipe import Recipe, lr_factor, resolve_recipe
-from .runtime import count_parameters, resolve_device, seed_everything
+from .runtime import count_parameters, flush_denormals, resolve_device, seed_everything
 from .tensors import TensorSplit, as_split, concat
 
 __all__ = ["fit", "FitResult", "TrainingError", "build_optimizer", "compute_loss"]
@@ -202,6 +202,7 @@ def _load_named(dataset: str, root: Any, fold: int, kwargs: dict[str, Any] | Non
             for split in ("train", "val", "test")}
 
 
+@flush_denormals()
 def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | None = None, seed: int = 0,
         val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None, *,
         test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None, root: Any = None,
