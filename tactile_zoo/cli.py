@@ -422,13 +422,16 @@ def _add_report(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="rebuild leaderboard.csv, summary.csv, report.md and plots from cell files")
     p.add_argument("dir", help="a bench output folder")
     p.add_argument("--no-plots", action="store_true", help="tables and report.md only")
+    p.add_argument("--all-cells", action="store_true",
+                   help="every cell file in the folder, not only the grid of the last bench command (for a table "
+                        "built by several commands into one folder)")
     p.set_defaults(handler=_cmd_report)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from .bench import write_outputs
 
-    written = write_outputs(args.dir, plots=not args.no_plots)
+    written = write_outputs(args.dir, plots=not args.no_plots, all_cells=args.all_cells)
     for path in written.values():
         _print(f"wrote {path}")
     return 0

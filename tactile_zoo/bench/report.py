@@ -2,7 +2,10 @@
 
 ``tactile-zoo report DIR`` calls :func:`write_outputs`; so does every bench run when it ends. Which cells belong to
 the run comes from ``run.json``'s grid when it is there (cells of other configurations left in the same folder are
-listed as ignored), otherwise every cell file counts. Plots (matplotlib, Agg backend, PNG):
+listed as ignored), otherwise every cell file counts. ``tactile-zoo report DIR --all-cells`` takes every cell file in
+the folder, for a table built by several bench commands into one folder (each command's ``run.json`` names only its
+own grid); report.md then warns about any model and dataset whose cells come from more than one configuration.
+Plots (matplotlib, Agg backend, PNG):
 
 * ``plots/heatmap.png``: mean test accuracy, model x dataset;
 * ``plots/bars_<dataset>.png``: mean accuracy per model with the sample standard deviation over cells as error bars
@@ -37,8 +40,10 @@ from .results import (
 __all__ = ["write_outputs", "load_run"]
 
 
-def load_run(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any], int]:
-    """``(records of the run's cells, skipped rows, run.json, number of ignored cell files)``."""
+def load_run(path: str | os.PathLike, all_cells: bool = False
+             ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any], int]:
+    """``(records of the run's cells, skipped rows, run.json, number of ignored cell files)``; with ``all_cells``
+    every cell file of the folder, whatever grid ``run.json`` names."""
     run = RunDir(path)
     records = run.cells()
     info: dict[str, Any] = {}
@@ -47,18 +52,20 @@ def load_run(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[dict[s
     except (OSError, ValueError):
         pass
     grid = info.get("grid") or {}
-    wanted = grid.get("cells")
+    wanted = None if all_cells else grid.get("cells")
     if wanted is not None:
         selected = [records[c] for c in wanted if c in records]
         ignored = len(records) - len(selected)
     else:
         selected, ignored = sorted(records.values(), key=lambda r: r["cell_id"]), 0
-    return selected, list(grid.get("skipped") or []), info, ignored
+    skipped = [] if all_cells else list(grid.get("skipped") or [])  # skips belong to one command's grid
+    return selected, skipped, info, ignored
 
 
-def write_outputs(path: str | os.PathLike, plots: bool = True) -> dict[str, Path]:
+def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool = False) -> dict[str, Path]:
     """Write leaderboard.csv, summary.csv, report.md (and the plots) of the run directory ``path``, holding the
-    folder's table lock (another bench process on the same folder waits; it never sees half a table)."""
+    folder's table lock (another bench process on the same folder waits; it never sees half a table). With
+    ``all_cells`` every cell file of the folder counts (see the module docstring)."""
     from ..errors import ConfigError
 
     run = RunDir(path)
@@ -71,11 +78,19 @@ def write_outputs(path: str | os.PathLike, plots: bool = True) -> dict[str, Path
             run.remove_torn(run.path, name)
         for torn in run.plots_dir.rglob(".*.tmp") if run.plots_dir.is_dir() else ():
             torn.unlink(missing_ok=True)
-        return _write_outputs(run, plots)
+        return _write_outputs(run, plots, all_cells)
 
 
-def _write_outputs(run: RunDir, plots: bool) -> dict[str, Path]:
-    records, skipped, info, ignored = load_run(run.path)
+def _mixed_configs(records: list[dict[str, Any]]) -> list[str]:
+    """``model on dataset`` for every pair whose cells carry more than one config hash."""
+    hashes: dict[tuple[str, str], set[str]] = {}
+    for rec in records:
+        hashes.setdefault((rec["model"], rec["dataset"]), set()).add(str(rec.get("config_hash")))
+    return [f"{m} on {d}" for (m, d), h in sorted(hashes.items()) if len(h) > 1]
+
+
+def _write_outputs(run: RunDir, plots: bool, all_cells: bool = False) -> dict[str, Path]:
+    records, skipped, info, ignored = load_run(run.path, all_cells)
     board, board_cols = leaderboard_rows(records, skipped)
     summary, summary_cols = summary_rows(board, board_cols)
     written = {"leaderboard": run.path / "leaderboard.csv", "summary": run.path / "summary.csv",
@@ -85,7 +100,15 @@ def _write_outputs(run: RunDir, plots: bool) -> dict[str, Path]:
     figures: dict[str, Any] = {}
     if plots and records:
         figures = _plots(run, records, summary)
-    atomic_write_text(written["report"], _markdown(run, records, board, summary, figures, info, ignored))
+    notes = []
+    if all_cells:
+        notes.append("Built with `--all-cells`: every cell file of the folder, from any bench command that wrote here; "
+                     "`Command` above is only the last one.")
+        mixed = _mixed_configs(records)
+        if mixed:
+            notes.append(f"Warning: cells of more than one configuration are averaged together for {', '.join(mixed)}; "
+                         "compare their `config_hash` in leaderboard.csv.")
+    atomic_write_text(written["report"], _markdown(run, records, board, summary, figures, info, ignored, notes))
     return written
 
 
@@ -107,7 +130,7 @@ def _ok(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, Any]], summary: list[dict[str, Any]],
-              figures: dict[str, Any], info: dict[str, Any], ignored: int) -> str:
+              figures: dict[str, Any], info: dict[str, Any], ignored: int, notes: list[str] | None = None) -> str:
     env = info.get("environment") or {}
     versions = env.get("versions") or {}
     status_counts: dict[str, int] = {}
@@ -127,6 +150,7 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
                    f"git {env.get('git_commit') or '–'}.")
     if ignored:
         out.append(f"{ignored} cell file(s) in the folder belong to another configuration and are not included.")
+    out += notes or []
     out += ["", "Accuracy, balanced accuracy and macro-F1 are on each dataset's test split, for the epoch selected on "
                 "its validation split; mean ± sample standard deviation over folds and seeds. Rank is per dataset "
                 "(1 = best mean accuracy); mean rank is over the datasets a model ran on. Timings (train seconds, "

@@ -4,6 +4,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from conftest import read_board, run_cli
 
 from tactile_zoo.cli import main
 
@@ -44,3 +45,30 @@ def test_report_uses_the_cells_of_the_run_grid(reference_run: Path, tmp_path: Pa
     assert main(["report", str(out), "--no-plots"]) == 0
     assert (out / "leaderboard.csv").read_text() == (reference_run / "leaderboard.csv").read_text()
     assert "1 cell file(s) in the folder belong to another configuration" in (out / "report.md").read_text()
+
+
+def test_all_cells_builds_one_table_from_several_commands(reference_run: Path, tmp_path: Path) -> None:
+    """Two bench commands into one folder (as the README's Table I does): the default report shows the last
+    command's grid; ``--all-cells`` shows every cell, and equals the one-command run's leaderboard."""
+    out = tmp_path / "run"
+    base = ["--datasets", "tiny_blobs,tiny_kfold", "--folds", "2", "--seeds", "0", "--threads", "1", "--no-plots",
+            "--out", str(out), "-q"]
+    assert run_cli(["--models", "tiny_mlp", *base]) == 0
+    assert run_cli(["--models", "tiny_rate", *base]) == 0
+    assert {r["model"] for r in read_board(out)} == {"tiny_rate"}  # run.json names the last grid only
+    assert main(["report", str(out), "--all-cells", "--no-plots"]) == 0
+    assert read_board(out) == read_board(reference_run)
+    report = (out / "report.md").read_text()
+    assert "Built with `--all-cells`" in report and "Warning" not in report
+
+
+def test_all_cells_warns_when_one_pair_mixes_configurations(reference_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(reference_run, out)
+    cell = next((out / "cells").glob("tiny_mlp__tiny_blobs*.json"))
+    text = cell.read_text().replace('"cell_id": "tiny_mlp__tiny_blobs', '"cell_id": "other__tiny_mlp__tiny_blobs')
+    text = text.replace('"config_hash": "', '"config_hash": "other', 1)  # the same pair under another configuration
+    (out / "cells" / "other.json").write_text(text)
+    assert main(["report", str(out), "--all-cells", "--no-plots"]) == 0
+    assert "Warning: cells of more than one configuration are averaged together for tiny_mlp on tiny_blobs" in (
+        out / "report.md").read_text()
