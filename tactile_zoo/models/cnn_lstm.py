@@ -3,18 +3,20 @@
 The X-Tacformer paper's related work names this family (per-frame CNN features fed in sequence to an LSTM, Li et al.)
 without layer sizes, so every layer below is our choice, sized for 1-40 taxel grids and a 60 s Ev-Objects epoch::
 
-    (B, T, N, C) -> grid (B*T, C, H, W)                       all frames in one call
+    (B, T, N, C) [-> mean of every k frames, k = ceil(T / max_frames), off by default] -> grid (B*T, C, H, W)
     -> Conv 3x3 C->16 "same" + ReLU -> MaxPool 2x2 (ceil: a 1-row grid survives) -> Conv 3x3 16->32 "same" + ReLU
     -> flatten (B*T, 32*ceil(H/2)*ceil(W/2)) -> Linear 64 + ReLU  ->  (B, T, 64) [++ g_t (B, T, G)]
     -> LSTM 64 (one layer) -> h_T (B, 64) -> Linear K
 
 No batch norm or dropout inside the frame encoder, so a frame's code does not depend on the other frames of the batch
-and streaming one frame at a time (:meth:`CNNLSTM.step`) gives the scores of the full forward on every prefix.
+and streaming one frame at a time (:meth:`CNNLSTM.step`, through :class:`._binned.BinnedStreamer`) gives the scores
+of the full forward on every prefix, an open last bin included.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -23,11 +25,9 @@ from ..data.spec import DatasetSpec
 from ..errors import ConfigError
 from ..nn.grid import SensorGrid
 from ..registry import register_model
-from ._inputs import check_inputs
+from ._binned import BinnedStreamer, bins_for
 
 __all__ = ["CNNLSTM", "FrameEncoder"]
-
-State = tuple[Tensor, Tensor]  # LSTM (h, c), each (1, B, hidden)
 
 
 class FrameEncoder(nn.Module):
@@ -72,7 +72,7 @@ class FrameEncoder(nn.Module):
     causal=True,
     streaming=True,
 )
-class CNNLSTM(nn.Module):
+class CNNLSTM(BinnedStreamer):
     """CNN-LSTM classifier; model card in docs/models.md.
 
     Args:
@@ -81,6 +81,8 @@ class CNNLSTM(nn.Module):
         frame_features: width of a frame's code.
         hidden: LSTM hidden size.
         fill_passes: empty-cell fill passes of the sensor image; ``None`` takes the sensor's (BioTac SP: 2).
+        max_frames: average every ``k = ceil(T / max_frames)`` frames (and their globals) into one, ``T`` the spec's
+            ``num_steps``, so the LSTM reads at most ``max_frames`` steps; ``None`` (default) reads every frame.
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming:
@@ -88,33 +90,22 @@ class CNNLSTM(nn.Module):
     """
 
     def __init__(self, spec: DatasetSpec, conv_channels: tuple[int, int] = (16, 32), frame_features: int = 64,
-                 hidden: int = 64, fill_passes: int | None = None) -> None:
+                 hidden: int = 64, fill_passes: int | None = None, max_frames: int | None = None) -> None:
         super().__init__()
         if len(conv_channels) != 2 or min(conv_channels) < 1 or frame_features < 1 or hidden < 1:
             raise ConfigError(f"cnn_lstm: need two positive conv widths and positive sizes, got "
                               f"conv_channels={conv_channels}, frame_features={frame_features}, hidden={hidden}")
-        self.spec = spec
+        self.name, self.spec, self.bin_size = "cnn_lstm", spec, bins_for("cnn_lstm", spec.num_steps, max_frames)
         self.grid = SensorGrid(spec.sensor, fill_passes)
         self.encoder = FrameEncoder(spec.num_channels, spec.sensor.grid_shape, tuple(conv_channels), frame_features)
         self.lstm = nn.LSTM(frame_features + spec.num_globals, hidden, batch_first=True)
         self.head = nn.Linear(hidden, spec.num_classes)
 
-    def _codes(self, x: Tensor, g: Tensor | None) -> Tensor:
-        lead = x.shape[:-2]
-        codes = self.encoder(self.grid(x.flatten(0, -3)))  # (F, features), F = all frames of the input
-        codes = codes.view(*lead, -1)  # (B, T, features) or (B, features)
-        return codes if g is None else torch.cat([codes, g], dim=-1)  # globals join every frame's code
-
-    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
-        g = check_inputs("cnn_lstm", self.spec, x, g)
-        _, (h, _) = self.lstm(self._codes(x, g))  # h: (1, B, hidden), the last step's hidden state
-        return self.head(h[-1])
-
-    def init_state(self, batch_size: int) -> State:
-        h = self.head.weight.new_zeros(1, batch_size, self.lstm.hidden_size)
-        return h, h.clone()
-
-    def step(self, x_t: Tensor, g_t: Tensor | None, state: State) -> tuple[Tensor, State]:
-        g_t = check_inputs("cnn_lstm", self.spec, x_t, g_t, per_step=True)
-        _, state = self.lstm(self._codes(x_t, g_t)[:, None], state)  # one time step of the same LSTM
-        return self.head(state[0][-1]), state
+    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+        # bins arrive summed, (T', B, N, C); their mean is the frame, an open bin's missing frames count as zeros
+        codes = self.encoder(self.grid((xb / self.bin_size).flatten(0, 1)))  # (T' * B, features): one call
+        codes = codes.view(*xb.shape[:2], -1)  # (T', B, features)
+        if gb is not None:  # globals join every step's code (a bin's mean globals)
+            codes = torch.cat([codes, gb], dim=-1)  # (T', B, features + G)
+        _, (h, c) = self.lstm(codes.transpose(0, 1), core)  # h: (1, B, hidden), the last step's hidden state
+        return self.head(h[-1]), (h, c)

@@ -20,29 +20,20 @@ The model is causal: the scores after frame t depend on frames 0..t only, and :m
 
 from __future__ import annotations
 
-import math
-from typing import NamedTuple
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
-from ..errors import ConfigError
 from ..nn.convlstm import ConvLSTM, ConvLSTMConfig
 from ..nn.grid import SensorGrid
 from ..registry import register_model
-from ._inputs import check_inputs
+from ._binned import BinnedStreamer, bins_for
 
 __all__ = ["ConvLSTMNet"]
 
 
-
-class State(NamedTuple):
-    """Streaming state: the committed ``(h, c)`` of every layer after the last full bin, and the open bin."""
-
-    layers: list[tuple[Tensor, Tensor]]  # (B, hidden, H, W) each
-    partial: Tensor  # (B, C, H, W): sum of the open bin's frames
-    filled: int  # frames in the open bin, 0 <= filled < k
 
 
 @register_model(
@@ -61,7 +52,7 @@ class State(NamedTuple):
     causal=True,
     streaming=True,
 )
-class ConvLSTMNet(nn.Module):
+class ConvLSTMNet(BinnedStreamer):
     """ConvLSTM classifier of Zapata-Impata et al. (2019); model card in docs/models.md.
 
     Args:
@@ -85,50 +76,18 @@ class ConvLSTMNet(nn.Module):
                  fc_units: int = 16, fill_passes: int | None = None, backend: str = "fused",
                  max_frames: int | None = 50) -> None:
         super().__init__()
-        if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int)
-                                       or max_frames < 1):
-            raise ConfigError(f"convlstm: max_frames must be a positive integer or None, got {max_frames!r}")
-        self.spec = spec
-        self.time_bin = 1 if max_frames is None else max(1, math.ceil(spec.num_steps / max_frames))
+        self.name, self.spec, self.bin_size = "convlstm", spec, bins_for("convlstm", spec.num_steps, max_frames)
         self.grid = SensorGrid(spec.sensor, fill_passes)
         self.convlstm = ConvLSTM(ConvLSTMConfig(spec.num_channels, hidden_channels, num_layers, kernel_size,
                                                 backend=backend))
         self.fc = nn.Linear(hidden_channels + spec.num_globals, fc_units)
         self.head = nn.Linear(fc_units, spec.num_classes)
 
-    def _classify(self, h: Tensor, g_t: Tensor | None) -> Tensor:
-        feats = h.mean(dim=(-2, -1))  # (B, hidden): global average pooling over the grid
-        if g_t is not None:  # globals join after pooling, at the step being classified
-            feats = torch.cat([feats, g_t], dim=-1)  # (B, hidden + G)
-        return self.head(torch.relu(self.fc(feats)))
-
-    def _bin(self, frames: Tensor) -> Tensor:
-        k = self.time_bin
-        if k == 1:
-            return frames
-        b, t = frames.shape[:2]
-        pad = -t % k  # an open last bin averages over k with zeros for its missing frames, as step() does
-        if pad:
-            frames = torch.cat([frames, frames.new_zeros(b, pad, *frames.shape[2:])], dim=1)
-        return frames.reshape(b, (t + pad) // k, k, *frames.shape[2:]).mean(dim=2)  # (B, ceil(T/k), C, H, W)
-
-    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
-        g = check_inputs("convlstm", self.spec, x, g)
-        frames = self._bin(self.grid(x))  # (B, ceil(T/k), C, H, W)
-        _, states = self.convlstm(frames)
-        return self._classify(states[-1][0], None if g is None else g[:, -1])
-
-    def init_state(self, batch_size: int) -> State:
-        layers = self.convlstm.init_state(batch_size, self.grid.grid_shape)
-        partial = layers[0][0].new_zeros(batch_size, self.spec.num_channels, *self.grid.grid_shape)
-        return State(layers, partial, 0)
-
-    def step(self, x_t: Tensor, g_t: Tensor | None, state: State) -> tuple[Tensor, State]:
-        g_t = check_inputs("convlstm", self.spec, x_t, g_t, per_step=True)
-        partial, filled = state.partial + self.grid(x_t), state.filled + 1  # (B, C, H, W)
-        # the scores read the open bin as forward() would on this prefix; the layers commit only when it is full
-        h, layers = self.convlstm.step(partial / self.time_bin, state.layers)  # (B, hidden, H, W)
-        if filled == self.time_bin:
-            return self._classify(h, g_t), State(layers, torch.zeros_like(partial), 0)
-        return self._classify(h, g_t), State(state.layers, partial, filled)
-
+    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+        # bins arrive summed, (T', B, N, C); their mean is the image, and an open bin's missing frames count as zeros
+        frames = self.grid(xb / self.bin_size).transpose(0, 1)  # (B, T', C, H, W)
+        _, states = self.convlstm(frames, core)
+        feats = states[-1][0].mean(dim=(-2, -1))  # (B, hidden): global average pooling of the top layer's h_T
+        if gb is not None:  # globals join after pooling: the last bin's mean (the last step's values when unbinned)
+            feats = torch.cat([feats, gb[-1]], dim=-1)  # (B, hidden + G)
+        return self.head(torch.relu(self.fc(feats))), states

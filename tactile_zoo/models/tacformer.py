@@ -1,12 +1,11 @@
 """Tacformer: the spatial graph attention module of X-Tacformer, on its own.
 
-Also home of the pieces X-Tacformer shares: :class:`SpatialGraphAttention`, :func:`bin_frames` and the streaming
-machinery of :class:`BinnedStreamer`.
+Also home of the piece X-Tacformer shares, :class:`SpatialGraphAttention`; the frame bins and their streaming
+machinery (:func:`bin_frames`, :class:`BinnedStreamer`) live in :mod:`._binned`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -17,32 +16,11 @@ from ..errors import ConfigError
 from ..nn.attention import LIFConfig, SpikingSelfAttention
 from ..nn.graph import FrameGraphConv
 from ..registry import register_model
-from ._inputs import check_inputs
+from ._binned import BinnedStreamer, bin_frames
 
 __all__ = ["Tacformer", "SpatialGraphAttention", "SpikingMLP", "BinnedStreamer", "bin_frames"]
 
 PAPER = "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition"
-
-
-def bin_frames(x: Tensor, bin_size: int, reduce: str = "sum") -> Tensor:
-    """``(B, T, ...) -> (B, ceil(T / bin_size), ...)``: frames summed (or averaged) over consecutive bins.
-
-    A last, partial bin holds the frames there are: a sum over fewer frames, or their mean. That is what makes a
-    prefix of any length a valid input, and what streaming reproduces frame by frame.
-    """
-    if bin_size == 1:
-        return x
-    b, t = x.shape[:2]
-    nb = -(-t // bin_size)
-    pad = nb * bin_size - t
-    if pad:
-        x = torch.cat([x, x.new_zeros(b, pad, *x.shape[2:])], dim=1)
-    out = x.reshape(b, nb, bin_size, *x.shape[2:]).sum(2)  # (B, T', ...)
-    if reduce == "mean":
-        counts = torch.full((nb,), float(bin_size), dtype=x.dtype, device=x.device)
-        counts[-1] = bin_size - pad
-        out = out / counts.view(1, nb, *([1] * (x.dim() - 2)))
-    return out
 
 
 class SpikingMLP(nn.Module):
@@ -101,54 +79,6 @@ class SpatialGraphAttention(nn.Module):
             new_state.append(st)
         pooled = z.mean(dim=2) if self.pool is None else self.pool(z.flatten(2))  # (T, B, D)
         return self.norm(pooled), new_state
-
-
-@dataclass
-class StreamState:
-    """Streaming state: the model's state after the last complete bin, and the frames of the bin being filled."""
-
-    core: Any
-    pending_x: Tensor  # (B, N, C) sum of the frames of the open bin
-    pending_g: Tensor  # (B, G) sum of their globals
-    pending: int  # frames in the open bin
-
-
-class BinnedStreamer(nn.Module):
-    """Streaming for a model whose per-bin computation is causal: ``_advance(xb (T', B, N, C), gb (T', B, G),
-    core_state) -> (scores, core_state)`` must fold bins into a state and score everything folded so far.
-
-    :meth:`forward` folds all bins from rest. :meth:`step` feeds one frame: it re-scores the open (partial) bin from
-    the state after the last complete bin, and commits the new state only when the bin is full, so the scores at
-    every frame equal ``forward`` on that prefix (whose last bin is partial in the same way).
-    """
-
-    name: str
-    spec: DatasetSpec
-    bin_size: int
-
-    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
-        raise NotImplementedError
-
-    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
-        g = check_inputs(self.name, self.spec, x, g)
-        xb = bin_frames(x, self.bin_size, "sum").transpose(0, 1)  # (T', B, N, C), time-major
-        gb = None if g is None else bin_frames(g, self.bin_size, "mean").transpose(0, 1)  # (T', B, G)
-        return self._advance(xb, gb, None)[0]
-
-    def init_state(self, batch_size: int) -> StreamState:
-        p = next(self.parameters())
-        return StreamState(None, p.new_zeros(batch_size, self.spec.num_nodes, self.spec.num_channels),
-                           p.new_zeros(batch_size, self.spec.num_globals), 0)
-
-    def step(self, x_t: Tensor, g_t: Tensor | None, state: StreamState) -> tuple[Tensor, StreamState]:
-        g_t = check_inputs(self.name, self.spec, x_t, g_t, per_step=True)
-        px = state.pending_x + x_t
-        pg = state.pending_g if g_t is None else state.pending_g + g_t
-        n = state.pending + 1
-        scores, core = self._advance(px[None], None if g_t is None else (pg / n)[None], state.core)
-        if n == self.bin_size:  # the bin is complete: commit it and open the next
-            return scores, StreamState(core, torch.zeros_like(px), torch.zeros_like(pg), 0)
-        return scores, StreamState(state.core, px, pg, n)
 
 
 @register_model(

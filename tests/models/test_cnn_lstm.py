@@ -31,11 +31,9 @@ def test_frames_are_encoded_independently_and_globals_join_each_frame() -> None:
     model = tz.create_model("cnn_lstm", spec_for("optoforce3", 4, globals_=3)).eval()
     x, g = torch.rand(2, 9, 3, 4), torch.rand(2, 9, 3)
     with torch.no_grad():
-        codes = model._codes(x, g)  # (B, T, 64 + 3)
-        assert codes.shape == (2, 9, 67)
-        assert torch.allclose(codes[1, 4, :64], model.encoder(model.grid(x[1, 4])[None])[0], atol=1e-6)
-        assert torch.equal(codes[..., 64:], g)
-        _, (h, _) = model.lstm(codes)
+        frame_codes = model.encoder(model.grid(x.flatten(0, 1))).view(2, 9, 64)  # each frame on its own
+        assert torch.allclose(frame_codes[1, 4], model.encoder(model.grid(x[1, 4])[None])[0], atol=1e-6)
+        _, (h, _) = model.lstm(torch.cat([frame_codes, g], dim=-1))  # (B, T, 64 + 3): globals join every frame
         assert torch.allclose(model(x, g), model.head(h[-1]), atol=1e-6)
         early = g.clone()
         early[:, 0] += 3.0  # unlike ConvLSTM's read-out, every step's globals matter
@@ -53,7 +51,26 @@ def test_streaming_matches_forward_on_every_prefix(sensor: str, channels: int, g
         for t in range(9):
             scores, state = model.step(x[:, t], g[:, t] if globals_ else None, state)
             assert torch.allclose(scores, model(x[:, : t + 1], g[:, : t + 1]), atol=1e-5)
-    assert [tuple(s.shape) for s in state] == [(1, 3, 64), (1, 3, 64)]
+    assert [tuple(s.shape) for s in state.core] == [(1, 3, 64), (1, 3, 64)]
+
+
+def test_max_frames_averages_frames_and_globals_into_bins_and_streams_exactly() -> None:
+    torch.manual_seed(2)
+    spec = spec_for("optoforce3", 4, globals_=3, steps=12)
+    model = tz.create_model("cnn_lstm", spec, max_frames=4).eval()
+    assert model.bin_size == 3 and tz.create_model("cnn_lstm", spec).bin_size == 1  # binning is opt-in
+    x, g = torch.rand(2, 12, 3, 4), torch.rand(2, 12, 3)
+    with torch.no_grad():
+        xb, gb = x.view(2, 4, 3, 3, 4).mean(dim=2), g.view(2, 4, 3, 3).mean(dim=2)  # 4 bins of 3 frames
+        codes = model.encoder(model.grid(xb.flatten(0, 1))).view(2, 4, 64)
+        _, (h, _) = model.lstm(torch.cat([codes, gb], dim=-1))
+        assert torch.allclose(model(x, g), model.head(h[-1]), atol=1e-6)
+        state = model.init_state(2)
+        for t in range(12):
+            scores, state = model.step(x[:, t], g[:, t], state)
+            assert torch.allclose(scores, model(x[:, : t + 1], g[:, : t + 1]), atol=1e-5), f"prefix of {t + 1}"
+    with pytest.raises(ConfigError, match="cnn_lstm: max_frames"):
+        tz.create_model("cnn_lstm", spec, max_frames=0)
 
 
 def test_one_row_grid_and_bad_arguments() -> None:

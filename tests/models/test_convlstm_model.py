@@ -65,8 +65,8 @@ def test_streaming_matches_forward_on_every_prefix(sensor: str, channels: int, g
             scores, state = model.step(x[:, t], g[:, t] if globals_ else None, state)
             assert torch.allclose(scores, model(x[:, : t + 1], g[:, : t + 1]), atol=1e-5)
     # the state is one (h, c) pair per layer on the grid and one open bin: constant in T
-    assert [tuple(h.shape) for h, _ in state.layers] == [(2, 16, *spec.sensor.grid_shape)] * 2
-    assert tuple(state.partial.shape) == (2, channels, *spec.sensor.grid_shape)
+    assert [tuple(h.shape) for h, _ in state.core] == [(2, 16, *spec.sensor.grid_shape)] * 2
+    assert tuple(state.pending_x.shape) == (2, spec.num_nodes, channels) and state.pending == 0
     meta = tz.registry.get_model_entry("convlstm").meta
     assert meta["causal"] and meta["streaming"] and meta["recipe"]["batch_size"] == 32
 
@@ -99,7 +99,7 @@ def test_long_recordings_are_averaged_into_at_most_max_frames_bins() -> None:
     torch.manual_seed(3)
     spec = spec_for("neutouch", 2, steps=250)
     model = tz.create_model("convlstm", spec).eval()
-    assert model.time_bin == 5  # ceil(250 / 50)
+    assert model.bin_size == 5  # ceil(250 / 50)
     x = torch.rand(2, 250, 39, 2)
     with torch.no_grad():
         seq, _ = model.convlstm(model.grid(x).reshape(2, 50, 5, 2, 9, 13).mean(dim=2))  # 50 bins of 5 frames
@@ -110,7 +110,7 @@ def test_long_recordings_are_averaged_into_at_most_max_frames_bins() -> None:
         assert torch.allclose(model(x[:, :7]), model(short), atol=1e-6)
         assert not torch.equal(model(x[:, :7]), model(x[:, :10]))  # the open bin is read, not dropped
     unbinned = tz.create_model("convlstm", spec, max_frames=None)
-    assert unbinned.time_bin == 1
+    assert unbinned.bin_size == 1
     with pytest.raises(ConfigError, match="max_frames"):
         tz.create_model("convlstm", spec, max_frames=0)
 
@@ -119,11 +119,11 @@ def test_streaming_with_bins_matches_forward_on_every_prefix() -> None:
     torch.manual_seed(4)
     spec = spec_for("neutouch", 2, steps=12)
     model = tz.create_model("convlstm", spec, max_frames=4).eval()
-    assert model.time_bin == 3
+    assert model.bin_size == 3
     x = torch.rand(2, 12, 39, 2)
     with torch.no_grad():
         state = model.init_state(2)
         for t in range(12):
             scores, state = model.step(x[:, t], None, state)
-            assert state.filled == (t + 1) % 3
+            assert state.pending == (t + 1) % 3
             assert torch.allclose(scores, model(x[:, : t + 1]), atol=1e-5), f"prefix of {t + 1} frames"

@@ -8,7 +8,7 @@ import torch
 from tactile_zoo.data.sensors import NEUTOUCH, USKIN_ALLEGRO
 from tactile_zoo.data.spec import DatasetSpec
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.models.tacformer import Tacformer, bin_frames
+from tactile_zoo.models.tacformer import Tacformer
 from tactile_zoo.registry import create_model, get_model_entry
 
 SMALL = dict(dim=16, heads=2, v_th=0.5)
@@ -21,15 +21,6 @@ def spec(num_globals: int = 0, sensor=NEUTOUCH, channels: int = 2, steps: int = 
 def events(b: int, t: int, n: int, c: int, seed: int = 0) -> torch.Tensor:
     g = torch.Generator().manual_seed(seed)
     return (torch.rand(b, t, n, c, generator=g) < 0.3).float()
-
-
-def test_bin_frames_sums_and_averages_with_a_partial_last_bin() -> None:
-    x = torch.arange(14.0).view(1, 7, 2)  # (B, T, F)
-    s = bin_frames(x, 3, "sum")
-    torch.testing.assert_close(s, torch.tensor([[[6.0, 9.0], [24.0, 27.0], [12.0, 13.0]]]))
-    m = bin_frames(x, 3, "mean")
-    torch.testing.assert_close(m, torch.tensor([[[2.0, 3.0], [8.0, 9.0], [12.0, 13.0]]]))
-    assert bin_frames(x, 1) is x
 
 
 @pytest.mark.parametrize(("bin_size", "pool"), [(1, "flatten"), (3, "mean")])
