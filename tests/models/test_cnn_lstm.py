@@ -58,7 +58,7 @@ def test_max_frames_averages_frames_and_globals_into_bins_and_streams_exactly() 
     torch.manual_seed(2)
     spec = spec_for("optoforce3", 4, globals_=3, steps=12)
     model = tz.create_model("cnn_lstm", spec, max_frames=4).eval()
-    assert model.bin_size == 3 and tz.create_model("cnn_lstm", spec).bin_size == 1  # binning is opt-in
+    assert model.bin_size == 3 and tz.create_model("cnn_lstm", spec, max_frames=None).bin_size == 1
     x, g = torch.rand(2, 12, 3, 4), torch.rand(2, 12, 3)
     with torch.no_grad():
         xb, gb = x.view(2, 4, 3, 3, 4).mean(dim=2), g.view(2, 4, 3, 3).mean(dim=2)  # 4 bins of 3 frames
