@@ -85,8 +85,12 @@ class ConvLSTMNet(BinnedStreamer):
 
     def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
         # bins arrive summed, (T', B, N, C); their mean is the image, and an open bin's missing frames count as zeros
-        frames = self.grid(xb / self.bin_size).transpose(0, 1)  # (B, T', C, H, W)
-        _, states = self.convlstm(frames, core)
+        frames = self.grid(xb / self.bin_size)  # (T', B, C, H, W)
+        if frames.shape[0] == 1:  # streaming: the cell's step avoids the sequence path's per-call set-up
+            state = core if core is not None else self.convlstm.init_state(frames.shape[1], self.grid.grid_shape)
+            _, states = self.convlstm.step(frames[0], state)
+        else:
+            _, states = self.convlstm(frames.transpose(0, 1), core)  # (B, T', C, H, W) in
         feats = states[-1][0].mean(dim=(-2, -1))  # (B, hidden): global average pooling of the top layer's h_T
         if gb is not None:  # globals join after pooling: the last bin's mean (the last step's values when unbinned)
             feats = torch.cat([feats, gb[-1]], dim=-1)  # (B, hidden + G)
