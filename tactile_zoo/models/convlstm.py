@@ -6,14 +6,14 @@ BioTac SP, as in the source; the sensor's own grid elsewhere, 9x13 for NeuTouch)
 bins so that the recurrence sees at most ``max_frames`` of them, a stack of ConvLSTM layers reads the binned sequence,
 and the last hidden state of the top layer is averaged over the grid and classified::
 
-    (B, T, N, C) -> grid (B, T, C, H, W) -> bins of k frames (B, ceil(T/k), C, H, W)
+    (B, T, N, C) -> mean of every k frames (B, T' = ceil(T/k), N, C) -> grid (B, T', C, H, W)
     -> ConvLSTM 16 ch 3x3 -> ConvLSTM 16 ch 3x3 -> h_T (B, 16, H, W)
     -> global average pool (B, 16) [++ g_T (B, G)] -> FC 16 + ReLU -> FC K
 
-Why bins: the source classified windows of a few BioTac frames; a 250-step event recording (Ev-Objects) costs
-~114 s per epoch on one core unbinned, and gradients fade over 250 LSTM steps; k = 5 keeps 50
-frames of 100 ms (docs/models.md). An open bin at the end of a prefix counts its missing frames as zeros, so
-:meth:`ConvLSTMNet.step` (one call per raw frame) equals the forward pass on every prefix.
+Why bins (ours): unbinned, one epoch of Ev-Objects' 250-step recordings took 114 s on one core, too slow for a
+100-epoch budget within an hour; with k = 5 (50 frames of 100 ms) it takes about 20 s (docs/models.md). An open bin
+at the end of a prefix counts its missing frames as zeros, so :meth:`ConvLSTMNet.step` (one call per raw frame)
+equals the forward pass on every prefix.
 
 The model is causal: the scores after frame t depend on frames 0..t only, and :meth:`ConvLSTMNet.step` streams them.
 """
@@ -65,7 +65,7 @@ class ConvLSTMNet(BinnedStreamer):
         backend: the recurrence's implementation, ``"fused"`` (default) or ``"autograd"`` (the reference); same
             results, see :mod:`tactile_zoo.nn.convlstm`.
         max_frames: the recurrence reads ``ceil(T / k)`` bins of ``k = ceil(T / max_frames)`` averaged frames, ``T``
-            the spec's ``num_steps`` (ours, 50); ``None`` reads every frame, as the source did on its short windows.
+            the spec's ``num_steps`` (ours, 50); ``None`` reads every frame, as the source did.
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming:
@@ -85,12 +85,8 @@ class ConvLSTMNet(BinnedStreamer):
 
     def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
         # bins arrive summed, (T', B, N, C); their mean is the image, and an open bin's missing frames count as zeros
-        frames = self.grid(xb / self.bin_size)  # (T', B, C, H, W)
-        if frames.shape[0] == 1:  # streaming: the cell's step avoids the sequence path's per-call set-up
-            state = core if core is not None else self.convlstm.init_state(frames.shape[1], self.grid.grid_shape)
-            _, states = self.convlstm.step(frames[0], state)
-        else:
-            _, states = self.convlstm(frames.transpose(0, 1), core)  # (B, T', C, H, W) in
+        frames = self.grid(xb / self.bin_size).transpose(0, 1)  # (B, T', C, H, W)
+        _, states = self.convlstm(frames, core)
         feats = states[-1][0].mean(dim=(-2, -1))  # (B, hidden): global average pooling of the top layer's h_T
         if gb is not None:  # globals join after pooling: the last bin's mean (the last step's values when unbinned)
             feats = torch.cat([feats, gb[-1]], dim=-1)  # (B, hidden + G)

@@ -16,9 +16,9 @@ from ..errors import ConfigError
 from ..nn.attention import LIFConfig, SpikingSelfAttention
 from ..nn.graph import FrameGraphConv
 from ..registry import register_model
-from ._binned import BinnedStreamer, bin_frames
+from ._binned import BinnedStreamer
 
-__all__ = ["Tacformer", "SpatialGraphAttention", "SpikingMLP", "BinnedStreamer", "bin_frames"]
+__all__ = ["Tacformer", "SpatialGraphAttention", "SpikingMLP"]
 
 PAPER = "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition"
 

@@ -299,6 +299,9 @@ class ConvLSTM(nn.Module):
     def forward(self, x: Tensor, state: list[State] | None = None) -> tuple[Tensor, list[State]]:
         if x.dim() != 5:
             raise ConfigError(f"ConvLSTM expects frames [B, T, C, H, W], got {tuple(x.shape)}")
+        if x.shape[1] == 1:  # one frame (streaming): the cells' step skips the sequence path's per-call set-up
+            h, states = self.step(x[:, 0], state if state is not None else self.init_state(x.shape[0], x.shape[-2:]))
+            return h[:, None], states  # (B, 1, hidden, H, W)
         seq = x.transpose(0, 1)  # (T, B, C, H, W): time-major between layers, so every step's slice is contiguous
         states = []
         for i, layer in enumerate(self.layers):  # layer by layer: each layer's input convs batch over all frames

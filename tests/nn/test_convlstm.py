@@ -56,6 +56,18 @@ def test_sequence_forward_equals_stepping_and_is_causal() -> None:
     assert torch.equal(seq2[:, :4], seq[:, :4]) and not torch.allclose(seq2[:, 4:], seq[:, 4:])
 
 
+def test_one_frame_forward_takes_the_step_path_with_the_same_result() -> None:
+    torch.manual_seed(5)
+    net = ConvLSTM(ConvLSTMConfig(2, 4, num_layers=2)).double()
+    x = torch.randn(3, 5, 2, 5, 4, dtype=torch.float64)
+    seq, _ = net(x)
+    first, state = net(x[:, :1])  # from rest
+    assert first.shape == (3, 1, 4, 5, 4) and torch.allclose(first[:, 0], seq[:, 0], atol=1e-12)
+    _, state = net(x[:, 1:3], state)  # a sequence from that state
+    last, _ = net(x[:, 3:4], state)  # then one frame from a carried state
+    assert torch.allclose(last[:, 0], seq[:, 3], atol=1e-12)
+
+
 def test_layers_stack_hidden_sequences() -> None:
     torch.manual_seed(2)
     net = ConvLSTM(ConvLSTMConfig(2, 3, num_layers=2))
