@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 TORCH ?= torch==2.13.0
+TGT ?= torch-geometric-temporal==0.56.2
 
 .PHONY: install bench test lint benchmarks clean
 
@@ -12,6 +13,9 @@ $(BIN)/tactile-zoo: setup.cfg pyproject.toml constraints.txt
 	# torch first: the CPU build on disk; a looser requirement would drag in several GB of CUDA packages
 	$(BIN)/python -m pip install -q "$(TORCH)"
 	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	# x_tacformer's temporal_backend="tgt": --no-deps, its release requires torch-sparse (source-only, does not build
+	# against this torch); the one module we load (TGCN2) needs only torch and torch-geometric, installed above
+	$(BIN)/python -m pip install -q --no-deps "$(TGT)"
 	touch $@
 
 install: $(BIN)/tactile-zoo

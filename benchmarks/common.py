@@ -222,13 +222,13 @@ def ev_objects(ctx: Context) -> EvData:
     if root in _EV_CACHE:
         return _EV_CACHE[root]
     from tactile_zoo.engine import as_split, concat
+    from tactile_zoo.engine.cell import load_splits
     from tactile_zoo.errors import TactileZooError
-    from tactile_zoo.registry import load_dataset
 
     try:
-        train = concat(load_dataset("ev_objects", root=root, split="train"),
-                       load_dataset("ev_objects", root=root, split="val"))  # the released train folder, 576
-        test = as_split(load_dataset("ev_objects", root=root, split="test"))
+        splits = load_splits("ev_objects", root)
+        train = concat(splits["train"], splits["val"])  # the released train folder, 576
+        test = as_split(splits["test"])
         data = EvData(train, test, "ev_objects")
     except TactileZooError as exc:
         ctx.log(f"  Ev-Objects not found ({str(exc).splitlines()[0][:160]}...); using synthetic events of its "

@@ -29,7 +29,7 @@ from pathlib import Path
 import tactile_zoo as tz
 from tactile_zoo.bench import BenchConfig, run_bench
 from tactile_zoo.bench.report import load_run
-from tactile_zoo.bench.results import leaderboard_rows, summary_rows
+from tactile_zoo.bench.tables import leaderboard_rows, summary_rows
 
 PLUGIN_DIR = Path(__file__).resolve().parents[1] / "plugins" / "tactile-zoo-tcn"
 PLUGIN_MODEL = "tcn"

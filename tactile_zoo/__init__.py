@@ -8,9 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
-__version__ = "0.1.0"
-
 from . import data, models  # noqa: E402,F401  (import registers the built-ins)
+from ._version import __version__  # noqa: E402
 from .data import DatasetSpec, Sensor, TactileSample, collate  # noqa: E402
 from .errors import ConfigError, DatasetError, PluginError, TactileZooError, UnknownNameError  # noqa: E402
 from .registry import (  # noqa: E402

@@ -45,7 +45,7 @@ from ..engine.evaluate import DEFAULT_PREFIXES
 from ..errors import ConfigError
 
 __all__ = ["BenchConfig", "load_yaml_config", "merge_config", "parse_seeds", "parse_folds", "parse_assignment",
-           "parse_value", "parse_prefixes", "QUICK_SUBSET", "QUICK_EPOCHS", "EXECUTORS"]
+           "parse_value", "parse_prefixes", "parse_positive_int", "QUICK_SUBSET", "QUICK_EPOCHS", "EXECUTORS"]
 
 EXECUTORS = ("local", "process", "dask")
 #: ``--quick``: at most this many samples per split (class-balanced), and this many epochs unless --epochs says so.
@@ -89,13 +89,13 @@ class BenchConfig:
         self.seeds = parse_seeds(self.seeds)
         self.folds = parse_folds(self.folds)
         if self.epochs is not None:
-            self.epochs = _positive_int("--epochs", self.epochs)
+            self.epochs = parse_positive_int("--epochs", self.epochs)
         if self.executor not in EXECUTORS:
             raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {self.executor!r}")
         if self.workers is not None:
-            self.workers = _positive_int("--workers", self.workers)
+            self.workers = parse_positive_int("--workers", self.workers)
         if self.threads is not None:
-            self.threads = _positive_int("--threads", self.threads)
+            self.threads = parse_positive_int("--threads", self.threads)
         if self.scheduler is not None and self.executor != "dask":
             raise ConfigError("--scheduler only applies to --executor dask")
         self.prefixes = parse_prefixes(self.prefixes)
@@ -168,7 +168,7 @@ def _names(key: str, value: Any, allow_empty: bool = False) -> list[str]:
     return out
 
 
-def _positive_int(flag: str, value: Any, minimum: int = 1) -> int:
+def parse_positive_int(flag: str, value: Any, minimum: int = 1) -> int:
     if isinstance(value, str) and re.fullmatch(r"\s*\d+\s*", value):
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
@@ -209,7 +209,7 @@ def parse_folds(value: Any) -> int | None:
     if value is None or (isinstance(value, str) and value.strip().lower() in {"all", ""}):
         return None
     try:
-        return _positive_int("--folds", value)
+        return parse_positive_int("--folds", value)
     except ConfigError:
         raise ConfigError(f"--folds must be a positive integer (run the first K folds of each dataset) or 'all', got "
                           f"{value!r}") from None

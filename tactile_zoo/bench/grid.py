@@ -1,12 +1,14 @@
 """The grid: which models, which datasets (and which are skipped, why, and how to get them), which cells.
 
 A cell is ``(model, dataset, fold, seed, config hash)``. The config hash covers everything that can change a cell's
-numbers except its fold and seed: the model (and the plugin distribution it comes from), its constructor
-hyper-parameters, the fully resolved training recipe (every key, defaults included, so a changed default in a model's
-registry metadata is a new cell too), the dataset and its keyword arguments, ``refit``, the ``--quick`` subset sizes and
-the prefix fractions. It does not cover the device, the thread count or the executor, which change speed, not the
-protocol; nor the package versions, which every cell records. Rerunning the same command finds the same hashes, so
-finished cells are reused; any changed setting gives new hashes, so nothing stale is ever reused.
+numbers except its fold and seed (:class:`~tactile_zoo.engine.cell.CellConfig`): the model (and the plugin
+distribution it comes from), the computational revisions of the model's and the dataset's code (registry metadata
+``revision``, bumped whenever what the code computes changes), the constructor hyper-parameters, the fully resolved
+training recipe (every key, defaults included, so a changed default in a model's registry metadata is a new cell
+too), the dataset and its keyword arguments, ``refit``, the ``--quick`` subset sizes and the prefix fractions. It does
+not cover the device, the thread count or the executor, which change speed, not the protocol; nor the package
+versions, which every cell records. Rerunning the same command finds the same hashes, so finished cells are reused;
+any changed setting or revision gives new hashes, so nothing stale is ever reused.
 """
 
 from __future__ import annotations
@@ -20,14 +22,16 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
-from ..engine.recipe import Recipe, cap_epochs, resolve_recipe
+from ..engine.cell import CellConfig, load_splits, resolve_cell
 from ..errors import ConfigError, DatasetError, UnknownNameError
 from .config import BenchConfig
 
 __all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "resolve_models", "resolve_datasets",
            "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message"]
 
-HASH_FORMAT = 1
+#: 2: the configuration gained the model's and the dataset's computational revisions (``model_revision``,
+#: ``dataset_revision``); everything else hashes as in format 1.
+HASH_FORMAT = 2
 _WILDCARD = re.compile(r"[*?\[]")
 
 
@@ -127,9 +131,10 @@ def _canonical(value: Any) -> str:
     return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
 
 
-def config_hash(config: dict[str, Any]) -> str:
-    """16 hex digits of the SHA-256 of the canonical JSON of ``config``."""
-    return hashlib.sha256(_canonical({"hash_format": HASH_FORMAT, **config}).encode()).hexdigest()[:16]
+def config_hash(config: dict[str, Any] | CellConfig, hash_format: int = HASH_FORMAT) -> str:
+    """16 hex digits of the SHA-256 of the canonical JSON of a cell's configuration (``causal`` aside)."""
+    values = config.hashed() if isinstance(config, CellConfig) else {k: v for k, v in config.items() if k != "causal"}
+    return hashlib.sha256(_canonical({"hash_format": hash_format, **values}).encode()).hexdigest()[:16]
 
 
 def _listed_name(kind: str, entry: registry.Entry) -> str:
@@ -180,7 +185,6 @@ def _obtain_hint(entry: registry.Entry, name: str, root: str | None) -> str:
 def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, str, str]:
     """Whether ``name`` can run here: a DatasetInfo, or ``(status, reason, obtain)`` for a skipped/failed one."""
     from ..data.base import TactileDataset
-    from .cell import load_splits
 
     entry = registry.get_dataset_entry(name)
     kwargs = config.kwargs_for(name)
@@ -219,27 +223,20 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
                        entry.meta.get("max_epochs"))
 
 
-def _model_config(model: str, config: BenchConfig) -> dict[str, Any]:
+def _cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     entry = registry.get_model_entry(model)
     recipe_over, hparams = config.overrides_for(model, (entry.name, entry.qualified_name))
-    recipe = resolve_recipe(entry.meta.get("recipe"), recipe_over, config.effective_epochs(),
-                            where=f"recipe of model {model!r}")
-    return {"model": model, "model_source": entry.dist or "builtin", "hparams": hparams, "recipe": recipe.to_dict(),
-            "causal": bool(entry.meta.get("causal", False))}
-
-
-def _budgeted(recipe: dict[str, Any], info: DatasetInfo, config: BenchConfig) -> dict[str, Any]:
-    """The recipe within the dataset's epoch budget, unless ``--epochs`` (or ``--quick``) already set the epochs."""
-    if config.effective_epochs() is not None or info.max_epochs is None:
-        return recipe
-    return cap_epochs(Recipe.from_dict(recipe), int(info.max_epochs)).to_dict()
+    return resolve_cell(model, dataset, recipe=recipe_over, hparams=hparams, epochs=config.effective_epochs(),
+                        dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
+                        prefixes=config.prefixes)
 
 
 def build_grid(config: BenchConfig) -> Grid:
     """Resolve names, probe datasets, and list the cells in run order (dataset, fold, seed, model)."""
     models = resolve_models(config.models)
     dataset_names = resolve_datasets(config.datasets)
-    model_configs = {m: _model_config(m, config) for m in models}  # bad recipe overrides fail here, before any work
+    # every pair's configuration first: a bad recipe override fails here, before any dataset is loaded
+    cell_configs = {(m, d): _cell_config(m, d, config) for d in dataset_names for m in models}
     infos: list[DatasetInfo] = []
     skipped: list[SkipRow] = []
     notes: dict[str, str] = {}
@@ -254,13 +251,8 @@ def build_grid(config: BenchConfig) -> Grid:
     cells: list[Cell] = []
     for info in infos:
         for model in models:
-            mc = model_configs[model]
-            cfg = {"model": model, "model_source": mc["model_source"], "hparams": mc["hparams"],
-                   "recipe": _budgeted(mc["recipe"], info, config), "dataset": info.name,
-                   "dataset_kwargs": info.kwargs,
-                   "refit": config.refit, "subset": config.subset, "prefixes": config.prefixes}
-            digest = config_hash(cfg)
-            cfg = {**cfg, "causal": mc["causal"]}
+            cell_config = cell_configs[model, info.name]
+            digest, cfg = config_hash(cell_config), cell_config.to_dict()
             for fold in info.folds:
                 for seed in config.seeds:
                     cells.append(Cell(model, info.name, fold, seed, digest, cfg, info.protocol, info.extra_splits))

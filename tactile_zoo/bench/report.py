@@ -5,6 +5,8 @@ the run comes from ``run.json``'s grid when it is there (cells of other configur
 listed as ignored), otherwise every cell file counts. ``tactile-zoo report DIR --all-cells`` takes every cell file in
 the folder, for a table built by several bench commands into one folder (each command's ``run.json`` names only its
 own grid); report.md then warns about any model and dataset whose cells come from more than one configuration.
+report.md also warns about cells computed by an older revision of their model's or dataset's code (registry metadata
+``revision``, recorded in each cell's config) than the one registered now: their numbers are stale.
 Plots (matplotlib, Agg backend, PNG):
 
 * ``plots/heatmap.png``: mean test accuracy, model x dataset;
@@ -27,15 +29,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .. import registry
+from ..errors import TactileZooError
 from .grid import safe_name
-from .results import (
-    RunDir,
-    atomic_write_text,
-    leaderboard_rows,
-    prefix_label,
-    rows_to_csv,
-    summary_rows,
-)
+from .results import RunDir, atomic_write_text
+from .tables import leaderboard_rows, prefix_label, rows_to_csv, summary_rows
 
 __all__ = ["write_outputs", "load_run"]
 
@@ -89,6 +87,33 @@ def _mixed_configs(records: list[dict[str, Any]]) -> list[str]:
     return [f"{m} on {d}" for (m, d), h in sorted(hashes.items()) if len(h) > 1]
 
 
+def _outdated_cells(records: list[dict[str, Any]]) -> list[str]:
+    """One line per model, dataset and reason where cells were computed by an older revision of the model's or the
+    dataset's code than the one registered now. A record without revisions predates them (revision 1); a name no
+    longer registered, or an unreadable revision, has nothing to compare with and is not flagged."""
+    registered: dict[tuple[str, str], int | None] = {}
+    stale: dict[tuple[str, str, str], list[str]] = {}
+    for rec in records:
+        config, reasons = rec.get("config") or {}, []
+        for kind in ("model", "dataset"):
+            key = (kind, str(rec[kind]))
+            if key not in registered:
+                lookup = registry.get_model_entry if kind == "model" else registry.get_dataset_entry
+                try:
+                    registered[key] = registry.revision_of(lookup(key[1]))
+                except TactileZooError:  # unknown name, or a plugin that no longer loads
+                    registered[key] = None
+            then = config.get(f"{kind}_revision")
+            then = registry.DEFAULT_REVISION if then is None else then
+            if registered[key] is not None and isinstance(then, int) and then < registered[key]:
+                reasons.append(f"{kind} revision {then}, now {registered[key]}")
+        if reasons:
+            where = f"fold {_f(rec.get('fold'))} seed {_f(rec.get('seed'))}"
+            stale.setdefault((rec["model"], rec["dataset"], "; ".join(reasons)), []).append(where)
+    return [f"- {m} on {d}, {len(cells)} cell(s) ({', '.join(cells)}): {why}"
+            for (m, d, why), cells in sorted(stale.items())]
+
+
 def _write_outputs(run: RunDir, plots: bool, all_cells: bool = False) -> dict[str, Path]:
     records, skipped, info, ignored = load_run(run.path, all_cells)
     board, board_cols = leaderboard_rows(records, skipped)
@@ -108,7 +133,8 @@ def _write_outputs(run: RunDir, plots: bool, all_cells: bool = False) -> dict[st
         if mixed:
             notes.append(f"Warning: cells of more than one configuration are averaged together for {', '.join(mixed)}; "
                          "compare their `config_hash` in leaderboard.csv.")
-    atomic_write_text(written["report"], _markdown(run, records, board, summary, figures, info, ignored, notes))
+    atomic_write_text(written["report"], _markdown(run, records, board, summary, figures, info, ignored, notes,
+                                                   _outdated_cells(records)))
     return written
 
 
@@ -130,7 +156,8 @@ def _ok(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, Any]], summary: list[dict[str, Any]],
-              figures: dict[str, Any], info: dict[str, Any], ignored: int, notes: list[str] | None = None) -> str:
+              figures: dict[str, Any], info: dict[str, Any], ignored: int, notes: list[str] | None = None,
+              outdated: list[str] | None = None) -> str:
     env = info.get("environment") or {}
     versions = env.get("versions") or {}
     status_counts: dict[str, int] = {}
@@ -155,6 +182,12 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
                 "its validation split; mean ± sample standard deviation over folds and seeds. Rank is per dataset "
                 "(1 = best mean accuracy); mean rank is over the datasets a model ran on. Timings (train seconds, "
                 "inference ms per sample at batch 1) depend on the machine.", ""]
+    if outdated:  # before the tables, so nobody quotes their numbers without seeing it
+        out += ["## Warning: cells computed by older code", "",
+                "These cells were computed by an older revision of their model's or dataset's code than the one "
+                "registered now, so their numbers may differ from what the current code computes, and the tables "
+                "below include them. Rerun them: the same `tactile-zoo bench` command with `--force`, or with a "
+                "fresh `--out`.", "", *outdated, ""]
     out += ["## Summary", ""]
     rows = [[s["model"], s["dataset"], str(s["n_cells"]),
              f"{_f(s['accuracy_mean'])} ± {_f(s['accuracy_std'])}", _f(s["balanced_accuracy_mean"]),

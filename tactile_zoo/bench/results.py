@@ -1,4 +1,4 @@
-"""The run directory: atomic cell files, per-cell claims, and the leaderboard/summary tables built from them.
+"""The run directory: atomic cell files, per-cell claims and the table lock (the tables: :mod:`.tables`).
 
 Layout of ``--out``::
 
@@ -21,40 +21,35 @@ the holder died without finishing one, runs that cell itself. The tables are rew
 from __future__ import annotations
 
 import contextlib
-import csv
-import io
 import json
-import math
 import os
 import socket
 import tempfile
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+
+# The table maths lives in .tables; its names stay importable from here for code written against the old layout.
+from .tables import (
+    LEADERBOARD_COLUMNS,
+    SUMMARY_COLUMNS,
+    TIMING_COLUMNS,
+    leaderboard_rows,
+    prefix_label,
+    rows_to_csv,
+    summary_rows,
+)
 
 try:
     import fcntl
 except ImportError:  # pragma: no cover - Windows: no claims; one process per --out
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write_text", "atomic_write_json", "RunDir", "Claim", "LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS",
-           "leaderboard_rows", "summary_rows", "rows_to_csv", "prefix_label", "CellWriteError"]
-
-#: The leaderboard's fixed columns (the issue's list, in its order); extra columns follow ``error``:
-#: ``accuracy_<split>`` for each extra test split, ``accuracy_at_<p>`` per prefix percentage, ``earliness``.
-LEADERBOARD_COLUMNS = (
-    "model", "dataset", "protocol", "fold", "seed", "status", "accuracy", "balanced_accuracy", "macro_f1", "n_train",
-    "n_val", "n_test", "epochs_run", "best_epoch", "train_seconds", "infer_ms_per_sample", "params",
-    "peak_memory_mb", "device", "config_hash", "tactile_zoo_version", "torch_version", "error",
-)
-SUMMARY_COLUMNS = (
-    "model", "dataset", "n_cells", "accuracy_mean", "accuracy_std", "balanced_accuracy_mean", "macro_f1_mean",
-    "train_seconds_mean", "rank", "mean_rank",
-)
-TIMING_COLUMNS = ("train_seconds", "infer_ms_per_sample", "peak_memory_mb", "train_seconds_mean")
+__all__ = ["atomic_write_text", "atomic_write_json", "RunDir", "Claim", "CellWriteError", "LEADERBOARD_COLUMNS",
+           "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows", "rows_to_csv", "prefix_label"]
 
 
 class CellWriteError(OSError):
@@ -224,128 +219,3 @@ class RunDir:
             yield
         finally:
             os.close(fd)
-
-
-# ----------------------------------------------------------------------------------------------- tables
-def prefix_label(fraction: float) -> str:
-    """0.25 -> ``"25"`` (percent, as in ``accuracy_at_25``)."""
-    return f"{fraction * 100:g}"
-
-
-def _num(value: Any) -> Any:
-    if isinstance(value, float) and (math.isnan(value) or math.isinf(value)):
-        return None
-    return value
-
-
-def leaderboard_rows(records: Iterable[dict[str, Any]], skipped: Iterable[dict[str, Any]] = ()
-                     ) -> tuple[list[dict[str, Any]], list[str]]:
-    """One row per cell (and per skipped model x dataset pair); returns ``(rows, columns)``."""
-    rows: list[dict[str, Any]] = []
-    extra_splits: set[str] = set()
-    prefixes: set[float] = set()
-    for rec in records:
-        metrics = rec.get("metrics") or {}
-        test = metrics.get("test") or {}
-        versions = rec.get("versions") or {}
-        row: dict[str, Any] = {
-            "model": rec["model"], "dataset": rec["dataset"], "protocol": rec.get("protocol", ""),
-            "fold": rec.get("fold"), "seed": rec.get("seed"), "status": rec["status"],
-            "accuracy": test.get("accuracy"), "balanced_accuracy": test.get("balanced_accuracy"),
-            "macro_f1": test.get("macro_f1"), "n_train": rec.get("n_train"), "n_val": rec.get("n_val"),
-            "n_test": rec.get("n_test"), "epochs_run": rec.get("epochs_run"), "best_epoch": rec.get("best_epoch"),
-            "train_seconds": rec.get("train_seconds"), "infer_ms_per_sample": rec.get("infer_ms_per_sample"),
-            "params": rec.get("params"), "peak_memory_mb": rec.get("peak_memory_mb"), "device": rec.get("device"),
-            "config_hash": rec.get("config_hash"), "tactile_zoo_version": versions.get("tactile_zoo"),
-            "torch_version": versions.get("torch"), "error": rec.get("error"),
-        }
-        for split, split_metrics in metrics.items():
-            if split not in ("test", "val") and split_metrics:
-                extra_splits.add(split)
-                row[f"accuracy_{split}"] = split_metrics.get("accuracy")
-        prefix = rec.get("prefix") or {}
-        for frac, acc in zip(prefix.get("fractions", ()), prefix.get("accuracy", ())):
-            prefixes.add(float(frac))
-            row[f"accuracy_at_{prefix_label(frac)}"] = acc
-        if prefix:
-            row["earliness"] = prefix.get("earliness")
-        rows.append({k: _num(v) for k, v in row.items()})
-    for skip in skipped:
-        reason = skip.get("reason", "")
-        obtain = str(skip.get("obtain") or "").strip()
-        if obtain and obtain not in reason:
-            reason = f"{reason.rstrip('.')}. To obtain it: {obtain}"
-        rows.append({"model": skip["model"], "dataset": skip["dataset"], "status": skip.get("status", "skipped"),
-                     "error": reason})
-    rows.sort(key=lambda r: (str(r["model"]), str(r["dataset"]), r.get("fold") if r.get("fold") is not None else -1,
-                             r.get("seed") if r.get("seed") is not None else -1, str(r.get("config_hash") or "")))
-    columns = list(LEADERBOARD_COLUMNS) + [f"accuracy_{s}" for s in sorted(extra_splits)] + \
-        [f"accuracy_at_{prefix_label(p)}" for p in sorted(prefixes)] + (["earliness"] if prefixes else [])
-    return rows, columns
-
-
-def _mean(values: list[float]) -> float | None:
-    values = [v for v in values if v is not None]
-    return sum(values) / len(values) if values else None
-
-
-def _std(values: list[float]) -> float | None:
-    values = [v for v in values if v is not None]
-    if len(values) < 2:
-        return None  # one cell has no spread to report
-    mean = sum(values) / len(values)
-    return math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
-
-
-def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple[list[dict[str, Any]], list[str]]:
-    """Per (model, dataset) over ok cells: means, sample std of accuracy, rank per dataset (1 = best mean accuracy,
-    ties share the best rank) and each model's mean rank over the datasets it ran on."""
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for row in leaderboard:
-        if row.get("status") == "ok":
-            groups.setdefault((row["model"], row["dataset"]), []).append(row)
-    extra = [c for c in columns if c.startswith("accuracy_") and c not in ("accuracy_mean",)] + \
-        (["earliness"] if "earliness" in columns else [])
-    out: list[dict[str, Any]] = []
-    for (model, dataset), rows in sorted(groups.items()):
-        entry = {"model": model, "dataset": dataset, "n_cells": len(rows),
-                 "accuracy_mean": _mean([r["accuracy"] for r in rows]),
-                 "accuracy_std": _std([r["accuracy"] for r in rows]),
-                 "balanced_accuracy_mean": _mean([r["balanced_accuracy"] for r in rows]),
-                 "macro_f1_mean": _mean([r["macro_f1"] for r in rows]),
-                 "train_seconds_mean": _mean([r["train_seconds"] for r in rows])}
-        for col in extra:
-            entry[f"{col}_mean"] = _mean([r.get(col) for r in rows])
-        out.append(entry)
-    by_dataset: dict[str, list[dict[str, Any]]] = {}
-    for entry in out:
-        by_dataset.setdefault(entry["dataset"], []).append(entry)
-    for entries in by_dataset.values():
-        for entry in entries:
-            acc = entry["accuracy_mean"]
-            entry["rank"] = None if acc is None else \
-                1 + sum(1 for e in entries if e["accuracy_mean"] is not None and e["accuracy_mean"] > acc)
-    ranks: dict[str, list[float]] = {}
-    for entry in out:
-        if entry["rank"] is not None:
-            ranks.setdefault(entry["model"], []).append(entry["rank"])
-    for entry in out:
-        entry["mean_rank"] = _mean(ranks.get(entry["model"], []))
-    return out, list(SUMMARY_COLUMNS) + [f"{c}_mean" for c in extra]
-
-
-def rows_to_csv(rows: list[dict[str, Any]], columns: list[str]) -> str:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({c: ("" if row.get(c) is None else _fmt(row.get(c))) for c in columns})
-    return buf.getvalue()
-
-
-def _fmt(value: Any) -> Any:
-    if isinstance(value, float):
-        return repr(value)  # shortest exact representation: tables compare equal iff the numbers do
-    if isinstance(value, str):
-        return value.replace("\n", " ")
-    return value

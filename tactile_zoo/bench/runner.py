@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from .cell import CellTask, import_plugin_modules
+from .. import registry
+from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
 from .executors import Executor, make_executor
@@ -111,7 +112,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
     out, err = out or sys.stdout, err or sys.stderr
     if os.getcwd() not in sys.path and "" not in sys.path:
         sys.path.append(os.getcwd())  # --plugin-module my_model finds ./my_model.py, as `python -m` would
-    import_plugin_modules(config.plugin_modules)
+    registry.import_plugin_modules(config.plugin_modules)
     grid = build_grid(config)
     out_dir = Path(config.out) if config.out else default_out_dir(config, grid)
     if dry_run:

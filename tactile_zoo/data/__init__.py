@@ -1,7 +1,7 @@
 """Data: the sample/spec contract, sensors, splits, the dataset base class, and the built-in datasets."""
 
-# importing these modules registers their datasets
-# (each dataset module adds its import line here)
+# importing the datasets package registers every built-in dataset, real and simulated (see its docstring);
+# ``simulated`` is the compatibility module that re-exports the simulators
 from . import datasets, simulated  # noqa: F401
 from .base import TactileDataset, TensorData, cache_home, data_home
 from .sensors import Sensor

@@ -58,12 +58,6 @@ class DatasetSpec:
                 "num_steps": self.num_steps, "num_nodes": self.num_nodes, "num_channels": self.num_channels,
                 "num_globals": self.num_globals, "sensor": self.sensor.name}
 
-    def with_steps(self, num_steps: int) -> DatasetSpec:
-        """The same spec for sequences of another length (prefixes, resampled data)."""
-        from dataclasses import replace
-
-        return replace(self, num_steps=num_steps)
-
 
 def collate(samples: Sequence[TactileSample]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Stack samples into ``x [B, T, N, C]``, ``g [B, T, G]``, ``y [B]`` (a ``DataLoader`` ``collate_fn``)."""

@@ -1,11 +1,16 @@
 """Classification metrics and class probabilities, computed the same way for every model.
 
-The definitions follow scikit-learn's, so numbers are comparable with papers that used it:
+The metrics are scikit-learn's (``sklearn.metrics``), so numbers are comparable with papers that used it:
 
-* ``accuracy``: fraction of correct predictions;
-* ``balanced_accuracy``: mean recall over the classes present in ``y_true``;
-* ``macro_f1``: mean F1 over the classes present in ``y_true`` or ``y_pred`` (a class never predicted has F1 0);
-* ``confusion_matrix``: ``[true class, predicted class]`` counts over all ``num_classes`` classes.
+* ``accuracy``: fraction of correct predictions (``accuracy_score``);
+* ``balanced_accuracy``: mean recall over the classes present in ``y_true`` (``balanced_accuracy_score``);
+* ``macro_f1``: mean F1 over the classes present in ``y_true`` or ``y_pred``, a class never predicted having F1 0
+  (``f1_score(average="macro", zero_division=0)``);
+* ``confusion_matrix``: ``[true class, predicted class]`` counts over all ``num_classes`` classes
+  (``confusion_matrix(labels=range(num_classes))``).
+
+An empty split gives NaN scores and an all-zero confusion matrix (scikit-learn raises there instead). Labels must lie in
+``[0, num_classes)``: scikit-learn would silently drop the others from the confusion matrix.
 
 Probabilities: ``softmax(scores)`` for a model trained with cross-entropy (``loss="ce"``, scores are logits);
 for spike-rate outputs (``loss="mse_rate"``) the rates are clipped at 0 and normalised to sum 1, a sample whose rates
@@ -14,7 +19,9 @@ are all zero getting the uniform distribution.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import warnings
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -32,46 +39,85 @@ def _np(labels: ArrayLike) -> np.ndarray:
     return np.asarray(labels, dtype=np.int64).reshape(-1)
 
 
-def confusion_matrix(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | None = None) -> np.ndarray:
-    """Counts ``[K, K]``: row = true class, column = predicted class."""
+def _pair(y_true: ArrayLike, y_pred: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     t, p = _np(y_true), _np(y_pred)
     if t.shape != p.shape:
         raise ValueError(f"y_true has {t.size} labels, y_pred {p.size}")
+    return t, p
+
+
+def _skm() -> Any:
+    """``sklearn.metrics``, imported on first use: with the scipy and pandas parts it loads it adds about a second to
+    ``import tactile_zoo``, which every command and worker process would pay while only evaluation needs it."""
+    from sklearn import metrics
+
+    return metrics
+
+
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """Silence the two sklearn warnings about conventions that are deliberate here."""
+    with warnings.catch_warnings():
+        # balanced accuracy leaves classes absent from y_true out of the mean, which is the definition used here (a
+        # split need not hold every class), but sklearn warns about it
+        warnings.filterwarnings("ignore", message="y_pred contains classes not in y_true")
+        # a 1 x 1 confusion matrix (one class seen, or num_classes=1) is correct here, yet sklearn suspects a
+        # forgotten `labels`
+        warnings.filterwarnings("ignore", message="A single label was found")
+        yield
+
+
+def confusion_matrix(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | None = None) -> np.ndarray:
+    """Counts ``[K, K]`` (int64): row = true class, column = predicted class; ``K = num_classes``, else the largest
+    label + 1."""
+    t, p = _pair(y_true, y_pred)
     k = num_classes if num_classes is not None else int(max(t.max(initial=-1), p.max(initial=-1)) + 1)
-    return np.bincount(t * k + p, minlength=k * k).reshape(k, k)
+    if t.size == 0:
+        return np.zeros((k, k), dtype=np.int64)  # sklearn refuses an empty split (or an empty label list)
+    low, high = min(int(t.min()), int(p.min())), max(int(t.max()), int(p.max()))
+    if low < 0 or high >= k:
+        # sklearn would drop such samples from the counts without a word; a label out of range is a caller's bug
+        raise ValueError(f"labels must lie in [0, {k}); got {low}..{high}")
+    with _quiet():
+        return _skm().confusion_matrix(t, p, labels=np.arange(k)).astype(np.int64, copy=False)
 
 
 def accuracy(y_true: ArrayLike, y_pred: ArrayLike) -> float:
-    t, p = _np(y_true), _np(y_pred)
-    return float((t == p).mean()) if t.size else float("nan")
+    t, p = _pair(y_true, y_pred)
+    return float(_skm().accuracy_score(t, p)) if t.size else float("nan")
 
 
 def balanced_accuracy(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | None = None) -> float:
-    cm = confusion_matrix(y_true, y_pred, num_classes)
-    support = cm.sum(axis=1)
-    present = support > 0
-    if not present.any():
+    """Mean recall over the classes that occur in ``y_true``; ``num_classes`` only validates the labels (a class
+    absent from ``y_true`` has no recall, whatever the number of classes)."""
+    t, p = _pair(y_true, y_pred)
+    if num_classes is not None:
+        confusion_matrix(t, p, num_classes)  # same label check as the other metrics
+    if not t.size:
         return float("nan")
-    return float((np.diag(cm)[present] / support[present]).mean())
+    with _quiet():
+        return float(_skm().balanced_accuracy_score(t, p))
 
 
 def macro_f1(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | None = None) -> float:
-    cm = confusion_matrix(y_true, y_pred, num_classes)
-    tp = np.diag(cm).astype(float)
-    support, predicted = cm.sum(axis=1), cm.sum(axis=0)
-    labels = (support > 0) | (predicted > 0)
-    if not labels.any():
+    """Mean F1 over the classes in ``y_true`` or ``y_pred`` (classes in neither do not count, whatever
+    ``num_classes``, which only validates the labels)."""
+    t, p = _pair(y_true, y_pred)
+    if num_classes is not None:
+        confusion_matrix(t, p, num_classes)
+    if not t.size:
         return float("nan")
-    denom = support + predicted  # F1 = 2 tp / (2 tp + fp + fn) = 2 tp / (support + predicted)
-    f1 = np.divide(2 * tp, denom, out=np.zeros_like(tp), where=denom > 0)
-    return float(f1[labels].mean())
+    # labels=None: sklearn averages over the union of the labels seen; zero_division=0 scores a class never predicted
+    # 0 without a warning (its F1 = 2 tp / (support + predicted) is defined anyway since support > 0)
+    return float(_skm().f1_score(t, p, average="macro", zero_division=0))
 
 
 def classification_metrics(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int) -> dict[str, Any]:
     """accuracy, balanced_accuracy, macro_f1 and the confusion matrix (as nested lists), for one split."""
-    cm = confusion_matrix(y_true, y_pred, num_classes)
-    return {"accuracy": accuracy(y_true, y_pred), "balanced_accuracy": balanced_accuracy(y_true, y_pred, num_classes),
-            "macro_f1": macro_f1(y_true, y_pred, num_classes), "n": int(cm.sum()), "confusion": cm.tolist()}
+    t, p = _pair(y_true, y_pred)
+    cm = confusion_matrix(t, p, num_classes)
+    return {"accuracy": accuracy(t, p), "balanced_accuracy": balanced_accuracy(t, p),
+            "macro_f1": macro_f1(t, p), "n": int(cm.sum()), "confusion": cm.tolist()}
 
 
 def scores_to_probabilities(scores: torch.Tensor, loss: str = "ce") -> torch.Tensor:

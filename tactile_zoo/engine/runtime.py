@@ -154,7 +154,7 @@ def versions() -> dict[str, str]:
 def _versions() -> dict[str, str]:
     from importlib import metadata
 
-    from .. import __version__
+    from .._version import __version__
 
     out = {"tactile_zoo": __version__, "torch": torch.__version__, "numpy": np.__version__,
            "python": platform.python_version()}

@@ -178,15 +178,14 @@ def _clone_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().clone() for k, v in model.state_dict().items()}
 
 
-def _resolve_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: int
-                   ) -> tuple[torch.nn.Module, dict[str, Any] | None]:
+def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: int
+                 ) -> tuple[torch.nn.Module, dict[str, Any] | None]:
     """A module (built from its registry name after seeding) and its registered default recipe."""
     if isinstance(model, str):
-        from ..registry import create_model, get_model_entry
+        from ..registry import get_model_entry
+        from .cell import build_model
 
-        meta_recipe = get_model_entry(model).meta.get("recipe")
-        seed_everything(seed)
-        return create_model(model, spec, **(hparams or {})), meta_recipe
+        return build_model(model, spec, hparams, seed), get_model_entry(model).meta.get("recipe")
     if not isinstance(model, torch.nn.Module):
         raise ConfigError(f"fit() needs a torch.nn.Module or a registered model name, got {type(model).__name__}")
     if hparams:
@@ -195,11 +194,17 @@ def _resolve_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: 
     return model, meta.get("recipe")
 
 
-def _load_named(dataset: str, root: Any, fold: int, kwargs: dict[str, Any] | None) -> dict[str, Any]:
-    from ..registry import load_dataset
+def _fit_named_cell(model: str, dataset: str, recipe: Recipe | dict[str, Any] | None, seed: int, device: Any,
+                    epochs: int | None, refit: bool, hparams: dict[str, Any] | None, root: Any, fold: int,
+                    dataset_kwargs: dict[str, Any] | None, progress: bool,
+                    callback: Callable[[dict[str, Any]], None] | None) -> FitResult:
+    """``fit("sgnet", "sim_evtouch")``: the harness's cell, so it gives the leaderboard's numbers."""
+    from .cell import resolve_cell, train_cell
 
-    return {split: load_dataset(dataset, root=root, split=split, fold=fold, **(kwargs or {}))
-            for split in ("train", "val", "test")}
+    config = resolve_cell(model, dataset, recipe=recipe, hparams=hparams, epochs=epochs,
+                          dataset_kwargs=dataset_kwargs, refit=refit)
+    return train_cell(config, fold=fold, seed=seed, root=root, device=device, measure=False, progress=progress,
+                      callback=callback).fit
 
 
 @flush_denormals()
@@ -214,7 +219,9 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
         model: a ``torch.nn.Module`` (trained in place), or a registered model name (built for the dataset's spec
             with ``hparams``, after seeding, so the initial weights repeat too).
         dataset: the training split, or a registered dataset name (then its ``train``/``val``/``test`` splits of
-            ``fold`` are loaded from ``root`` with ``dataset_kwargs``, unless given explicitly).
+            ``fold`` are loaded from ``root`` with ``dataset_kwargs``, unless given explicitly). A model name with a
+            dataset name runs exactly the harness's cell (:func:`tactile_zoo.engine.cell.train_cell`): the dataset's
+            epoch budget applies and the numbers equal the leaderboard's for the same settings and thread count.
         recipe: a :class:`Recipe` (used as is), a dict of overrides on top of the model's registered recipe, or
             ``None`` for the registered recipe (the harness default for a model without one).
         seed: seeds model initialisation (name given), dropout and the batch order.
@@ -226,8 +233,13 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
         progress: a tqdm bar over epochs (hidden when stderr is not a terminal).
         callback: called with each epoch's curve row.
     """
+    if isinstance(model, str) and isinstance(dataset, str) and val_dataset is None and test_dataset is None:
+        return _fit_named_cell(model, dataset, recipe, seed, device, epochs, refit, hparams, root, fold,
+                               dataset_kwargs, progress, callback)
     if isinstance(dataset, str):
-        named = _load_named(dataset, root, fold, dataset_kwargs)
+        from .cell import load_splits
+
+        named = load_splits(dataset, root, fold, False, dataset_kwargs)
         dataset, val_dataset = named["train"], val_dataset if val_dataset is not None else named["val"]
         test_dataset = test_dataset if test_dataset is not None else named["test"]
     train = as_split(dataset)
@@ -237,7 +249,7 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
     if len(train) == 0:
         raise ConfigError("the training split is empty")
     dev = resolve_device(device)
-    module, base_recipe = _resolve_model(model, train.spec, hparams, seed)
+    module, base_recipe = _named_model(model, train.spec, hparams, seed)
     if isinstance(recipe, Recipe):
         rec = resolve_recipe(recipe, None, epochs)
     else:

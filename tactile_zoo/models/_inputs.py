@@ -1,4 +1,5 @@
-"""Input checks the image and sequence models share: one clear error for a wrongly shaped ``x`` or ``g``."""
+"""What the image and sequence models share about their inputs: one clear error for a wrongly shaped ``x`` or
+``g``, and the sensor image layer built from a spec's sensor geometry."""
 
 from __future__ import annotations
 
@@ -6,8 +7,16 @@ from torch import Tensor
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
+from ..nn.grid import SensorGrid
 
-__all__ = ["check_inputs"]
+__all__ = ["check_inputs", "sensor_grid"]
+
+
+def sensor_grid(spec: DatasetSpec, fill_passes: int | None = None) -> SensorGrid:
+    """The :class:`~tactile_zoo.nn.grid.SensorGrid` of ``spec``'s sensor: its ``grid`` and ``grid_shape``, and
+    ``fill_passes`` empty-cell fill passes (``None``: the sensor's ``grid_fill``)."""
+    sensor = spec.sensor
+    return SensorGrid(sensor.grid, sensor.grid_shape, sensor.grid_fill if fill_passes is None else fill_passes)
 
 
 def check_inputs(name: str, spec: DatasetSpec, x: Tensor, g: Tensor | None, per_step: bool = False) -> Tensor | None:

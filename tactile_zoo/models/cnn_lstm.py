@@ -1,7 +1,8 @@
 """CNN-LSTM: a small CNN encodes every frame's sensor image, an LSTM reads the frame codes in time order.
 
-The X-Tacformer paper's related work names this family (per-frame CNN features fed in sequence to an LSTM, Li et al.)
-without layer sizes, so every layer below is our choice, sized for 1-40 taxel grids and a 60 s Ev-Objects epoch::
+Source: the CNN-LSTM family as cited in the related work of "X-Tacformer: Spatio-temporal Attention Model for
+Tactile Recognition" (per-frame CNN features fed in sequence to an LSTM, Li et al.), without layer sizes, so every
+layer below is our choice, sized for sensor images of 3 to 132 cells and a 60 s Ev-Objects epoch::
 
     (B, T, N, C) -> mean of every k frames, k = ceil(T / 50) -> grid (B*T', C, H, W), T' = ceil(T / k) <= 50
     -> Conv 3x3 C->16 "same" + ReLU -> MaxPool 2x2 (ceil: a 1-row grid survives) -> Conv 3x3 16->32 "same" + ReLU
@@ -23,9 +24,9 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
-from ..nn.grid import SensorGrid
 from ..registry import register_model
 from ._binned import BinnedStreamer, bins_for
+from ._inputs import sensor_grid
 
 __all__ = ["CNNLSTM", "FrameEncoder"]
 
@@ -72,9 +73,13 @@ class FrameEncoder(nn.Module):
             "max_epochs": 150, "patience": 30, "batch_size": 32, "grad_clip": 1.0},
     causal=True,
     streaming=True,
+    revision=1,
 )
 class CNNLSTM(BinnedStreamer):
-    """CNN-LSTM classifier; model card in docs/models.md.
+    """CNN-LSTM classifier: a per-frame CNN code of the sensor image, an LSTM over the codes, a linear read-out.
+
+    Departures: not a reproduction, the source names the family only, so every layer size is ours, as are the bins
+    of at most ``max_frames`` averaged frames. Model card: docs/models.md, section "`cnn_lstm`: CNN-LSTM".
 
     Args:
         spec: the dataset's :class:`DatasetSpec`.
@@ -97,7 +102,7 @@ class CNNLSTM(BinnedStreamer):
             raise ConfigError(f"cnn_lstm: need two positive conv widths and positive sizes, got "
                               f"conv_channels={conv_channels}, frame_features={frame_features}, hidden={hidden}")
         self.name, self.spec, self.bin_size = "cnn_lstm", spec, bins_for("cnn_lstm", spec.num_steps, max_frames)
-        self.grid = SensorGrid(spec.sensor, fill_passes)
+        self.grid = sensor_grid(spec, fill_passes)
         self.encoder = FrameEncoder(spec.num_channels, spec.sensor.grid_shape, tuple(conv_channels), frame_features)
         self.lstm = nn.LSTM(frame_features + spec.num_globals, hidden, batch_first=True)
         self.head = nn.Linear(hidden, spec.num_classes)

@@ -10,12 +10,9 @@ and the last hidden state of the top layer is averaged over the grid and classif
     -> ConvLSTM 16 ch 3x3 -> ConvLSTM 16 ch 3x3 -> h_T (B, 16, H, W)
     -> global average pool (B, 16) [++ g_T (B, G)] -> FC 16 + ReLU -> FC K
 
-Why bins (ours): unbinned, one epoch of Ev-Objects' 250-step recordings took 114 s on one core, too slow for a
-100-epoch budget within an hour; with k = 5 (50 frames of 100 ms) it takes about 20 s (docs/models.md). An open bin
-at the end of a prefix counts its missing frames as zeros, so :meth:`ConvLSTMNet.step` (one call per raw frame)
-equals the forward pass on every prefix.
-
-The model is causal: the scores after frame t depend on frames 0..t only, and :meth:`ConvLSTMNet.step` streams them.
+Cell (Shi et al. 2015, no peepholes): ``i, f, o = sigmoid(W_x * X_t + W_h * H_{t-1} + b)``, ``g = tanh(...)``,
+``C_t = f C_{t-1} + i g``, ``H_t = o tanh(C_t)``. The model is causal: the scores after frame t depend on frames
+0..t only, and :meth:`ConvLSTMNet.step` streams them (an open last bin counts its missing frames as zeros).
 """
 
 from __future__ import annotations
@@ -27,9 +24,9 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..nn.convlstm import ConvLSTM, ConvLSTMConfig
-from ..nn.grid import SensorGrid
 from ..registry import register_model
 from ._binned import BinnedStreamer, bins_for
+from ._inputs import sensor_grid
 
 __all__ = ["ConvLSTMNet"]
 
@@ -51,9 +48,14 @@ __all__ = ["ConvLSTMNet"]
             "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0},
     causal=True,
     streaming=True,
+    revision=1,
 )
 class ConvLSTMNet(BinnedStreamer):
-    """ConvLSTM classifier of Zapata-Impata et al. (2019); model card in docs/models.md.
+    """ConvLSTM classifier of Zapata-Impata et al. (2019): sensor images, two ConvLSTM layers, pooled last state.
+
+    Departures (ours): frames averaged into at most ``max_frames`` bins (cost), "same" padding, logistic gates
+    (Keras' default is a hard sigmoid), our epoch budget. Model card: docs/models.md, section "`convlstm`: ConvLSTM
+    (Zapata-Impata et al., 2019)".
 
     Args:
         spec: the dataset's :class:`DatasetSpec`.
@@ -77,7 +79,7 @@ class ConvLSTMNet(BinnedStreamer):
                  max_frames: int | None = 50) -> None:
         super().__init__()
         self.name, self.spec, self.bin_size = "convlstm", spec, bins_for("convlstm", spec.num_steps, max_frames)
-        self.grid = SensorGrid(spec.sensor, fill_passes)
+        self.grid = sensor_grid(spec, fill_passes)
         self.convlstm = ConvLSTM(ConvLSTMConfig(spec.num_channels, hidden_channels, num_layers, kernel_size,
                                                 backend=backend))
         self.fc = nn.Linear(hidden_channels + spec.num_globals, fc_units)

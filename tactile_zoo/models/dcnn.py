@@ -11,24 +11,9 @@ the ``N x C`` taxel channels flattened node-major, then the ``G`` globals (Ev-Ob
     -> Conv 57 (3x1, same) -> ReLU -> BN -> MaxPool 2x2 (same)
     -> Flatten -> Dense 103 -> ReLU -> BN -> Dense 138 -> ReLU -> BN -> Dense K
 
-Keras equivalences: "same" convolution pads ``k - 1`` cells, the odd one of an even kernel after (right/bottom),
-as TensorFlow does; "same" 2x2/2 max pooling is ``ceil_mode=True``; batch norm uses Keras' epsilon 1e-3; kernels start
-Glorot-uniform and biases at zero, Keras' defaults.
-
-One departure: the running statistics of batch norm (eval mode). Keras' momentum 0.99 (PyTorch ``momentum=0.01``)
-averages over ~100 updates: 1.6 epochs of Augment8000 at batch 128, but 25 epochs of Ev-Objects (4 batches per epoch),
-and the averages start at (mean 0, var 1) while the first block's true variance there is ~0.003. Measured on
-Ev-Objects: with Keras' statistics validation accuracy sat at chance (2.8 %) through epoch 13 while the same weights
-with statistics recomputed over the training set reached 88-91 %. So the running statistics here start from the first
-training batch (momentum 1 once, like Adam's bias correction) and then follow ``bn_momentum=0.1`` (PyTorch's default,
-~10 updates, about the lag in epochs Keras has on the source's data): validation accuracy then climbs from epoch 1
-(0.12, 0.07, 0.11, 0.15, 0.23, 0.38 at epochs 1-6 against 0.54-0.88 with recomputed statistics; Adam at lr 0.01 still
-moves the activations fast). ``bn_momentum=0.01`` gives Keras' averaging (the first-batch start stays).
-
-The flatten size, and so the first dense layer, depends on the image size (Ev-Objects: 57 x 32 x 10 = 18240
-inputs to Dense 103, 1.9 M weights): the model is defined for ``spec.num_steps`` frames. It is not causal: a shorter
-input (a prefix of a recording, for early classification) is zero-padded at the end to ``num_steps`` frames, i.e.
-read as "no signal yet"; a longer one is an error.
+Keras semantics in PyTorch: "same" convolution and pooling as TensorFlow pads, batch-norm epsilon 1e-3,
+Glorot-uniform kernels and zero biases. The flatten size fixes the input length to ``spec.num_steps`` frames; the
+model is not causal.
 """
 
 from __future__ import annotations
@@ -112,16 +97,21 @@ class _ConvBlock(nn.Sequential):
             "max_epochs": 300, "patience": 30, "batch_size": 128},
     causal=False,
     streaming=False,
+    revision=1,
 )
 class DCNN(nn.Module):
-    """D-CNN of Maus et al.; model card in docs/models.md.
+    """D-CNN of Maus et al.: three conv blocks and two dense layers over the time x feature image.
+
+    Departure (ours): batch-norm running statistics start from the first training batch and then average with
+    momentum 0.1, not Keras' 0.01 (``bn_momentum=0.01`` restores Keras' averaging); a prefix shorter than
+    ``num_steps`` is zero-padded at the end. Model card: docs/models.md, section "`dcnn`: D-CNN (Maus et al.)".
 
     Args:
         spec: the dataset's :class:`DatasetSpec` (fixes the image size ``num_steps x (N*C + G)``).
         filters: output channels of the three conv layers (source: 31, 128, 57).
         kernels: their kernel sizes (source: 1x2, 2x3, 3x1).
         dense: widths of the two hidden dense layers (source: 103, 138).
-        bn_momentum: PyTorch momentum of the batch-norm running statistics (Keras: 0.01; default 0.1, see above).
+        bn_momentum: PyTorch momentum of the batch-norm running statistics (Keras: 0.01; default 0.1, see the card).
 
     Shapes:
         ``x (B, T, N, C)`` with ``T <= num_steps``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``.

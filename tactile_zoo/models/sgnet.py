@@ -58,61 +58,19 @@ class SGNetState:
             "patience": None, "batch_size": 8},
     causal=True,
     streaming=True,
+    revision=1,
 )
 class SGNet(nn.Module):
-    """TactileSGNet (Gu et al., IROS 2020), model card (draft for docs/models.md).
+    """TactileSGNet (Gu et al., IROS 2020): TAGConv on every frame's taxel graph, then a spiking MLP; scores are
+    output spike rates.
 
-    **Source.** Paper: Gu, Sng, Taunyazov, Soh, IROS 2020; public code clear-nus/TactileSGNet (PyTorch + PyG),
-    evaluated on Ev-Objects (NeuTouch fingertip, 39 taxels, ON/OFF event channels).
+    Neuron (the reference's, snnTorch ``Leaky(beta=0.2, threshold=0.5, reset_mechanism="zero")``):
+    ``mem = 0.2 * mem * (1 - spike_prev) + I``, ``spike = mem > 0.5``, membranes at 0 at the start of every
+    sequence; rectangular surrogate, reset not detached.
 
-    **Architecture** (``B`` batch, ``T`` steps, ``N`` taxels, ``C`` channels, ``G`` globals, ``K`` classes)::
-
-        x (B, T, N, C) -> time-major (T, B, N, C)
-        TAGConv(C -> 64, K=3) on every frame, one call         (T, B, N, 64)
-        LIF                                                    (T, B, N * 64)
-        [++ g (T, B, G)]                                       (T, B, N * 64 + G)
-        Linear 128 -> LIF                                      (T, B, 128)
-        Linear 256 -> LIF                                      (T, B, 256)
-        Linear K -> LIF                                        (T, B, K)
-        spike count / T                                        (B, K)  = the scores
-
-    **Neuron** (the reference's, as snnTorch ``Leaky(beta=0.2, threshold=0.5, reset_mechanism="zero")``):
-    ``mem = 0.2 * mem * (1 - spike_prev) + I``, ``spike = mem > 0.5``, membranes start at 0 for every sequence;
-    rectangular surrogate gradient 1 where ``|mem - 0.5| < 0.5``; the reset is not detached (the reference
-    back-propagates through ``mem * decay * (1 - spike)``), ``detach_reset=False``.
-
-    **Graph.** ``spec.sensor.edge_index()``: for NeuTouch the minimum spanning tree of the taxel positions that the
-    reference trains on; the sensor's default graph elsewhere (``graph``/``graph_kwargs`` choose another). TAGConv
-    normalises it as PyG does (``D^-1/2 A D^-1/2``, no self-loops).
-
-    **Training recipe** (registry metadata): MSE between output rates and the one-hot target, Adam with amsgrad,
-    lr 1e-3, x0.1 at epochs 40 and 80, 100 epochs, no early stopping (the reference trains the full schedule).
-
-    **Choices and departures.**
-
-    - Initialisation (our choice): the Linear weights are He-normal (``kaiming_normal_``, fan-in, gain sqrt 2);
-      ``init="default"`` keeps PyTorch's default uniform(+-1/sqrt(fan_in)), the framework default the reference
-      runs with. With the default, activity dies out layer by layer at initialisation (spike rates on real
-      Ev-Objects: 0.058, 0.0055, 0, 0 for the four LIF layers), so the last two weight matrices get no gradient
-      until training revives them (on the 3-taxel OptoForce sensor the last one starts with an all-zero gradient);
-      with He-normal the rates are 0.058, 0.072, 0.079, 0.069. In a 5-epoch check (one seed, 468 train / 108
-      held-out train samples, batch 8) both learn alike: held-out accuracy 0.39, 0.54, 0.69, 0.75, 0.78 (default)
-      and 0.38, 0.62, 0.70, 0.81, 0.79 (He).
-    - Batch size 8 instead of the reference's 1 (our choice): the rest of the recipe unchanged. Per epoch batch 1
-      starts a little faster (held-out accuracy 0.39, 0.68 after epochs 1 and 2, against 0.38, 0.62 at batch 8, same
-      seed and split), batch 8 reaches 0.79-0.81 by epoch 4-5, and a batch-8 epoch costs a fraction of a batch-1
-      epoch (8x fewer optimiser steps, 8x fewer time loops); not compared over the full 100-epoch schedule here.
-      ``batch_size=1`` restores the reference.
-    - All frames go through the graph convolution and each linear layer in one call, with a precomputed dense
-      normalised adjacency equal to PyG's TAGConv (tests/nn/test_graph.py); the reference rebuilds a PyG ``Batch``
-      and calls every layer once per time step. Same function, different schedule (tests/models/test_sgnet.py
-      compares against a per-step, per-sample computation).
-    - The membrane recurrences run fused (one autograd node per layer, hand-written backward through time), tested
-      to give snnTorch's spikes and gradients.
-    - Global features (datasets with ``num_globals > 0``; the reference has none): ``g_t`` is concatenated, as real
-      values, to the flattened spiking graph features of frame ``t`` before Linear 128 (our choice: the layer that
-      mixes all taxels is the first place a per-frame vector fits).
-    - Other sensors: the same network on their default graph; the flattened width follows ``N``.
+    Departures (ours): He-normal Linear weights and batch 8 (``init="default"``, ``batch_size=1`` restore the
+    reference), all frames through each layer in one call (same function); model card: docs/models.md, section
+    "`sgnet`: TactileSGNet".
 
     Args:
         spec: the dataset's :class:`DatasetSpec`.

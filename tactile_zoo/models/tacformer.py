@@ -1,5 +1,19 @@
 """Tacformer: the spatial graph attention module of X-Tacformer, on its own.
 
+Paper: "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition" (Tacformer is its spatial branch,
+reported separately in its Table I; no code published). Shapes for NeuTouch (N = 39, C = 2, T = 250) and the
+defaults (D = 64, 4 heads, bins of 5 frames)::
+
+    x (B, T, N, C) -> events summed over bins of 5 frames, time-major          (T' = 50, B, N, C)
+    -> TAGConv (K = 3, PyG semantics) on every frame, + learned taxel embedding (T', B, N, D)
+    -> depth x residual [z = z + MSA-SNN(z)] [z = z + MLP(z)], over the taxels of each frame
+    -> tokens flattened, Linear N*D -> D, LayerNorm [++ Linear(G -> D) of the bin's mean globals]   (T', B, D or 2D)
+    -> LIF over time -> running spike rate -> LayerNorm -> dropout -> Linear -> logits (B, K)
+
+MSA-SNN (eqs. 7-9): ``Q, K, V = LN(Linear(LIF(LN(Linear(X)))))``, ``softmax(Q K^T / sqrt(d_k)) V``, output
+``LN(Linear(LIF(.)))``; every LIF is the paper's (eqs. 2-4, V_reset = 0). Attention stays inside a frame, so only
+LIF membranes carry over time and :meth:`Tacformer.step` streams exactly.
+
 Also home of the piece X-Tacformer shares, :class:`SpatialGraphAttention`; the frame bins and their streaming
 machinery (:func:`bin_frames`, :class:`BinnedStreamer`) live in :mod:`._binned`.
 """
@@ -13,8 +27,9 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
-from ..nn.attention import LIFConfig, SpikingSelfAttention
+from ..nn.attention import SpikingSelfAttention
 from ..nn.graph import FrameGraphConv
+from ..nn.lif import LIFConfig
 from ..registry import register_model
 from ._binned import BinnedStreamer
 
@@ -96,27 +111,14 @@ class SpatialGraphAttention(nn.Module):
             "grad_clip": 1.0},
     causal=True,
     streaming=True,
+    revision=1,
 )
 class Tacformer(BinnedStreamer):
-    """Tacformer: X-Tacformer's spatial graph attention module on its own (model card: docs/models.md).
+    """Tacformer: X-Tacformer's spatial graph attention module on its own (structure in the module docstring).
 
-    Paper: "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition" (Tacformer is its spatial branch,
-    reported separately in its Table I). Shapes below for NeuTouch (N = 39 taxels, C = 2 polarities, T = 250) and the
-    defaults (D = 64, 4 heads, bins of 5 frames):
-
-    1. ``x (B, T, N, C)`` -> events summed over bins of ``bin_size`` frames -> ``(T' = 50, B, N, C)``, time-major.
-    2. TAGConv (``hops`` = 3, PyG semantics) over the sensor graph (NeuTouch: the MST) on every frame in one call
-       -> taxel tokens ``(T', B, N, D)``, plus a learned per-taxel embedding.
-    3. ``depth`` residual MSA-SNN blocks (eqs. 7-9), attention over the N taxels of each frame:
-       ``z = z + MSA(z)`` [``z = z + MLP(z)`` with ``mlp_ratio`` > 0] -> ``(T', B, N, D)``.
-    4. Frame feature: the N tokens flattened and projected (``N * D -> D``), LayerNorm -> ``(T', B, D)``; with
-       globals, ``Linear(G -> D)`` of the bin's mean globals is concatenated -> ``(T', B, 2D)``.
-    5. LIF over time -> spikes; read-out = spike rate over the steps so far ``(B, W)`` -> LayerNorm -> dropout ->
-       Linear -> logits ``(B, num_classes)``.
-
-    Every LIF is the paper's (eqs. 2-4, V_reset = 0). Causal: attention stays inside a frame, the LIFs run forward
-    and the rate is a running mean, so :meth:`step` streams one frame at a time and equals :meth:`forward` on every
-    prefix (a partial last bin included).
+    Departures: the paper gives no sizes or training settings, so widths, heads, one block without MLP, frames
+    summed in bins of ``bin_size`` and the flatten pooling are ours. Model card: docs/models.md, section
+    "`tacformer`: Tacformer (spatial graph attention)".
 
     Args:
         spec: the dataset's :class:`DatasetSpec`.
@@ -125,7 +127,7 @@ class Tacformer(BinnedStreamer):
         depth: residual MSA(-MLP) blocks.
         mlp_ratio: hidden width of the spiking MLP as a multiple of ``D``; 0 (default) leaves the MLP out.
         hops: TAGConv hops ``K``.
-        tau, v_th, surrogate, detach_reset: every LIF (:class:`~tactile_zoo.nn.attention.LIFConfig`).
+        tau, v_th, surrogate, detach_reset: every LIF (:class:`~tactile_zoo.nn.lif.LIFConfig`).
         bin_size: input frames summed per model time step (1 = the full time resolution).
         taxel_embedding: add a learned vector per taxel to its token.
         pool: frame feature from the tokens: ``"flatten"`` (``N * D -> D``, keeps which taxel is which) or

@@ -1,5 +1,21 @@
 """X-Tacformer: spatial graph attention (Tacformer's branch) and temporal graph attention (T-GCN cell + attention over
-frames), fused by concatenation."""
+frames), fused by concatenation.
+
+Paper: "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition" (the full model; no code published;
+T-GCN cell after Zhao et al. 2020, as the paper's eqs. 10-13 state it). Shapes for NeuTouch (N = 39, C = 2,
+T = 250) and the defaults (D = 64, H = 16, bins of 5 frames)::
+
+    spatial:  exactly Tacformer up to its read-out -> LayerNorm-ed spike rate (B, D) ((B, 2D) with globals)
+    temporal: binned frames (T' = 50, B, N, C) -> GCNConv C -> H on every frame -> T-GCN cell, an H-wide state per
+              taxel (T', B, N, H) -> mean over taxels (T', B, H) -> additive attention over the frames seen
+              (B, H) -> LayerNorm
+    fusion:   concatenation (B, D + H) -> dropout -> Linear -> logits (B, K)
+
+T-GCN cell (eqs. 10-13, :mod:`tactile_zoo.nn.tgcn`): ``u_t, r_t = sigmoid(W_{u,r} [GC(A, X_t), h_{t-1}] + b)``,
+``c_t = tanh(W_c [GC(A, X_t), r_t * h_{t-1}] + b_c)``, ``h_t = u_t h_{t-1} + (1 - u_t) c_t``; frame scores
+``w^T tanh(W f_t + b)``, softmax over the frames seen so far. Both branches only look back, so
+:meth:`XTacformer.step` streams in constant memory.
+"""
 
 from __future__ import annotations
 
@@ -32,24 +48,15 @@ __all__ = ["XTacformer"]
             "grad_clip": 1.0},
     causal=True,
     streaming=True,
+    revision=1,
 )
 class XTacformer(Tacformer):
-    """X-Tacformer: Tacformer's spatial branch plus the temporal graph attention branch (model card: docs/models.md).
+    """X-Tacformer: Tacformer's spatial branch plus the temporal graph attention branch (structure in the module
+    docstring).
 
-    Paper: "X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition". Shapes for NeuTouch (N = 39,
-    C = 2, T = 250) and the defaults (D = 64, H = 16, bins of 5 frames):
-
-    * Spatial branch: exactly :class:`~tactile_zoo.models.tacformer.Tacformer` up to its read-out, giving the
-      LayerNorm-ed spike rate ``(B, D)`` (``(B, 2D)`` with globals).
-    * Temporal branch (:class:`~tactile_zoo.nn.tgcn.TemporalGraphAttention`) on the same binned frames
-      ``(T' = 50, B, N, C)``: GCNConv ``C -> H`` on every frame in one call, the T-GCN cell (eqs. 10-13) with an
-      ``H``-wide state per taxel -> ``(T', B, N, H)``; frame feature = the taxel states averaged ``(T', B, H)``;
-      additive attention over frames (score ``w^T tanh(W f_t + b)``, softmax over the frames seen) -> weighted sum
-      ``(B, H)`` -> LayerNorm.
-    * Fusion: concatenation ``(B, D + H)`` -> dropout -> Linear -> logits ``(B, num_classes)``.
-
-    Causal: both branches only look back (LIFs, the GRU recurrence, and a softmax over the frames seen so far that
-    is updated online), so :meth:`step` streams in constant memory and equals :meth:`forward` on every prefix.
+    Departures: as Tacformer for the spatial branch (sizes, bins, pooling are ours); the temporal frame feature is
+    the mean of the taxel states and ``hidden=16`` (ours). Model card: docs/models.md, section "`x_tacformer`:
+    X-Tacformer".
 
     Args:
         spec, dim, heads, depth, mlp_ratio, hops, tau, v_th, surrogate, detach_reset, bin_size, taxel_embedding,
@@ -60,7 +67,7 @@ class XTacformer(Tacformer):
             (``N * H``; on Ev-Objects it over-fitted: val loss 0.50 against 0.24, see docs/models.md).
         attn_dim: hidden width of the frame-scoring network.
         temporal_backend: ``"native"`` (eqs. 10-13) or ``"tgt"`` (torch_geometric_temporal's TGCN2, a different cell;
-            only where that optional package imports).
+            needs ``pip install --no-deps torch-geometric-temporal==0.56.2``, which ``make install`` runs).
         dropout: dropout on the fused vector.
 
     Shapes:

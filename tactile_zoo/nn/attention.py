@@ -23,34 +23,17 @@ membranes are the only state carried between frames; see :meth:`SpikingSelfAtten
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..errors import ConfigError
-from .lif import MultiStepLIF
+from .lif import LIFConfig  # re-exported: tactile_zoo.nn.attention.LIFConfig keeps working
 
 __all__ = ["LIFConfig", "SpikingSelfAttention"]
 
 MSAState = tuple[Tensor | None, Tensor | None]  # (Q/K/V-chain membrane, output-chain membrane)
-
-
-@dataclass(frozen=True)
-class LIFConfig:
-    """How every LIF of a block is built: the paper's neuron (eqs. 2-4) with time constant ``tau`` and threshold
-    ``v_th``, reset to zero; ``surrogate`` and ``detach_reset`` are open points (see the model cards)."""
-
-    tau: float = 2.0
-    v_th: float = 1.0
-    surrogate: str = "atan"
-    detach_reset: bool = True
-    backend: str = "fused"
-
-    def build(self) -> MultiStepLIF:
-        return MultiStepLIF.from_tau(self.tau, self.v_th, surrogate=self.surrogate, detach_reset=self.detach_reset,
-                                     backend=self.backend)
 
 
 class SpikingSelfAttention(nn.Module):

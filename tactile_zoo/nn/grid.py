@@ -1,8 +1,9 @@
-"""Sensor image grid: per-taxel features scattered onto the sensor's ``(H, W)`` lattice, empty cells filled.
+"""Sensor image grid: per-taxel features scattered onto an ``(H, W)`` lattice, empty cells filled.
 
-Image models (ConvLSTM, CNN-LSTM) see a frame as a small image. Each taxel ``i`` owns cell ``sensor.grid[i]``; the
-other cells are empty and start at zero. ``fill_passes`` passes of neighbour filling follow (BioTac SP: 2, the
-ConvLSTM source's 12x11 layout, Zapata-Impata et al., Sensors 2019):
+Image models (ConvLSTM, CNN-LSTM) see a frame as a small image. The layer takes the grid geometry only (the models
+unpack a sensor's ``grid``, ``grid_shape`` and ``grid_fill``; ``nn`` never imports ``data``). Each taxel ``i`` owns
+cell ``grid[i]``; the other cells are empty and start at zero. ``fill_passes`` passes of neighbour filling follow
+(BioTac SP: 2, the ConvLSTM source's 12x11 layout, Zapata-Impata et al., Sensors 2019):
 
     pass k:  v_k(cell) = mean{ v_{k-1}(n) : n in N8(cell), n non-empty after pass k-1 }   for every cell empty
              after pass k-1 that has at least one such neighbour; all other cells keep v_{k-1}.
@@ -12,22 +13,19 @@ neighbours only from pass k+1 on), so the result does not depend on a scan order
 cell (a taxel, or filled by an earlier pass), never of its value, so a taxel that reads 0 still counts. Cells no pass
 reaches stay 0.
 
-Every step above is linear in the taxel values and fixed by the sensor, so the whole map (placement plus all
+Every step above is linear in the taxel values and fixed by the geometry, so the whole map (placement plus all
 passes) is precomputed once as a matrix ``M [H*W, N]`` and applied to all ``B*T`` frames and channels in one matrix
 product. Without fill passes ``M`` only selects, and a gather with a precomputed index replaces the product.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor, nn
 
 from ..errors import ConfigError
-
-if TYPE_CHECKING:  # nn/ sits below data/: the sensor is only read through its attributes
-    from ..data.sensors import Sensor
 
 __all__ = ["SensorGrid", "grid_weights"]
 
@@ -62,24 +60,30 @@ class SensorGrid(nn.Module):
     """Scatter node features onto the sensor image: ``[..., N, C] -> [..., C, H, W]``.
 
     Args:
-        sensor: the sensor whose ``grid`` (taxel -> (row, col)) and ``grid_shape`` define the image.
-        fill_passes: passes of empty-cell filling; ``None`` takes ``sensor.grid_fill``.
+        grid: ``(row, col)`` of every taxel, in taxel order (``N = len(grid)``); no two taxels share a cell.
+        grid_shape: ``(H, W)`` of the image.
+        fill_passes: passes of empty-cell filling (rule in the module docstring); 0 only places the taxels.
 
     Shapes:
         input ``[..., N, C]`` (any number of leading dimensions, e.g. ``B, T`` or ``B``);
         output ``[..., C, H, W]``, contiguous.
     """
 
-    def __init__(self, sensor: Sensor, fill_passes: int | None = None) -> None:
+    def __init__(self, grid: Sequence[Sequence[int]], grid_shape: Sequence[int], fill_passes: int = 0) -> None:
         super().__init__()
-        passes = sensor.grid_fill if fill_passes is None else fill_passes
-        if passes < 0:
-            raise ConfigError(f"fill_passes must be >= 0, got {passes}")
-        self.grid_shape = tuple(sensor.grid_shape)
-        self.num_nodes = sensor.num_nodes
-        self.fill_passes = passes
-        weights = grid_weights(sensor.grid, sensor.grid_shape, passes)
-        # non-persistent: derived from the sensor, so checkpoints stay free of it and `.to()` still moves it
+        if fill_passes < 0:
+            raise ConfigError(f"fill_passes must be >= 0, got {fill_passes}")
+        cells = tuple((int(r), int(c)) for r, c in grid)
+        if len(grid_shape) != 2 or min(grid_shape) < 1:
+            raise ConfigError(f"SensorGrid: grid_shape must be (H, W) with H, W >= 1, got {tuple(grid_shape)}")
+        h, w = (int(v) for v in grid_shape)
+        if not cells or len(set(cells)) != len(cells) or any(not (0 <= r < h and 0 <= c < w) for r, c in cells):
+            raise ConfigError(f"SensorGrid: grid must give every taxel its own cell inside the {h}x{w} grid")
+        self.grid_shape = (h, w)
+        self.num_nodes = len(cells)
+        self.fill_passes = fill_passes
+        weights = grid_weights(cells, self.grid_shape, fill_passes)
+        # non-persistent: derived from the geometry, so checkpoints stay free of it and `.to()` still moves it
         self.register_buffer("weight_t", weights.t().contiguous().float(), persistent=False)  # (N, H*W)
         # source of every cell for the no-fill gather: its taxel, or N (a zero column appended at run time)
         source = torch.full((weights.shape[0],), self.num_nodes, dtype=torch.long)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
@@ -40,7 +41,7 @@ from torch import Tensor, nn
 from ..errors import ConfigError
 from .surrogate import Surrogate, make_surrogate, open_interval_mask
 
-__all__ = ["MultiStepLIF", "Surrogate", "make_surrogate"]  # the surrogates live in .surrogate
+__all__ = ["MultiStepLIF", "LIFConfig", "Surrogate", "make_surrogate"]  # the surrogates live in .surrogate
 
 _RESETS = ("zero", "subtract")
 _BACKENDS = ("fused", "snntorch")
@@ -298,3 +299,19 @@ class MultiStepLIF(nn.Module):
             spikes.append(spk.to(x.dtype))  # snnTorch's spike functions return float32 whatever the input
         leaky.mem = torch.zeros(0, device=x.device)  # do not keep the last graph alive in snnTorch's buffer
         return torch.stack(spikes), mem
+
+
+@dataclass(frozen=True)
+class LIFConfig:
+    """How every LIF of a block is built: the paper's neuron (eqs. 2-4) with time constant ``tau`` and threshold
+    ``v_th``, reset to zero; ``surrogate`` and ``detach_reset`` are open points (see the model cards)."""
+
+    tau: float = 2.0
+    v_th: float = 1.0
+    surrogate: str = "atan"
+    detach_reset: bool = True
+    backend: str = "fused"
+
+    def build(self) -> MultiStepLIF:
+        return MultiStepLIF.from_tau(self.tau, self.v_th, surrogate=self.surrogate, detach_reset=self.detach_reset,
+                                     backend=self.backend)

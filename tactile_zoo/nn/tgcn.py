@@ -18,12 +18,26 @@ output is ``sum_t softmax_t(e)_t f_t``. The weights sum to one over the frames s
 prefix can be updated online (running maximum, denominator and weighted sum), so the branch is causal and streams in
 constant memory (:meth:`TemporalGraphAttention.run`).
 
-``temporal_backend="tgt"`` swaps the cell for ``torch_geometric_temporal``'s ``TGCN2``: a different cell (one
-``GCNConv`` with self-loops per gate, the gates' Linear over the concatenation, GC re-run every step), offered as an
-alternative when that optional package imports.
+``temporal_backend="tgt"`` swaps the cell for ``torch_geometric_temporal``'s ``TGCN2``: one ``GCNConv`` (with
+self-loops) per gate, each gate's Linear over the concatenation ``[GC_g(A, X_t), h]``, the GCs re-run every step. With
+the three GCs given the same weights it computes eqs. 10-13 (tests/nn/test_tgcn.py checks this against
+:class:`TGCNCell`); trained, its gates learn separate GCs, so it is an alternative, not the paper's cell.
+
+The optional package is installed with ``pip install --no-deps torch-geometric-temporal==0.56.2`` (``make install``
+does it): its release requires torch-sparse, a source-only package that does not build against current torch, and
+its package ``__init__`` imports every model, one of which (``nn/recurrent/evolvegcno.py``) imports torch-sparse.
+:func:`load_tgcn2` therefore loads the one file that defines ``TGCN2`` (``nn/recurrent/temporalgcn.py``, which
+imports only torch and torch_geometric) from the installed distribution, without running the package ``__init__``.
+The package is loaded, not copied: nothing of it is vendored here.
 """
 
 from __future__ import annotations
+
+import functools
+import importlib.metadata
+import importlib.util
+import sys
+from pathlib import Path
 
 import torch
 from torch import Tensor, nn
@@ -31,7 +45,14 @@ from torch import Tensor, nn
 from ..errors import ConfigError
 from .graph import FrameGraphConv
 
-__all__ = ["TGCNCell", "TGCN2Cell", "TemporalAttention", "TemporalGraphAttention"]
+__all__ = ["TGCNCell", "TGCN2Cell", "TemporalAttention", "TemporalGraphAttention", "load_tgcn2", "TGT_INSTALL"]
+
+#: The release of torch-geometric-temporal the ``tgt`` backend is tested with, and how to install it.
+TGT_VERSION = "0.56.2"
+TGT_INSTALL = f"pip install --no-deps torch-geometric-temporal=={TGT_VERSION}"
+_TGT_PACKAGE = "torch_geometric_temporal"  # import name of the distribution torch-geometric-temporal
+_TGT_MODULE = ("nn", "recurrent", "temporalgcn.py")  # the file that defines TGCN2, inside the package
+_TGT_LOADED_AS = "tactile_zoo.nn._tgt_temporalgcn"  # private module name: the real package stays un-imported
 
 # (taxel states h (B, N, H), running max of the scores (B,), softmax denominator (B,), weighted feature sum (B, F))
 BranchState = tuple[Tensor, Tensor, Tensor, Tensor]
@@ -80,26 +101,74 @@ class TGCNCell(nn.Module):
         return torch.stack(hs), h  # (T, B, N, H), (B, N, H)
 
 
-class TGCN2Cell(nn.Module):
-    """``torch_geometric_temporal.nn.recurrent.TGCN2`` stepped over frames, with :class:`TGCNCell`'s interface.
+@functools.cache
+def load_tgcn2() -> type[nn.Module]:
+    """``torch_geometric_temporal``'s ``TGCN2`` class, loaded from the installed distribution's
+    ``nn/recurrent/temporalgcn.py`` alone.
 
-    Not eqs. 10-13: TGCN2 runs one ``GCNConv`` (with self-loops) per gate on every step. Raises
-    :class:`ConfigError` when the optional package cannot be imported (its import needs ``torch-sparse``).
+    ``import torch_geometric_temporal`` would run the package ``__init__``, which imports every model, and
+    ``nn/recurrent/evolvegcno.py`` among them imports torch-sparse (absent: it does not build here). So the package is
+    only located (``find_spec`` of a top-level name does not execute it) and that one file is executed as a private
+    module; it imports only torch and torch_geometric. If the real module was already imported (an environment with
+    torch-sparse), that one is used. Raises :class:`ConfigError` naming the install command when the package is
+    missing or its layout differs.
+    """
+    module = sys.modules.get(f"{_TGT_PACKAGE}.nn.recurrent.temporalgcn") or sys.modules.get(_TGT_LOADED_AS)
+    if module is None:
+        spec = importlib.util.find_spec(_TGT_PACKAGE)
+        if spec is None or not spec.submodule_search_locations:
+            raise ConfigError(f"temporal_backend='tgt' needs torch-geometric-temporal, which is not installed: "
+                              f"run `{TGT_INSTALL}` (--no-deps: its release requires torch-sparse, which does not "
+                              f"build against current torch; the TGCN2 cell needs only torch and torch-geometric), "
+                              f"or use temporal_backend='native'")
+        path = Path(next(iter(spec.submodule_search_locations)), *_TGT_MODULE)
+        if not path.is_file():
+            raise ConfigError(f"torch-geometric-temporal {_tgt_version()} has no {'/'.join(_TGT_MODULE)} (at {path}); "
+                              f"temporal_backend='tgt' is tested with `{TGT_INSTALL}`")
+        file_spec = importlib.util.spec_from_file_location(_TGT_LOADED_AS, path)
+        module = importlib.util.module_from_spec(file_spec)
+        sys.modules[_TGT_LOADED_AS] = module  # so its classes resolve by name (copy, pickle) in this process
+        try:
+            file_spec.loader.exec_module(module)
+        except Exception as exc:
+            del sys.modules[_TGT_LOADED_AS]
+            raise ConfigError(f"loading TGCN2 from {path} (torch-geometric-temporal {_tgt_version()}) failed: "
+                              f"{type(exc).__name__}: {exc}; temporal_backend='tgt' is tested with "
+                              f"`{TGT_INSTALL}`") from exc
+    cls = getattr(module, "TGCN2", None)
+    if not (isinstance(cls, type) and issubclass(cls, nn.Module)):
+        raise ConfigError(f"{module.__file__} defines no TGCN2 module (torch-geometric-temporal {_tgt_version()}); "
+                          f"temporal_backend='tgt' is tested with `{TGT_INSTALL}`")
+    return cls
+
+
+def _tgt_version() -> str:
+    try:
+        return importlib.metadata.version("torch-geometric-temporal")
+    except importlib.metadata.PackageNotFoundError:
+        return "(version unknown)"
+
+
+class TGCN2Cell(nn.Module):
+    """``torch_geometric_temporal``'s ``TGCN2`` stepped over frames, with :class:`TGCNCell`'s interface.
+
+    Not eqs. 10-13 as trained: TGCN2 runs one ``GCNConv`` (with self-loops) per gate on every step (it equals them
+    when the three GCs share weights). ``gc_channels`` and ``graph_backend`` are accepted for the interface and unused.
+    Raises :class:`ConfigError` when torch-geometric-temporal is not installed (see :func:`load_tgcn2`).
     """
 
     def __init__(self, in_channels: int, hidden_channels: int, edge_index: Tensor, num_nodes: int,
                  gc_channels: int | None = None, graph_backend: str = "dense") -> None:
         super().__init__()
-        try:
-            from torch_geometric_temporal.nn.recurrent import TGCN2
-        except Exception as exc:  # ImportError, or the package's own import failing on a missing torch-sparse
-            raise ConfigError(f"temporal_backend='tgt' needs torch-geometric-temporal, which cannot be imported "
-                              f"here ({type(exc).__name__}: {exc}); use temporal_backend='native'") from None
+        tgcn2 = load_tgcn2()
         self.hidden_channels = hidden_channels
-        self.cell = TGCN2(in_channels, hidden_channels, batch_size=1)
-        self.register_buffer("edge_index", edge_index.clone(), persistent=False)
+        self.cell = tgcn2(in_channels, hidden_channels, batch_size=1)  # batch_size is unused by TGCN2
+        self.register_buffer("edge_index", torch.as_tensor(edge_index).long().clone(), persistent=False)
 
     def forward(self, x: Tensor, h: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        _, b, n, _ = x.shape
+        if h is None:  # TGCN2's own zero state is float32 whatever the input's dtype
+            h = x.new_zeros(b, n, self.hidden_channels)
         hs = []
         for x_t in x.unbind(0):  # (B, N, C)
             h = self.cell(x_t, self.edge_index, None, h)

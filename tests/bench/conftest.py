@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import tiny_zoo
 
-from tactile_zoo.bench.results import TIMING_COLUMNS
+from tactile_zoo.bench.tables import TIMING_COLUMNS
 from tactile_zoo.cli import main
 
 TESTS = Path(__file__).resolve().parents[1]

@@ -1,11 +1,14 @@
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
 import pytest
+import tiny_zoo
 from conftest import read_board, run_cli
 
+from tactile_zoo import registry
 from tactile_zoo.cli import main
 
 #: these tests share the session's reference run: one xdist worker computes it once
@@ -72,3 +75,43 @@ def test_all_cells_warns_when_one_pair_mixes_configurations(reference_run: Path,
     assert main(["report", str(out), "--all-cells", "--no-plots"]) == 0
     assert "Warning: cells of more than one configuration are averaged together for tiny_mlp on tiny_blobs" in (
         out / "report.md").read_text()
+
+
+def _edit_cell(path: Path, **config: object) -> None:
+    """Set (value) or drop (None) keys of a cell record's config."""
+    record = json.loads(path.read_text())
+    for key, value in config.items():
+        if value is None:
+            record["config"].pop(key, None)
+        else:
+            record["config"][key] = value
+    path.write_text(json.dumps(record))
+
+
+def test_report_flags_cells_of_an_older_revision(reference_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(reference_run, out)
+    assert main(["report", str(out), "--all-cells", "--no-plots"]) == 0
+    assert "older code" not in (out / "report.md").read_text()  # every cell is of the registered revisions
+    cells = out / "cells"
+    # tiny_mlp's code moves to revision 2 and tiny_kfold's to 3 after the run
+    registry.register_model("tiny_mlp", recipe=tiny_zoo.TINY_RECIPE, tags=["test"], causal=False,
+                            revision=2)(tiny_zoo.TinyMLP)
+    registry.register_dataset("tiny_kfold", description="test dataset", revision=3)(tiny_zoo.TinyKFold)
+    _edit_cell(next(cells.glob("tiny_mlp__tiny_blobs*.json")), model_revision=2)  # already rerun: up to date
+    kfold0, kfold1 = sorted(cells.glob("tiny_mlp__tiny_kfold*.json"))
+    _edit_cell(kfold0, model_revision=None, dataset_revision=None)  # a record from before revisions: revision 1
+    _edit_cell(kfold1, model_revision=1, dataset_revision=1)
+    gone = json.loads(next(cells.glob("tiny_rate__tiny_blobs*.json")).read_text())
+    gone.update(model="tiny_gone", cell_id="tiny_gone__tiny_blobs")  # a model no longer registered: tolerated
+    (cells / "tiny_gone.json").write_text(json.dumps(gone))
+    assert main(["report", str(out), "--all-cells", "--no-plots"]) == 0
+    report = (out / "report.md").read_text()
+    assert "## Warning: cells computed by older code" in report and "`--force`" in report
+    section = report.split("## Warning: cells computed by older code")[1].split("## Summary")[0]
+    flagged = [line for line in section.splitlines() if line.startswith("- ")]
+    assert flagged == [
+        "- tiny_mlp on tiny_kfold, 2 cell(s) (fold 0 seed 0, fold 1 seed 0): model revision 1, now 2; dataset "
+        "revision 1, now 3",
+        "- tiny_rate on tiny_kfold, 2 cell(s) (fold 0 seed 0, fold 1 seed 0): dataset revision 1, now 3",
+    ]  # not tiny_mlp on tiny_blobs (recorded 2), tiny_rate on tiny_blobs (1 = 1), nor the unregistered tiny_gone

@@ -123,3 +123,22 @@ def test_summary_means_std_ranks_and_mean_rank() -> None:
     assert (by[("a", "d2")]["rank"], by[("b", "d2")]["rank"], by[("c", "d2")]["rank"]) == (1, 1, 3)  # ties share
     assert by[("a", "d1")]["mean_rank"] == 1.5 and by[("b", "d2")]["mean_rank"] == 1.0
     assert by[("c", "d2")]["mean_rank"] == 3.0 and ("c", "d1") not in by  # failed cells are not averaged
+
+
+def test_means_are_summed_left_to_right_as_the_committed_tables_were() -> None:
+    """pandas' own mean (pairwise / Kahan summation) would give 0.1 here; the tables keep the plain left-to-right sum
+    their committed numbers were computed with, and write it exactly."""
+    board, cols = leaderboard_rows([_record("a", "d1", seed, 0.1) for seed in range(10)])
+    summary, scols = summary_rows(board, cols)
+    assert summary[0]["accuracy_mean"] == sum([0.1] * 10) / 10 == 0.09999999999999999
+    assert type(summary[0]["accuracy_mean"]) is float and type(summary[0]["rank"]) is int  # no numpy scalars
+    assert ",0.09999999999999999," in rows_to_csv(summary, scols)
+    assert [r["seed"] for r in board] == list(range(10))
+
+
+def test_table_names_stay_importable_from_results() -> None:
+    from tactile_zoo.bench import tables
+
+    for name in ("LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows",
+                 "rows_to_csv", "prefix_label"):
+        assert getattr(results, name) is getattr(tables, name), name

@@ -22,10 +22,10 @@ def test_metrics_match_scikit_learn(seed: int) -> None:
     k = 5
     y_true = rng.integers(0, k - 1, size=40)  # class 4 never occurs in y_true
     y_pred = np.where(rng.random(40) < 0.6, y_true, rng.integers(0, k, size=40))
-    assert accuracy(y_true, y_pred) == pytest.approx(skm.accuracy_score(y_true, y_pred))
-    assert balanced_accuracy(y_true, y_pred, k) == pytest.approx(skm.balanced_accuracy_score(y_true, y_pred))
-    assert macro_f1(y_true, y_pred, k) == pytest.approx(skm.f1_score(y_true, y_pred, average="macro",
-                                                                     zero_division=0))
+    # exactly scikit-learn's numbers (these metrics are computed by it), not approximately
+    assert accuracy(y_true, y_pred) == skm.accuracy_score(y_true, y_pred)
+    assert balanced_accuracy(y_true, y_pred, k) == skm.balanced_accuracy_score(y_true, y_pred)
+    assert macro_f1(y_true, y_pred, k) == skm.f1_score(y_true, y_pred, average="macro", zero_division=0)
     np.testing.assert_array_equal(confusion_matrix(y_true, y_pred, k),
                                   skm.confusion_matrix(y_true, y_pred, labels=list(range(k))))
 
@@ -35,6 +35,46 @@ def test_confusion_rows_are_true_classes() -> None:
     assert cm.tolist() == [[0, 2, 0], [0, 1, 0], [0, 0, 0]]
     out = classification_metrics(torch.tensor([0, 0, 1]), torch.tensor([1, 1, 1]), 3)
     assert out["accuracy"] == pytest.approx(1 / 3) and out["n"] == 3 and out["confusion"][0][1] == 2
+
+
+@pytest.mark.filterwarnings("error")  # the conventions below are deliberate: no sklearn warning may leak
+def test_class_absent_from_y_true_counts_in_f1_not_in_balanced_accuracy() -> None:
+    y_true, y_pred = [0, 0, 1, 1], [0, 2, 1, 1]  # class 2 predicted once, never true; class 3 in neither
+    out = classification_metrics(y_true, y_pred, 4)
+    assert out["accuracy"] == 0.75 and out["n"] == 4
+    assert out["balanced_accuracy"] == 0.75  # recalls of classes 0 and 1 only: (0.5 + 1) / 2
+    assert out["macro_f1"] == pytest.approx((2 / 3 + 1 + 0) / 3)  # classes 0, 1, 2; F1 of class 2 is 0
+    assert out["confusion"] == [[1, 0, 1, 0], [0, 2, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]
+
+
+@pytest.mark.filterwarnings("error")
+def test_class_never_predicted_has_f1_zero() -> None:
+    y_true, y_pred = [0, 1, 2, 2], [0, 0, 0, 2]  # class 1 never predicted
+    assert balanced_accuracy(y_true, y_pred, 4) == 0.5  # (1 + 0 + 0.5) / 3
+    assert macro_f1(y_true, y_pred, 4) == pytest.approx((0.5 + 0 + 2 / 3) / 3)  # class 3 (in neither) not counted
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("k", [1, 3])
+def test_a_single_class(k: int) -> None:
+    out = classification_metrics([0, 0, 0], [0, 0, 0], k)
+    assert (out["accuracy"], out["balanced_accuracy"], out["macro_f1"]) == (1.0, 1.0, 1.0)
+    assert out["confusion"][0][0] == 3 and len(out["confusion"]) == k
+    assert (balanced_accuracy([1, 1], [0, 0]), macro_f1([1, 1], [0, 0])) == (0.0, 0.0)
+
+
+def test_empty_split_is_nan_and_zero_counts() -> None:
+    out = classification_metrics([], [], 3)
+    assert all(np.isnan(out[m]) for m in ("accuracy", "balanced_accuracy", "macro_f1"))
+    assert out["n"] == 0 and out["confusion"] == [[0] * 3] * 3
+
+
+@pytest.mark.parametrize(("y_true", "y_pred"), [([0, 1], [0, 2]), ([0, -1], [0, 0]), ([3], [0])])
+def test_labels_out_of_range_are_an_error(y_true: list[int], y_pred: list[int]) -> None:
+    with pytest.raises(ValueError, match="labels must lie in"):
+        classification_metrics(y_true, y_pred, 2)
+    with pytest.raises(ValueError, match="labels"):
+        confusion_matrix([0, 1], [0], 2)
 
 
 def test_probabilities_softmax_for_ce() -> None:

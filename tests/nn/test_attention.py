@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.nn.attention import LIFConfig, SpikingSelfAttention
+from tactile_zoo.nn.attention import SpikingSelfAttention
+from tactile_zoo.nn.lif import LIFConfig
 
 TAU, V_TH = 2.0, 0.3
 

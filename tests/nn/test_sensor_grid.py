@@ -7,7 +7,9 @@ import torch
 
 import tactile_zoo as tz
 from tactile_zoo.data.sensors import Sensor
+from tactile_zoo.data.spec import DatasetSpec
 from tactile_zoo.errors import ConfigError
+from tactile_zoo.models._inputs import sensor_grid
 from tactile_zoo.nn.grid import SensorGrid, grid_weights
 
 BUILTIN = ["neutouch", "biotac_sp", "optoforce3", "uskin_allegro"]
@@ -39,20 +41,25 @@ def tiny_sensor() -> Sensor:
     return Sensor("tiny", positions=((0.0, 0.0), (0.0, 2.0)), grid_shape=(3, 3), grid=((0, 0), (0, 2)))
 
 
+def grid_of(sensor: Sensor, fill_passes: int) -> SensorGrid:
+    """The layer for a sensor's geometry (the layer itself never sees a Sensor)."""
+    return SensorGrid(sensor.grid, sensor.grid_shape, fill_passes)
+
+
 def test_hand_computed_fill_passes() -> None:
     x = torch.tensor([[1.0], [3.0]])  # (N=2, C=1)
-    one = SensorGrid(tiny_sensor(), fill_passes=1)(x)[0]
+    one = grid_of(tiny_sensor(), 1)(x)[0]
     assert torch.allclose(one, torch.tensor([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [0.0, 0.0, 0.0]]))
-    two = SensorGrid(tiny_sensor(), fill_passes=2)(x)[0]
+    two = grid_of(tiny_sensor(), 2)(x)[0]
     # row 2 is filled in pass 2 from the cells pass 1 filled: (1+2)/2, (1+2+3)/3, (2+3)/2
     assert torch.allclose(two, torch.tensor([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [1.5, 2.0, 2.5]]))
-    zero = SensorGrid(tiny_sensor(), fill_passes=0)(x)[0]
+    zero = grid_of(tiny_sensor(), 0)(x)[0]
     assert torch.equal(zero, torch.tensor([[1.0, 0.0, 3.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]))
 
 
 def test_a_taxel_reading_zero_still_counts_as_filled() -> None:
     # "non-empty" belongs to the cell, not its value: the middle cell averages 0 and 3, not 3 alone
-    out = SensorGrid(tiny_sensor(), fill_passes=1)(torch.tensor([[0.0], [3.0]]))[0]
+    out = grid_of(tiny_sensor(), 1)(torch.tensor([[0.0], [3.0]]))[0]
     assert out[0, 1].item() == pytest.approx(1.5)
 
 
@@ -62,7 +69,7 @@ def test_matches_reference_on_builtin_sensors(name: str, passes: int) -> None:
     sensor = tz.get_sensor(name)
     g = torch.Generator().manual_seed(0)
     x = torch.randn(3, 2, sensor.num_nodes, 2, generator=g, dtype=torch.float64)  # (B, T, N, C)
-    out = SensorGrid(sensor, fill_passes=passes).double()(x)
+    out = grid_of(sensor, passes).double()(x)
     assert out.shape == (3, 2, 2, *sensor.grid_shape)
     for b in range(3):
         for t in range(2):
@@ -73,8 +80,11 @@ def test_matches_reference_on_builtin_sensors(name: str, passes: int) -> None:
 
 def test_sensor_default_passes_and_taxel_cells_untouched() -> None:
     biotac = tz.get_sensor("biotac_sp")
-    grid = SensorGrid(biotac)
+    spec = DatasetSpec("biotac", 1, ("a",), 4, biotac.num_nodes, 1, 0, biotac)
+    grid = sensor_grid(spec)  # the models' helper: the sensor's geometry and its own fill passes
     assert grid.fill_passes == biotac.grid_fill == 2
+    assert sensor_grid(spec, 0).fill_passes == 0
+    assert torch.equal(grid.weight_t, grid_of(biotac, 2).weight_t)
     x = torch.randn(5, biotac.num_nodes, 1)
     out = grid(x)  # (5, 1, 12, 11)
     rows, cols = zip(*biotac.grid)
@@ -88,7 +98,7 @@ def test_sensor_default_passes_and_taxel_cells_untouched() -> None:
 
 def test_leading_dims_and_channels_are_independent() -> None:
     sensor = tz.get_sensor("neutouch")
-    grid = SensorGrid(sensor, fill_passes=1)
+    grid = grid_of(sensor, 1)
     x = torch.randn(4, 6, sensor.num_nodes, 3)
     full = grid(x)
     assert full.is_contiguous()
@@ -99,7 +109,7 @@ def test_leading_dims_and_channels_are_independent() -> None:
 @pytest.mark.parametrize("passes", [0, 2])
 def test_gradient_is_the_transposed_map(passes: int) -> None:
     sensor = tz.get_sensor("biotac_sp")
-    grid = SensorGrid(sensor, fill_passes=passes)
+    grid = grid_of(sensor, passes)
     x = torch.randn(2, sensor.num_nodes, 1, requires_grad=True)
     weights = torch.randn(2, 1, *sensor.grid_shape)
     (grid(x) * weights).sum().backward()
@@ -109,9 +119,17 @@ def test_gradient_is_the_transposed_map(passes: int) -> None:
 
 
 def test_buffers_stay_out_of_the_state_dict_and_bad_input_is_named() -> None:
-    grid = SensorGrid(tz.get_sensor("neutouch"))
-    assert grid.state_dict() == {}
+    neutouch = tz.get_sensor("neutouch")
+    grid = SensorGrid(neutouch.grid, neutouch.grid_shape)
+    assert grid.fill_passes == 0 and grid.state_dict() == {}
     with pytest.raises(ConfigError, match="39"):
         grid(torch.randn(2, 38, 2))
     with pytest.raises(ConfigError, match="fill_passes"):
-        SensorGrid(tz.get_sensor("neutouch"), fill_passes=-1)
+        grid_of(neutouch, -1)
+
+
+@pytest.mark.parametrize("grid, shape", [(((0, 0), (0, 0)), (2, 2)), (((0, 0), (2, 0)), (2, 2)), ((), (2, 2)),
+                                         (((0, 0),), (2,)), (((0, 0),), (0, 3))])
+def test_bad_geometry_is_refused(grid: tuple[tuple[int, int], ...], shape: tuple[int, ...]) -> None:
+    with pytest.raises(ConfigError, match="SensorGrid"):
+        SensorGrid(grid, shape)

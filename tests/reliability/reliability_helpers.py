@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from tactile_zoo.bench.config import BenchConfig
-from tactile_zoo.bench.results import TIMING_COLUMNS
 from tactile_zoo.bench.runner import BenchOutcome, run_bench
+from tactile_zoo.bench.tables import TIMING_COLUMNS
 
 HERE = Path(__file__).resolve().parent
 TESTS = HERE.parent

@@ -152,7 +152,7 @@ def compensate_weight(features: np.ndarray, threshold: float = 0.05) -> np.ndarr
 
 @register_dataset(
     "augment8000", sensor="optoforce3", num_classes=20, class_names=CLASSES, num_steps=50, num_nodes=3,
-    num_channels=4, num_globals=3, num_samples=2120, folds=10,
+    num_channels=4, num_globals=3, num_samples=2120, folds=10, revision=1,
     protocol="stratified 10-fold over the training file (fold f = val), test = the 120 real-life samples for every "
              "fold; real-life-only fallback: stratified 10-fold over those 120",
     splits=("train", "val", "test"), source_url=REPOSITORY,

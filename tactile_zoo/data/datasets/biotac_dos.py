@@ -63,7 +63,7 @@ _UNSEEN = ("solids", "small", "textures")
 
 @register_dataset(
     "biotac_dos", sensor="biotac_sp", num_classes=7, class_names=CLASSES, num_steps=10, num_nodes=24,
-    num_channels=1, num_globals=0, folds=1,
+    num_channels=1, num_globals=0, folds=1, revision=1,
     protocol="objects (default): train/val from the basic objects (val carved by recording), test = unseen objects "
              "(+ test_solids/test_small/test_textures); or protocol='kfold': stratified k-fold over recordings",
     splits=("train", "val", "test", "test_solids", "test_small", "test_textures"),

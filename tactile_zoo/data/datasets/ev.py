@@ -244,7 +244,7 @@ def _meta(name: str, archive: str, classes: tuple[str, ...], steps: int, train: 
           ) -> dict[str, Any]:
     return dict(
         sensor="neutouch", num_classes=len(classes), class_names=classes, num_steps=steps, num_nodes=39,
-        num_channels=2, num_globals=0, num_samples=train + test, folds=1,
+        num_channels=2, num_globals=0, num_samples=train + test, folds=1, revision=1,
         protocol=f"the released fixed stratified split ({train} train / {test} test); val carved from train "
                  "(20 % of each class, seeded by fold)",
         splits=("train", "val", "test"), source_url=f"{REPOSITORY} ({archive})", citation=_CITATION,

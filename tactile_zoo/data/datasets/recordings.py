@@ -239,7 +239,8 @@ def define_recordings(name: str, sensor: str | Sensor, num_channels: int | None 
                       **meta: Any) -> type[RecordingsDataset]:
     """A :class:`RecordingsDataset` subclass for ``<root>/<name>/raw/``, registered under ``name`` by default.
 
-    ``meta`` is the registry metadata (``description``, ``citation``, ...); sensor, shapes and classes are filled in.
+    ``meta`` is the registry metadata (``description``, ``citation``, ``revision``, ...), passed through as given (a
+    missing ``revision`` is the registry's default); sensor, shapes and classes are filled in.
     """
     sensor_obj = get_sensor(sensor) if isinstance(sensor, str) else sensor
     attrs = {"name": name, "sensor": sensor_obj, "num_channels": num_channels, "num_globals": num_globals,
@@ -261,7 +262,7 @@ def define_recordings(name: str, sensor: str | Sensor, num_channels: int | None 
 
 @register_dataset(
     "alu_textures", sensor="uskin_allegro", num_classes=10, num_steps=50, num_nodes=60, num_channels=3,
-    num_globals=8, num_samples=200, folds=5,
+    num_globals=8, num_samples=200, folds=5, revision=1,
     protocol="stratified 5-fold over trials (or the user's train/test folders)", splits=("train", "val", "test"),
     source_url="not public (the X-Tacformer paper's private dataset)",
     citation="\"X-Tacformer: Spatio-temporal Attention Model for Tactile Recognition\" (ALU-Textures)",

@@ -1,0 +1,150 @@
+"""Do committed cells still describe what the current code would run? Check, and re-key them to the current hash.
+
+For every cell record in a bench folder this rebuilds the cell through the harness's own grid
+(:func:`tactile_zoo.bench.build_grid`) with the record's settings, then checks:
+
+1. the resolved configuration is the record's, key for key (the computational revisions aside when the record
+   predates them);
+2. the record's hash is the hash of that configuration in the record's hash format (format 1 hashed it without the
+   revisions, format 2 with them).
+
+A cell that passes was computed by what the current code computes (revision 1 is the code that produced
+hash-format-1 cells; a changed model or dataset bumps its revision and no longer passes). ``--migrate`` then rewrites
+such a format-1 record in place under the current format: new hash and file name, the revisions in its ``config``,
+and ``migrated_from`` naming the old hash, so a resumed bench command reuses the cell instead of recomputing it.
+
+``--compare OTHER`` checks that the cells of another folder (a rerun of some of the same cells) computed the same
+numbers, bit for bit: metrics, predictions and probabilities of every split, the training curve (timings aside), the
+selected epoch and the early-classification prefixes.
+
+    python -m benchmarks.check_cells benchmarks/results/paper-table1 --root ../shared/data [--migrate]
+    python -m benchmarks.check_cells benchmarks/results/paper-table1 --compare /tmp/rerun
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from tactile_zoo.bench import BenchConfig, build_grid
+from tactile_zoo.bench.grid import HASH_FORMAT, cell_id, config_hash
+from tactile_zoo.bench.results import atomic_write_json
+
+REVISION_KEYS = ("model_revision", "dataset_revision")
+
+
+def _without(config: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
+    return {k: v for k, v in config.items() if k not in keys}
+
+
+def _rebuilt(record: dict[str, Any], root: str | None) -> dict[str, Any]:
+    """The record's cell as the current grid resolves it (its registered recipe, its stored settings)."""
+    stored = record["config"]
+    bench = BenchConfig(models=[record["model"]], datasets=[record["dataset"]], root=root, seeds=[record["seed"]],
+                        refit=bool(stored.get("refit")), quick=stored.get("subset") is not None,
+                        prefixes=list(stored.get("prefixes") or []), hparams=dict(stored.get("hparams") or {}),
+                        dataset_kwargs={record["dataset"]: dict(stored.get("dataset_kwargs") or {})})
+    cells = [c for c in build_grid(bench).cells if c.fold == record["fold"]]
+    if len(cells) != 1:
+        raise LookupError(f"the grid has {len(cells)} cells for fold {record['fold']}")
+    return cells[0].config
+
+
+def check(record: dict[str, Any], root: str | None) -> tuple[bool, str, dict[str, Any]]:
+    """(maps, explanation, the current configuration) for one record."""
+    stored = record["config"]
+    current = _rebuilt(record, root)
+    old_format = 2 if all(k in stored for k in REVISION_KEYS) else 1  # format 1 predates the revisions
+    comparable = REVISION_KEYS if old_format == 1 else ()
+    a, b = _without(current, comparable), _without(stored, comparable)
+    if a != b:
+        differing = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+        return False, f"configuration differs in {differing}", current
+    if old_format == 1 and any(current[k] != 1 for k in REVISION_KEYS):
+        return False, "computed before revisions existed, but the code's revision is no longer 1", current
+    expected = config_hash(_without(current, comparable), hash_format=old_format)
+    if expected != record["config_hash"]:
+        return False, f"hash {record['config_hash']} != {expected} recomputed in format {old_format}", current
+    return True, f"maps (format {old_format})", current
+
+
+def migrate(path: Path, record: dict[str, Any], current: dict[str, Any]) -> Path:
+    """Rewrite a format-1 record under the current hash format; returns the new file (the old one is removed)."""
+    new_hash = config_hash(current)
+    new_id = cell_id(record["model"], record["dataset"], record["fold"], record["seed"], new_hash)
+    migrated = {**record, "config": current, "config_hash": new_hash, "cell_id": new_id, "hash_format": HASH_FORMAT,
+                "migrated_from": {"config_hash": record["config_hash"], "hash_format": 1}}
+    target = path.with_name(f"{new_id}.json")
+    atomic_write_json(target, migrated)
+    if target != path:
+        path.unlink()
+    return target
+
+
+#: What a cell computed (its numbers); timings, hosts, versions and hashes are not compared.
+COMPUTED = ("metrics", "predictions", "best_epoch", "epochs_run", "prefix", "params", "n_train", "n_val", "n_test")
+CURVE_KEYS = ("epoch", "train_loss", "val_loss", "val_accuracy", "lr")
+
+
+def _computed(record: dict[str, Any]) -> dict[str, Any]:
+    out = {key: record.get(key) for key in COMPUTED}
+    out["curve"] = [{k: row.get(k) for k in CURVE_KEYS} for row in record.get("curve") or []]
+    out["refit_curve"] = [{k: row.get(k) for k in CURVE_KEYS} for row in record.get("refit_curve") or []]
+    return out
+
+
+def compare(folder: Path, other: Path) -> int:
+    """Compare the numbers of the cells ``other`` shares with ``folder`` (same model, dataset, fold and seed)."""
+    def key(record: dict[str, Any]) -> tuple[str, str, int, int]:
+        return record["model"], record["dataset"], record["fold"], record["seed"]
+
+    ours = {key(r): r for r in (json.loads(p.read_text()) for p in sorted((folder / "cells").glob("*.json")))}
+    theirs = [json.loads(p.read_text()) for p in sorted((other / "cells").glob("*.json"))]
+    differing = 0
+    for record in theirs:
+        base = ours.get(key(record))
+        if base is None:
+            print(f"--   {record['cell_id']}: not in {folder}")
+            continue
+        a, b = _computed(base), _computed(record)
+        diffs = [k for k in a if a[k] != b[k]]
+        differing += bool(diffs)
+        acc = record["metrics"]["test"]["accuracy"]
+        print(f"{'same' if not diffs else 'DIFF'} {record['cell_id']}: test accuracy {acc:.4f} "
+              f"({len(b['curve'])} epochs, best {b['best_epoch']})" + (f"; differs in {diffs}" if diffs else ""))
+    print(f"{len(theirs) - differing} of {len(theirs)} cells computed the same numbers bit for bit")
+    return 1 if differing else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folder", type=Path, help="a bench output folder (its cells/ holds the records)")
+    parser.add_argument("--root", default=None, help="the data home the cells were run with")
+    parser.add_argument("--migrate", action="store_true", help="re-key format-1 cells that map to the current format")
+    parser.add_argument("--compare", type=Path, default=None, metavar="OTHER",
+                        help="compare the numbers of OTHER's cells with this folder's instead")
+    args = parser.parse_args(argv)
+    if args.compare is not None:
+        return compare(args.folder, args.compare)
+    paths = sorted((args.folder / "cells").glob("*.json"))
+    if not paths:
+        print(f"no cell records under {args.folder / 'cells'}", file=sys.stderr)
+        return 2
+    failures = 0
+    for path in paths:
+        record = json.loads(path.read_text())
+        ok, why, current = check(record, args.root)
+        failures += not ok
+        line = f"{'ok  ' if ok else 'FAIL'} {path.name}: {why}"
+        if ok and args.migrate and not all(k in record["config"] for k in REVISION_KEYS):
+            line += f" -> {migrate(path, record, current).name}"
+        print(line)
+    print(f"{len(paths) - failures} of {len(paths)} cells map to their configuration under the current code")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

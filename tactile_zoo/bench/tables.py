@@ -1,0 +1,197 @@
+"""The tables of a run, built from its cell records: leaderboard (one row per cell), summary (per model and dataset,
+with ranks) and their CSV text.
+
+pandas does the table work: ordering the leaderboard, grouping ok cells by model and dataset, ranking the models of
+each dataset and averaging each model's ranks. The per-group means and standard deviations are reduced in plain
+Python, left to right, as they always were: pandas' own ``mean``/``std`` sum pairwise or with Kahan/Welford updates,
+which can change the last bit, and the CSV writes every float exactly (``repr``), so a rebuilt table must reproduce
+the committed one byte for byte.
+
+Rows are plain dicts of Python values (``None`` where a value is missing), so callers and ``rows_to_csv`` never see
+numpy scalars (``repr(np.float64(x))`` is not ``repr(x)``) or NaN placeholders.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pandas is imported on first use: it adds most of a second to every worker's start-up
+    import pandas as pd
+
+__all__ = ["LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows",
+           "rows_to_csv", "prefix_label"]
+
+#: The leaderboard's fixed columns (the issue's list, in its order); extra columns follow ``error``:
+#: ``accuracy_<split>`` for each extra test split, ``accuracy_at_<p>`` per prefix percentage, ``earliness``.
+LEADERBOARD_COLUMNS = (
+    "model", "dataset", "protocol", "fold", "seed", "status", "accuracy", "balanced_accuracy", "macro_f1", "n_train",
+    "n_val", "n_test", "epochs_run", "best_epoch", "train_seconds", "infer_ms_per_sample", "params",
+    "peak_memory_mb", "device", "config_hash", "tactile_zoo_version", "torch_version", "error",
+)
+SUMMARY_COLUMNS = (
+    "model", "dataset", "n_cells", "accuracy_mean", "accuracy_std", "balanced_accuracy_mean", "macro_f1_mean",
+    "train_seconds_mean", "rank", "mean_rank",
+)
+#: Columns that depend on the machine (left out when comparing two runs' numbers).
+TIMING_COLUMNS = ("train_seconds", "infer_ms_per_sample", "peak_memory_mb", "train_seconds_mean")
+
+_SORT_KEYS = ("model", "dataset", "fold", "seed", "config_hash")
+
+
+def _pd() -> Any:
+    import pandas
+
+    return pandas
+
+
+def prefix_label(fraction: float) -> str:
+    """0.25 -> ``"25"`` (percent, as in ``accuracy_at_25``)."""
+    return f"{fraction * 100:g}"
+
+
+def _num(value: Any) -> Any:
+    if isinstance(value, float) and (math.isnan(value) or math.isinf(value)):
+        return None
+    return value
+
+
+def _cell_row(rec: dict[str, Any], extra_splits: set[str], prefixes: set[float]) -> dict[str, Any]:
+    """A cell record flattened to one leaderboard row; adds the extra test splits and prefix fractions it has to
+    ``extra_splits`` and ``prefixes`` (the table's extra columns)."""
+    metrics = rec.get("metrics") or {}
+    test = metrics.get("test") or {}
+    versions = rec.get("versions") or {}
+    row: dict[str, Any] = {
+        "model": rec["model"], "dataset": rec["dataset"], "protocol": rec.get("protocol", ""),
+        "fold": rec.get("fold"), "seed": rec.get("seed"), "status": rec["status"],
+        "accuracy": test.get("accuracy"), "balanced_accuracy": test.get("balanced_accuracy"),
+        "macro_f1": test.get("macro_f1"), "n_train": rec.get("n_train"), "n_val": rec.get("n_val"),
+        "n_test": rec.get("n_test"), "epochs_run": rec.get("epochs_run"), "best_epoch": rec.get("best_epoch"),
+        "train_seconds": rec.get("train_seconds"), "infer_ms_per_sample": rec.get("infer_ms_per_sample"),
+        "params": rec.get("params"), "peak_memory_mb": rec.get("peak_memory_mb"), "device": rec.get("device"),
+        "config_hash": rec.get("config_hash"), "tactile_zoo_version": versions.get("tactile_zoo"),
+        "torch_version": versions.get("torch"), "error": rec.get("error"),
+    }
+    for split, split_metrics in metrics.items():
+        if split not in ("test", "val") and split_metrics:
+            extra_splits.add(split)
+            row[f"accuracy_{split}"] = split_metrics.get("accuracy")
+    prefix = rec.get("prefix") or {}
+    for frac, acc in zip(prefix.get("fractions", ()), prefix.get("accuracy", ())):
+        prefixes.add(float(frac))
+        row[f"accuracy_at_{prefix_label(frac)}"] = acc
+    if prefix:
+        row["earliness"] = prefix.get("earliness")
+    return {k: _num(v) for k, v in row.items()}
+
+
+def _skipped_row(skip: dict[str, Any]) -> dict[str, Any]:
+    reason = skip.get("reason", "")
+    obtain = str(skip.get("obtain") or "").strip()
+    if obtain and obtain not in reason:
+        reason = f"{reason.rstrip('.')}. To obtain it: {obtain}"
+    return {"model": skip["model"], "dataset": skip["dataset"], "status": skip.get("status", "skipped"),
+            "error": reason}
+
+
+def _sorted(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Rows by model, dataset, fold, seed, config hash (a missing fold or seed first, as -1); a stable sort, so
+    rows equal on every key keep their input order."""
+    pd = _pd()
+    keys = pd.DataFrame({
+        "model": [str(r["model"]) for r in rows], "dataset": [str(r["dataset"]) for r in rows],
+        "fold": [r.get("fold") if r.get("fold") is not None else -1 for r in rows],
+        "seed": [r.get("seed") if r.get("seed") is not None else -1 for r in rows],
+        "config_hash": [str(r.get("config_hash") or "") for r in rows],
+    }, columns=list(_SORT_KEYS), dtype=object)
+    order = keys.sort_values(list(_SORT_KEYS), kind="stable").index
+    return [rows[i] for i in order]
+
+
+def leaderboard_rows(records: Iterable[dict[str, Any]], skipped: Iterable[dict[str, Any]] = ()
+                     ) -> tuple[list[dict[str, Any]], list[str]]:
+    """One row per cell (and per skipped model x dataset pair); returns ``(rows, columns)``."""
+    extra_splits: set[str] = set()
+    prefixes: set[float] = set()
+    rows = [_cell_row(rec, extra_splits, prefixes) for rec in records] + [_skipped_row(skip) for skip in skipped]
+    columns = list(LEADERBOARD_COLUMNS) + [f"accuracy_{s}" for s in sorted(extra_splits)] + \
+        [f"accuracy_at_{prefix_label(p)}" for p in sorted(prefixes)] + (["earliness"] if prefixes else [])
+    return (_sorted(rows) if rows else []), columns
+
+
+def _mean(values: list[Any]) -> float | None:
+    values = [v for v in values if v is not None]
+    return sum(values) / len(values) if values else None
+
+
+def _std(values: list[Any]) -> float | None:
+    values = [v for v in values if v is not None]
+    if len(values) < 2:
+        return None  # one cell has no spread to report
+    mean = sum(values) / len(values)
+    return math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+
+
+def _ranks(summary: pd.DataFrame) -> tuple[list[int | None], list[float | None]]:
+    """Per summary row: its rank among the models of its dataset (1 = best mean accuracy, ties share the best rank,
+    no accuracy = no rank) and its model's mean rank over the datasets where it has one."""
+    pd = _pd()
+    accuracy = summary["accuracy_mean"].astype("float64")  # None -> NaN: no rank, and not counted in others'
+    rank = accuracy.groupby(summary["dataset"], sort=False, dropna=False).rank(method="min", ascending=False,
+                                                                             na_option="keep")
+    # ranks are small integers, so any summation order gives the same exact mean
+    mean_rank = rank.groupby(summary["model"], sort=False, dropna=False).transform("mean")
+    return ([None if pd.isna(v) else int(v) for v in rank], [None if pd.isna(v) else float(v) for v in mean_rank])
+
+
+def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple[list[dict[str, Any]], list[str]]:
+    """Per (model, dataset) over ok cells: means, sample std of accuracy, rank per dataset (1 = best mean accuracy,
+    ties share the best rank) and each model's mean rank over the datasets it ran on."""
+    pd = _pd()
+    extra = [c for c in columns if c.startswith("accuracy_") and c not in ("accuracy_mean",)] + \
+        (["earliness"] if "earliness" in columns else [])
+    averaged = ["accuracy", "balanced_accuracy", "macro_f1", "train_seconds", *extra]
+    ok = [row for row in leaderboard if row.get("status") == "ok"]
+    summary_columns = list(SUMMARY_COLUMNS) + [f"{c}_mean" for c in extra]
+    if not ok:
+        return [], summary_columns
+    # object columns keep each value as the Python object it was (int, float, None): no NaN, no float64 upcast
+    cells = pd.DataFrame({c: [row.get(c) for row in ok] for c in ("model", "dataset", *averaged)}, dtype=object)
+    out: list[dict[str, Any]] = []
+    for (model, dataset), group in cells.groupby(["model", "dataset"], sort=True, dropna=False):
+        entry: dict[str, Any] = {"model": model, "dataset": dataset, "n_cells": len(group),
+                                 "accuracy_mean": _mean(group["accuracy"].tolist()),
+                                 "accuracy_std": _std(group["accuracy"].tolist()),
+                                 "balanced_accuracy_mean": _mean(group["balanced_accuracy"].tolist()),
+                                 "macro_f1_mean": _mean(group["macro_f1"].tolist()),
+                                 "train_seconds_mean": _mean(group["train_seconds"].tolist())}
+        for col in extra:
+            entry[f"{col}_mean"] = _mean(group[col].tolist())
+        out.append(entry)
+    frame = pd.DataFrame({"model": [e["model"] for e in out], "dataset": [e["dataset"] for e in out],
+                          "accuracy_mean": [e["accuracy_mean"] for e in out]}, dtype=object)
+    for entry, rank, mean_rank in zip(out, *_ranks(frame)):
+        entry["rank"], entry["mean_rank"] = rank, mean_rank
+    return out, summary_columns
+
+
+def rows_to_csv(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    """CSV text (header + rows, ``\\n`` line ends); ``None`` is an empty field, floats are written exactly."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({c: ("" if row.get(c) is None else _fmt(row.get(c))) for c in columns})
+    return buf.getvalue()
+
+
+def _fmt(value: Any) -> Any:
+    if isinstance(value, float):
+        return repr(value)  # shortest exact representation: tables compare equal iff the numbers do
+    if isinstance(value, str):
+        return value.replace("\n", " ")
+    return value

@@ -1,0 +1,5 @@
+"""``python -m tactile_zoo.cli``."""
+
+from . import entry
+
+entry()

@@ -1,0 +1,64 @@
+"""What several commands share: printing, the recipe flags, fold and checkpoint arguments."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from .. import registry
+from ..errors import ConfigError
+
+__all__ = ["echo", "add_recipe_flags", "fold_arg", "checkpoint_dataset"]
+
+
+def echo(*args: Any) -> None:
+    """Print to stdout and flush (a long command's lines must show up while it runs, also through a pipe)."""
+    print(*args, flush=True)
+
+
+def add_recipe_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--epochs", default=None, help="replace every model's max_epochs")
+    p.add_argument("--set", dest="sets", action="append", default=[], metavar="[MODEL:]KEY=VALUE",
+                   help="override a training-recipe key (lr, batch_size, patience, schedule, ...) for every model or "
+                        "for MODEL only; repeatable")
+    p.add_argument("--hparam", dest="hparams", action="append", default=[], metavar="[MODEL:]KEY=VALUE",
+                   help="a model constructor keyword (for every model or MODEL only); repeatable")
+    p.add_argument("--dataset-arg", dest="dataset_args", action="append", default=[], metavar="[DATASET:]KEY=VALUE",
+                   help="a dataset keyword argument (e.g. seed=1, augment_factor=2); repeatable")
+    p.add_argument("--device", default=None, help="auto (CUDA when available, the default), cpu, cuda, cuda:N")
+    p.add_argument("--root", default=None, help="data home (default $TACTILE_ZOO_DATA, else ~/.cache/tactile_zoo/data)")
+    p.add_argument("--download", action="store_true", default=None, help="download datasets that can be")
+    p.add_argument("--refit", action="store_true", default=None,
+                   help="after selecting the epoch on val, retrain on train+val for that many epochs")
+    p.add_argument("--quick", action="store_true", default=None,
+                   help="smoke run: 2 epochs, at most 64 train / 32 val / 64 test samples per split")
+    p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=None, metavar="MODULE",
+                   help="import MODULE first (it registers models or datasets); repeatable")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or per-cell lines")
+
+
+def fold_arg(value: Any) -> int:
+    try:
+        fold = int(value)
+    except (TypeError, ValueError):
+        fold = -1
+    if fold < 0:
+        raise ConfigError(f"--fold must be a non-negative integer, got {value!r}")
+    return fold
+
+
+def checkpoint_dataset(args: argparse.Namespace, config: dict[str, Any], flag: str) -> tuple[Any, str, int]:
+    """The split a checkpoint is evaluated or replayed on: the checkpoint's own dataset (with its fold and keyword
+    arguments) unless ``args.dataset`` names another; ``--dataset-arg`` and ``--fold`` override."""
+    from ..bench.config import parse_assignment
+
+    dataset = args.dataset or config.get("dataset")
+    if not dataset:
+        raise ConfigError(f"{args.checkpoint} does not name its dataset; give {flag}")
+    same = registry.normalize_name(dataset) == registry.normalize_name(str(config.get("dataset")))
+    kwargs = dict(config.get("dataset_kwargs") or {}) if same and not args.dataset_args else {}
+    for text in args.dataset_args:
+        _, key, value = parse_assignment("--dataset-arg", text)
+        kwargs[key] = value
+    fold = fold_arg(args.fold) if args.fold is not None else (int(config.get("fold", 0)) if same else 0)
+    return registry.load_dataset(dataset, root=args.root, split=args.split, fold=fold, **kwargs), dataset, fold

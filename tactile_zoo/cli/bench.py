@@ -1,0 +1,79 @@
+"""``tactile-zoo bench`` and ``report``: the harness's grid of cells into a resumable leaderboard."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ._common import add_recipe_flags, echo
+
+__all__ = ["add_bench", "add_report"]
+
+
+def add_bench(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="train and evaluate models x datasets into a resumable leaderboard",
+                       description="Cross models with datasets (cells = model x dataset x fold x seed), train each "
+                                   "cell with its model's recipe, and write leaderboard.csv, summary.csv, report.md "
+                                   "and plots. Rerunning the same command resumes.")
+    p.add_argument("--models", action="append", default=None, metavar="all|NAMES|PATTERNS",
+                   help="'all' (default), names, comma lists, wildcards such as '*tacformer'")
+    p.add_argument("--datasets", action="append", default=None, metavar="all|NAMES|PATTERNS",
+                   help="'all' (default): every registered dataset whose data is here (simulated ones always)")
+    p.add_argument("--seeds", default=None, help="comma list or range of seeds, e.g. 0,1,2 or 0-4 (default 0)")
+    p.add_argument("--folds", default=None, help="run only the first K folds of each dataset (default: every fold)")
+    p.add_argument("--prefixes", default=None, help="early-classification prefix fractions (default "
+                                                    "0.1,0.25,0.5,0.75,1.0)")
+    p.add_argument("--out", default=None, help="output folder (default ./tactile-zoo-results/<name of the grid>)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--resume", dest="force", action="store_false", default=None,
+                      help="reuse finished cells in --out (the default)")
+    mode.add_argument("--force", dest="force", action="store_true", default=None, help="recompute every cell")
+    p.add_argument("--executor", choices=["local", "process", "dask"], default=None,
+                   help="local (default), process (local worker processes), dask (a Dask cluster)")
+    p.add_argument("--workers", default=None, help="worker processes (process executor; dask without --scheduler)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler, e.g. tcp://HOST:8786")
+    p.add_argument("--threads", default=None, help="torch threads per cell, under every executor (default 1, so "
+                                                   "local and distributed runs give identical numbers; run cells "
+                                                   "side by side with --executor process --workers N)")
+    p.add_argument("--config", default=None, metavar="FILE.yaml", help="settings file (flags given here win)")
+    p.add_argument("--dry-run", action="store_true", help="print the grid of cells and exit")
+    p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "
+                                                           "(`tactile-zoo report DIR` draws them later)")
+    add_recipe_flags(p)
+    p.set_defaults(handler=_cmd_bench)
+
+
+def _bench_config(args: argparse.Namespace) -> Any:
+    from ..bench.config import load_yaml_config, merge_config
+
+    flags = {key: getattr(args, key) for key in (
+        "models", "datasets", "root", "download", "seeds", "folds", "epochs", "refit", "quick", "device", "out",
+        "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes")}
+    return merge_config(load_yaml_config(args.config) if args.config else None, flags, args.sets, args.hparams,
+                        args.dataset_args)
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from ..bench import run_bench
+
+    outcome = run_bench(_bench_config(args), dry_run=args.dry_run, quiet=args.quiet, plots=not args.no_plots)
+    return outcome.exit_code
+
+
+def add_report(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="rebuild leaderboard.csv, summary.csv, report.md and plots from cell files")
+    p.add_argument("dir", help="a bench output folder")
+    p.add_argument("--no-plots", action="store_true", help="tables and report.md only")
+    p.add_argument("--all-cells", action="store_true",
+                   help="every cell file in the folder, not only the grid of the last bench command (for a table "
+                        "built by several commands into one folder)")
+    p.set_defaults(handler=_cmd_report)
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from ..bench import write_outputs
+
+    written = write_outputs(args.dir, plots=not args.no_plots, all_cells=args.all_cells)
+    for path in written.values():
+        echo(f"wrote {path}")
+    return 0

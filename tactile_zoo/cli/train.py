@@ -1,0 +1,120 @@
+"""``tactile-zoo train`` (one cell, the harness's) and ``evaluate`` (a saved checkpoint on a split)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Any
+
+from .. import registry
+from ._common import add_recipe_flags, checkpoint_dataset, echo, fold_arg
+
+__all__ = ["add_train", "add_evaluate"]
+
+
+def add_train(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("train", help="train one model on one dataset (one cell) and optionally save it")
+    p.add_argument("model")
+    p.add_argument("dataset")
+    p.add_argument("--seed", default="0", help="seed (default 0)")
+    p.add_argument("--fold", default="0", help="fold of a k-fold protocol (default 0)")
+    p.add_argument("--save", default=None, metavar="MODEL.pt", help="write a checkpoint (weights + resolved config)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--threads", default="1", help="torch threads (default 1, as bench runs each cell, so the numbers "
+                                                  "match the leaderboard's)")
+    add_recipe_flags(p)
+    p.set_defaults(handler=_cmd_train)
+
+
+def _single_config(args: argparse.Namespace) -> Any:
+    from ..bench.config import merge_config
+
+    flags = {"models": [args.model], "datasets": [args.dataset], "root": args.root, "download": args.download,
+             "epochs": args.epochs, "refit": args.refit, "quick": args.quick, "device": args.device,
+             "plugin_modules": args.plugin_modules}
+    return merge_config(None, flags, args.sets, args.hparams, args.dataset_args)
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from ..bench.config import parse_positive_int, parse_seeds
+    from ..bench.grid import resolve_datasets, resolve_models
+    from ..engine import save_checkpoint
+    from ..engine.cell import resolve_cell, train_cell
+    from ..engine.runtime import set_threads, versions
+    from ..errors import ConfigError
+
+    config = _single_config(args)
+    registry.import_plugin_modules(config.plugin_modules)
+    set_threads(parse_positive_int("--threads", args.threads))
+    try:
+        seeds = parse_seeds(args.seed)
+    except ConfigError as exc:  # name the flag this command has (--seed), not bench's --seeds
+        raise ConfigError(str(exc).replace("--seeds", "--seed", 1)) from None
+    if len(seeds) != 1:
+        raise ConfigError(f"--seed takes one seed, got {args.seed!r}")
+    seed, fold = seeds[0], fold_arg(args.fold)
+    model = resolve_models([args.model])[0]
+    dataset = resolve_datasets([args.dataset])[0]
+    recipe_over, hparams = config.overrides_for(model, (registry.get_model_entry(model).name,))
+    # the harness's own cell: same resolution (the dataset's epoch budget included), same numbers
+    cell = resolve_cell(model, dataset, recipe=recipe_over, hparams=hparams, epochs=config.effective_epochs(),
+                        dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
+                        prefixes=config.prefixes)
+    outcome = train_cell(cell, fold=fold, seed=seed, root=config.root, download=config.download,
+                         device=config.device, progress=not args.quiet)
+    result, prefix = outcome.fit, outcome.prefix or {"fractions": [], "accuracy": []}
+    metrics = {k: v for k, v in result.metrics.items() if k != "confusion"}
+    summary = {"model": model, "dataset": dataset, "fold": fold, "seed": seed, "test": metrics,
+               "best_epoch": result.best_epoch, "epochs_run": result.epochs_run,
+               "train_seconds": round(result.train_seconds, 2), "params": result.params, "device": result.device,
+               "accuracy_at": dict(zip((f"{f:g}" for f in prefix["fractions"]), prefix["accuracy"]))}
+    if args.save:
+        blob = {**cell.to_dict(), "fold": fold, "seed": seed, "quick": bool(config.quick),
+                "spec": outcome.spec.to_dict(), "metrics": metrics, "best_epoch": result.best_epoch,
+                "versions": versions()}
+        summary["saved"] = str(save_checkpoint(args.save, result.model, blob))
+    if args.json:
+        echo(json.dumps(summary, indent=2))
+    else:
+        echo(f"{model} on {dataset} (fold {fold}, seed {seed}): test accuracy {metrics['accuracy']:.4f}, "
+             f"balanced {metrics['balanced_accuracy']:.4f}, macro-F1 {metrics['macro_f1']:.4f}; best epoch "
+             f"{result.best_epoch} of {result.epochs_run}; {result.train_seconds:.1f}s on {result.device}")
+        if args.save:
+            echo(f"saved {summary['saved']}")
+    return 0
+
+
+def add_evaluate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("evaluate", help="evaluate a checkpoint saved by `tactile-zoo train --save`")
+    p.add_argument("checkpoint")
+    p.add_argument("dataset", nargs="?", default=None, help="default: the dataset it was trained on")
+    p.add_argument("--split", default="test", help="split to evaluate (default test)")
+    p.add_argument("--fold", default=None, help="fold (default: the checkpoint's when the dataset is the same)")
+    p.add_argument("--root", default=None, help="data home")
+    p.add_argument("--dataset-arg", dest="dataset_args", action="append", default=[], metavar="KEY=VALUE",
+                   help="dataset keyword argument (default: the checkpoint's when the dataset is the same)")
+    p.add_argument("--device", default=None, help="auto, cpu, cuda")
+    p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=[], metavar="MODULE")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(handler=_cmd_evaluate)
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from ..engine import build_from_checkpoint, evaluate, load_checkpoint
+
+    registry.import_plugin_modules(args.plugin_modules)
+    blob = load_checkpoint(args.checkpoint)
+    config = blob["config"]
+    ds, dataset, fold = checkpoint_dataset(args, config, "DATASET")
+    model = build_from_checkpoint(blob, ds.spec, where=f"checkpoint {args.checkpoint}")
+    result = evaluate(model, ds, device=args.device or "auto")
+    metrics = {k: v for k, v in result.metrics.items() if k != "confusion"}
+    if args.json:
+        echo(json.dumps({"checkpoint": args.checkpoint, "model": config["model"], "dataset": dataset,
+                           "split": args.split, "fold": fold, **metrics, "confusion": result.metrics["confusion"]},
+                          indent=2))
+    else:
+        echo(f"{config['model']} ({args.checkpoint}) on {dataset} [{args.split}, fold {fold}, {metrics['n']} "
+             f"samples]: accuracy {metrics['accuracy']:.4f}, balanced {metrics['balanced_accuracy']:.4f}, "
+             f"macro-F1 {metrics['macro_f1']:.4f}")
+    return 0

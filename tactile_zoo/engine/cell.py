@@ -1,0 +1,226 @@
+"""One cell: one model trained on one fold of one dataset with one seed, selected on validation, tested once.
+
+This is the only place a cell is assembled. The harness (``tactile-zoo bench``, one call per cell, under any
+executor), ``tactile-zoo train`` and the by-name ``tactile_zoo.fit("sgnet", "sim_evtouch")`` all go through
+:func:`resolve_cell` (what to run) and :func:`train_cell` (running it), so the three cannot drift apart: the same
+command-line settings give the same numbers whichever of them ran the cell.
+
+- :class:`CellConfig` is the resolved configuration: the model with its constructor keywords, the fully resolved
+  recipe (the dataset's epoch budget applied), the dataset with its keyword arguments, and the computational
+  revisions of both, which the harness's cell hash covers.
+- :func:`load_splits` is the one place a dataset's splits are loaded (memoised for consecutive cells).
+- :func:`build_model` is the one place a model is built from its registry name (seeded first, so its initial weights
+  depend on the seed only).
+"""
+
+from __future__ import annotations
+
+import json
+from collections import OrderedDict
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from .. import registry
+from ..errors import ConfigError
+from ..recipe import Recipe, cap_epochs, resolve_recipe
+from .evaluate import DEFAULT_PREFIXES, EvalResult, evaluate, prefix_evaluation, time_inference
+from .runtime import PeakMemory, flush_denormals, resolve_device, seed_everything
+from .tensors import take
+from .train import FitResult, fit
+
+__all__ = ["CellConfig", "CellResult", "ModelCannotConsume", "resolve_cell", "train_cell", "load_splits",
+           "build_model"]
+
+SPLITS = ("train", "val", "test")
+
+
+class ModelCannotConsume(ConfigError):
+    """The model's constructor refused the dataset (a :class:`ConfigError` from it): the cell is skipped, not failed."""
+
+
+@dataclass(frozen=True)
+class CellConfig:
+    """What one cell runs, fold and seed aside: everything that can change its numbers.
+
+    ``to_dict()`` is the plain form stored in a cell record; every key but ``causal`` (a property of the model, not
+    a setting) enters the harness's cell hash.
+    """
+
+    model: str  # the listed registry name (``dist:name`` for a shadowed or clashing plugin)
+    dataset: str
+    recipe: Recipe
+    model_source: str = "builtin"  # the plugin distribution, or "builtin"
+    hparams: Mapping[str, Any] = field(default_factory=dict)
+    dataset_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    refit: bool = False
+    subset: Mapping[str, int] | None = None  # at most this many samples per split (``--quick``)
+    prefixes: tuple[float, ...] = DEFAULT_PREFIXES
+    causal: bool = False
+    model_revision: int = registry.DEFAULT_REVISION
+    dataset_revision: int = registry.DEFAULT_REVISION
+
+    def hashed(self) -> dict[str, Any]:
+        """The part of :meth:`to_dict` a cell hash covers."""
+        return {"model": self.model, "model_source": self.model_source, "hparams": dict(self.hparams),
+                "recipe": self.recipe.to_dict(), "dataset": self.dataset, "dataset_kwargs": dict(self.dataset_kwargs),
+                "refit": self.refit, "subset": None if self.subset is None else dict(self.subset),
+                "prefixes": list(self.prefixes), "model_revision": self.model_revision,
+                "dataset_revision": self.dataset_revision}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.hashed(), "causal": self.causal}
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> CellConfig:
+        """The inverse of :meth:`to_dict` (a record's ``config``; revisions absent from older records mean 1)."""
+        return cls(model=values["model"], dataset=values["dataset"],
+                   recipe=Recipe.from_dict(values["recipe"], where=f"recipe of {values['model']}"),
+                   model_source=values.get("model_source", "builtin"), hparams=dict(values.get("hparams") or {}),
+                   dataset_kwargs=dict(values.get("dataset_kwargs") or {}), refit=bool(values.get("refit")),
+                   subset=values.get("subset") or None, prefixes=tuple(values.get("prefixes") or (1.0,)),
+                   causal=bool(values.get("causal")),
+                   model_revision=int(values.get("model_revision", registry.DEFAULT_REVISION)),
+                   dataset_revision=int(values.get("dataset_revision", registry.DEFAULT_REVISION)))
+
+
+def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any] | None = None,
+                 hparams: Mapping[str, Any] | None = None, epochs: int | None = None,
+                 dataset_kwargs: Mapping[str, Any] | None = None, refit: bool = False,
+                 subset: Mapping[str, int] | None = None, prefixes: Sequence[float] = DEFAULT_PREFIXES) -> CellConfig:
+    """The configuration of ``model`` on ``dataset``.
+
+    Args:
+        model: a registered model name, as listed (``list_models()``).
+        dataset: a registered dataset name, as listed.
+        recipe: overrides of single keys on top of the model's registered recipe, or a :class:`Recipe` used as is.
+        hparams: the model's constructor keywords.
+        epochs: replaces ``max_epochs`` (the CLI's ``--epochs``); without it the dataset's epoch budget (registry
+            metadata ``max_epochs``) caps an overriding-dict or registered recipe, its schedule compressed to fit.
+        dataset_kwargs: keyword arguments of the dataset.
+        refit: retrain on train + val for the selected epoch count.
+        subset: at most this many (class-balanced) samples per split, keyed ``train``/``val``/``test``.
+        prefixes: early-classification prefix fractions evaluated on the test split.
+    """
+    entry = registry.get_model_entry(model)
+    data_entry = registry.get_dataset_entry(dataset)
+    if isinstance(recipe, Recipe):
+        resolved = resolve_recipe(recipe, None, epochs)
+    else:
+        resolved = resolve_recipe(entry.meta.get("recipe"), recipe, epochs, where=f"recipe of model {model!r}")
+        budget = data_entry.meta.get("max_epochs")
+        if epochs is None and budget is not None:
+            resolved = cap_epochs(resolved, int(budget))
+    return CellConfig(model=model, dataset=dataset, recipe=resolved, model_source=entry.dist or "builtin",
+                      hparams=dict(hparams or {}), dataset_kwargs=dict(dataset_kwargs or {}), refit=bool(refit),
+                      subset=dict(subset) if subset else None, prefixes=tuple(prefixes),
+                      causal=bool(entry.meta.get("causal", False)), model_revision=registry.revision_of(entry),
+                      dataset_revision=registry.revision_of(data_entry))
+
+
+# ----------------------------------------------------------------------------------------------- data and model
+_SPLIT_CACHE: OrderedDict[str, dict[str, Any]] = OrderedDict()
+_SPLIT_CACHE_SIZE = 2
+
+
+def load_splits(name: str, root: Any = None, fold: int = 0, download: bool = False,
+                kwargs: Mapping[str, Any] | None = None, splits: Sequence[str] = SPLITS) -> dict[str, Any]:
+    """The requested splits of one fold of dataset ``name``.
+
+    Memoised over the last two (dataset, root, fold, kwargs) keys: the harness runs model-innermost, so consecutive
+    cells share a fold, and a loaded split (up to hundreds of MB of dense events) is not read twice.
+    """
+    kwargs = dict(kwargs or {})
+    key = json.dumps([name, None if root is None else str(root), fold, kwargs], sort_keys=True, default=str)
+    cached = _SPLIT_CACHE.setdefault(key, {})
+    _SPLIT_CACHE.move_to_end(key)
+    while len(_SPLIT_CACHE) > _SPLIT_CACHE_SIZE:
+        _SPLIT_CACHE.popitem(last=False)
+    for split in splits:
+        if split not in cached:
+            cached[split] = registry.load_dataset(name, root=root, split=split, fold=fold, download=download, **kwargs)
+    return {split: cached[split] for split in splits}
+
+
+def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, seed: int = 0) -> torch.nn.Module:
+    """Model ``name`` built for ``spec`` right after seeding, so its initial weights depend on ``seed`` only.
+
+    A :class:`ConfigError` from the constructor (the model cannot consume this dataset) becomes
+    :class:`ModelCannotConsume`.
+    """
+    seed_everything(seed)
+    try:
+        return registry.create_model(name, spec, **dict(hparams or {}))
+    except ModelCannotConsume:
+        raise
+    except ConfigError as exc:
+        raise ModelCannotConsume(f"model {name!r} cannot consume dataset {getattr(spec, 'name', '?')!r}: {exc}") \
+            from exc
+
+
+# ----------------------------------------------------------------------------------------------- the cell
+@dataclass
+class CellResult:
+    """A finished cell: the fit (``fit.test`` is the test split's evaluation) and what was measured after it."""
+
+    config: CellConfig
+    fold: int
+    seed: int
+    fit: FitResult
+    tests: dict[str, EvalResult]  # "test" and any extra test split of the dataset
+    spec: Any
+    n_train: int
+    n_val: int
+    n_test: int
+    device: str
+    prefix: dict[str, Any] | None = None
+    infer_ms_per_sample: float | None = None
+    peak_memory_mb: float | None = None
+    peak_memory_source: str | None = None
+    peak_gpu_memory_mb: float | None = None
+
+
+@flush_denormals()
+def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = None, download: bool = False,
+               device: str | torch.device = "auto", extra_splits: Sequence[str] = (), measure: bool = True,
+               progress: bool = False, callback: Callable[[dict[str, Any]], None] | None = None) -> CellResult:
+    """Load the splits, seed, build, fit (selecting on validation) and evaluate one cell; the test split is read once.
+
+    Args:
+        config: from :func:`resolve_cell`.
+        fold, seed: the cell's fold and seed (the seed drives initial weights, dropout and the batch order).
+        root, download: the data home, and whether missing raw files may be downloaded.
+        device: ``"auto"``, ``"cpu"``, ``"cuda"``, ...
+        extra_splits: further test splits of the dataset, evaluated with the selected model.
+        measure: also evaluate the test split's prefixes and time inference (the harness's per-cell extras).
+        progress, callback: a tqdm bar over epochs; a function called with each epoch's curve row.
+
+    Raises:
+        ModelCannotConsume: the model's constructor refused the dataset.
+    """
+    dev = resolve_device(device)
+    splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs,
+                         (*SPLITS, *extra_splits))
+    subset = config.subset or {}
+    train = take(splits["train"], subset.get("train"))
+    val = take(splits["val"], subset.get("val"))
+    tests = {name: take(splits[name], subset.get("test")) for name in ("test", *extra_splits)}
+    rec = config.recipe
+    prefix = infer_ms = None
+    with PeakMemory(dev) as peak:
+        model = build_model(config.model, train.spec, config.hparams, seed)
+        result = fit(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev, refit=config.refit,
+                     progress=progress, callback=callback)
+        evals = {name: evaluate(result.model, split, loss=rec.loss, batch_size=rec.eval_batch_size)
+                 for name, split in tests.items()}
+        if measure:
+            prefix = prefix_evaluation(result.model, tests["test"], config.prefixes or (1.0,), causal=config.causal,
+                                       loss=rec.loss, batch_size=rec.eval_batch_size)
+            infer_ms = time_inference(result.model, tests["test"])
+    result.test = evals["test"]
+    return CellResult(config=config, fold=fold, seed=seed, fit=result, tests=evals, spec=train.spec,
+                      n_train=len(train), n_val=len(val), n_test=len(tests["test"]), device=str(dev), prefix=prefix,
+                      infer_ms_per_sample=infer_ms, peak_memory_mb=peak.mb, peak_memory_source=peak.source,
+                      peak_gpu_memory_mb=peak.gpu_mb)

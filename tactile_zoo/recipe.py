@@ -1,0 +1,294 @@
+"""The training recipe schema: how a model is trained (loss, optimiser, schedule, epochs, early stopping, batch size).
+
+Every model carries its default recipe in its registry metadata (``register_model(recipe={...})``); a plugin model
+without one trains with :data:`DEFAULT_RECIPE` (cross-entropy, Adam). Users override single keys from the API, the CLI
+(``--set lr=1e-3``) or a YAML config. A typo in a key, or a value of the wrong kind, is a :class:`ConfigError` naming
+the key and where it came from, never a silently ignored setting.
+
+Keys:
+    loss: ``"ce"`` (cross-entropy on logits) or ``"mse_rate"`` (mean squared error between the output spike rates and
+        ``rate_targets`` = (rate of the true class, rate of the others), as TactileSGNet trains).
+    optimizer: ``"adam"``, ``"adamw"`` or ``"sgd"`` (with ``momentum``, optionally ``nesterov``).
+    lr, weight_decay, amsgrad (Adam/AdamW), momentum, nesterov (SGD).
+    schedule: ``None`` or a dict with ``type`` one of ``multistep`` (``milestones``, ``gamma``), ``step``
+        (``step_size``, ``gamma``), ``exponential`` (``gamma``), ``cosine`` (``eta_min`` as a fraction of ``lr``,
+        ``t_max`` in epochs, default ``max_epochs``); any type may add ``warmup_epochs`` (linear warm-up). The
+        learning rate changes once per epoch. A bare string (``"cosine"``) means ``{"type": "cosine"}``.
+    max_epochs: the epoch budget. patience: early stopping after this many epochs without improvement on the
+        validation split (``None``: off). monitor: what "improvement" means, see below.
+    batch_size, eval_batch_size, grad_clip (max gradient norm, ``None``: off), label_smoothing (``ce`` only).
+
+Model selection (the one documented choice the harness makes): with ``monitor="val_accuracy"`` (the default) the
+selected epoch is the one with the highest validation accuracy, ties going to the lower validation loss; with
+``monitor="val_loss"`` the lowest validation loss, ties going to the higher accuracy. Early stopping counts epochs
+since that key last improved. Accuracy is what the leaderboard ranks, and the loss tie-break keeps small validation
+sets (where accuracy saturates early) from freezing on the first perfect epoch.
+
+This module is the one place the schema is written. It imports nothing but the errors (no torch), so the registry
+validates a model's ``recipe`` metadata with it at registration time and the engine trains with the same object.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
+
+from .errors import ConfigError
+
+__all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "resolve_recipe", "lr_factor", "cap_epochs"]
+
+LOSSES = ("ce", "mse_rate")
+OPTIMIZERS = ("adam", "adamw", "sgd")
+MONITORS = ("val_accuracy", "val_loss")
+SCHEDULE_KEYS = {
+    "multistep": {"milestones", "gamma"},
+    "step": {"step_size", "gamma"},
+    "exponential": {"gamma"},
+    "cosine": {"eta_min", "t_max"},
+}
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A validated training recipe; build one with :meth:`from_dict` or :func:`resolve_recipe`."""
+
+    loss: str = "ce"
+    optimizer: str = "adam"
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    amsgrad: bool = False
+    momentum: float = 0.9
+    nesterov: bool = False
+    schedule: dict[str, Any] | None = None
+    max_epochs: int = 100
+    patience: int | None = 20
+    monitor: str = "val_accuracy"
+    batch_size: int = 32
+    eval_batch_size: int = 256
+    grad_clip: float | None = None
+    label_smoothing: float = 0.0
+    rate_targets: tuple[float, float] = field(default=(1.0, 0.0))
+
+    def __post_init__(self) -> None:
+        where = "recipe"
+        object.__setattr__(self, "schedule", _normalise_schedule(where, self.schedule))
+        object.__setattr__(self, "rate_targets", tuple(self.rate_targets))
+        _choice(where, "loss", self.loss, LOSSES)
+        _choice(where, "optimizer", self.optimizer, OPTIMIZERS)
+        _choice(where, "monitor", self.monitor, MONITORS)
+        if not self.lr > 0 or not math.isfinite(self.lr):
+            raise ConfigError(f"{where}: lr must be a positive number, got {self.lr!r}")
+        if self.weight_decay < 0:
+            raise ConfigError(f"{where}: weight_decay must be >= 0, got {self.weight_decay!r}")
+        for key in ("max_epochs", "batch_size", "eval_batch_size"):
+            if getattr(self, key) < 1:
+                raise ConfigError(f"{where}: {key} must be >= 1, got {getattr(self, key)!r}")
+        if self.patience is not None and self.patience < 1:
+            raise ConfigError(f"{where}: patience must be >= 1 or null (no early stopping), got {self.patience!r}")
+        if self.grad_clip is not None and not self.grad_clip > 0:
+            raise ConfigError(f"{where}: grad_clip must be > 0 or null, got {self.grad_clip!r}")
+        if not 0.0 <= self.label_smoothing < 1.0:
+            raise ConfigError(f"{where}: label_smoothing must be in [0, 1), got {self.label_smoothing!r}")
+        _check_schedule(self.schedule)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any] | None, where: str = "recipe") -> Recipe:
+        """Validate a plain dict (unknown keys and wrong types raise :class:`ConfigError` naming ``where``)."""
+        return resolve_recipe(None, values, where=where)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able values (lists, not tuples), every key present: what the config hash covers."""
+        out = asdict(self)
+        out["rate_targets"] = list(self.rate_targets)
+        return out
+
+    def replace(self, **changes: Any) -> Recipe:
+        return resolve_recipe(self, changes)
+
+
+_INT_KEYS = {"max_epochs", "batch_size", "eval_batch_size"}
+_FLOAT_KEYS = {"lr", "weight_decay", "momentum", "label_smoothing"}
+_BOOL_KEYS = {"amsgrad", "nesterov"}
+
+
+def _choice(where: str, key: str, value: Any, allowed: tuple[str, ...]) -> None:
+    if value not in allowed:
+        raise ConfigError(f"{where}: {key} must be one of {', '.join(allowed)}; got {value!r}")
+
+
+def _from_text(value: Any) -> Any:
+    """Numbers written as text (``"1e-3"`` from a YAML file, which PyYAML reads as a string) become numbers."""
+    if isinstance(value, str):
+        try:
+            return int(value)
+        except ValueError:
+            try:
+                return float(value)
+            except ValueError:
+                return value
+    return value
+
+
+def _as_int(where: str, key: str, value: Any) -> int:
+    value = _from_text(value)
+    if isinstance(value, bool) or not isinstance(value, int | float) or int(value) != value:
+        raise ConfigError(f"{where}: {key} must be an integer, got {value!r}")
+    return int(value)
+
+
+def _as_float(where: str, key: str, value: Any) -> float:
+    value = _from_text(value)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
+    return float(value)
+
+
+def _as_bool(where: str, key: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+    return value
+
+
+def _normalise_schedule(where: str, value: Any) -> dict[str, Any] | None:
+    if value is None or value in ("none", "None", "constant"):
+        return None
+    if isinstance(value, str):
+        value = {"type": value}
+    if not isinstance(value, Mapping):
+        raise ConfigError(f"{where}: schedule must be null, a type name or a dict with 'type'; got {value!r}")
+    value = dict(value)
+    kind = value.get("type")
+    if kind not in SCHEDULE_KEYS:
+        raise ConfigError(f"{where}: schedule type must be one of {', '.join(SCHEDULE_KEYS)}; got {kind!r}")
+    unknown = sorted(set(value) - SCHEDULE_KEYS[kind] - {"type", "warmup_epochs"})
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {unknown} in a {kind!r} schedule; allowed: "
+                          f"{sorted(SCHEDULE_KEYS[kind] | {'type', 'warmup_epochs'})}")
+    out: dict[str, Any] = {"type": kind}
+    if kind == "multistep":
+        milestones = value.get("milestones")
+        if not isinstance(milestones, list | tuple) or not milestones:
+            raise ConfigError(f"{where}: a multistep schedule needs a non-empty list 'milestones', got {milestones!r}")
+        out["milestones"] = sorted(_as_int(where, "schedule.milestones", m) for m in milestones)
+    if kind == "step":
+        out["step_size"] = _as_int(where, "schedule.step_size", value.get("step_size", 30))
+    if kind in ("multistep", "step", "exponential"):
+        out["gamma"] = _as_float(where, "schedule.gamma", value.get("gamma", 0.1))
+    if kind == "cosine":
+        out["eta_min"] = _as_float(where, "schedule.eta_min", value.get("eta_min", 0.0))
+        t_max = value.get("t_max")
+        out["t_max"] = None if t_max is None else _as_int(where, "schedule.t_max", t_max)
+    if value.get("warmup_epochs"):
+        out["warmup_epochs"] = _as_int(where, "schedule.warmup_epochs", value["warmup_epochs"])
+    return out
+
+
+def _check_schedule(schedule: dict[str, Any] | None) -> None:
+    if schedule is None:
+        return
+    if schedule.get("type") == "step" and schedule["step_size"] < 1:
+        raise ConfigError("recipe: schedule.step_size must be >= 1")
+    if schedule.get("type") == "cosine" and schedule.get("t_max") is not None and schedule["t_max"] < 1:
+        raise ConfigError("recipe: schedule.t_max must be >= 1")
+    if schedule.get("warmup_epochs", 0) < 0:
+        raise ConfigError("recipe: schedule.warmup_epochs must be >= 0")
+
+
+def _coerce(where: str, key: str, value: Any) -> Any:
+    if key in _INT_KEYS:
+        return _as_int(where, key, value)
+    if key in _FLOAT_KEYS:
+        return _as_float(where, key, value)
+    if key in _BOOL_KEYS:
+        return _as_bool(where, key, value)
+    if key == "patience":
+        return None if value is None or value is False else _as_int(where, key, value)
+    if key == "grad_clip":
+        return None if value is None or value is False else _as_float(where, key, value)
+    if key == "schedule":
+        return _normalise_schedule(where, value)
+    if key == "rate_targets":
+        if not isinstance(value, list | tuple) or len(value) != 2:
+            raise ConfigError(f"{where}: rate_targets must be [rate of the true class, rate of the others], "
+                              f"got {value!r}")
+        return (_as_float(where, key, value[0]), _as_float(where, key, value[1]))
+    if not isinstance(value, str):
+        raise ConfigError(f"{where}: {key} must be a string, got {value!r}")
+    return value.lower()
+
+
+def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Mapping[str, Any] | None = None,
+                   epochs: int | None = None, where: str = "recipe") -> Recipe:
+    """The recipe ``base`` (a Recipe, a model's metadata dict, or ``None`` = the default) with ``overrides`` applied.
+
+    ``epochs`` (the CLI's ``--epochs``) replaces ``max_epochs`` last. Unknown keys raise :class:`ConfigError`.
+    """
+    values: dict[str, Any] = DEFAULT_RECIPE.to_dict()
+    layers: list[tuple[str, Mapping[str, Any]]] = []
+    if isinstance(base, Recipe):
+        values = base.to_dict()
+    elif base is not None:
+        layers.append((where, base))
+    if overrides:
+        layers.append((where if base is None else f"{where} override", overrides))
+    for label, layer in layers:
+        if not isinstance(layer, Mapping):
+            raise ConfigError(f"{label} must be a dict of recipe keys, got {type(layer).__name__}")
+        unknown = sorted(set(layer) - set(RECIPE_KEYS))
+        if unknown:
+            raise ConfigError(f"{label}: unknown recipe key(s) {unknown}; known keys: {', '.join(RECIPE_KEYS)}")
+        for key, value in layer.items():
+            values[key] = _coerce(label, key, value)
+    if epochs is not None:
+        values["max_epochs"] = _as_int(where, "epochs", epochs)
+    try:
+        return replace(DEFAULT_RECIPE, **values)
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("recipe:", f"{where}:", 1)) from None
+
+
+RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
+DEFAULT_RECIPE = Recipe()
+
+
+def cap_epochs(recipe: Recipe, budget: int | None) -> Recipe:
+    """``recipe`` limited to ``budget`` epochs, its schedule compressed to fit (a dataset's epoch budget).
+
+    Multistep milestones and step sizes scale by ``budget / max_epochs`` (at least 1), so a schedule keeps its shape;
+    a cosine schedule follows ``max_epochs`` by itself. A recipe already within the budget is returned unchanged.
+    """
+    if budget is None or recipe.max_epochs <= budget:
+        return recipe
+    scale = budget / recipe.max_epochs
+    sched = dict(recipe.schedule) if recipe.schedule else None
+    if sched and sched["type"] == "multistep":
+        sched["milestones"] = sorted({max(1, round(m * scale)) for m in sched["milestones"]})
+    elif sched and sched["type"] == "step":
+        sched["step_size"] = max(1, round(sched["step_size"] * scale))
+    elif sched and sched["type"] == "cosine" and sched.get("t_max"):
+        sched["t_max"] = max(1, round(sched["t_max"] * scale))
+    return recipe.replace(max_epochs=budget, schedule=sched)
+
+
+def lr_factor(recipe: Recipe, epoch: int) -> float:
+    """Multiplier of ``recipe.lr`` during 0-based ``epoch`` (the schedule as a pure function of the epoch)."""
+    sched = recipe.schedule
+    if sched is None:
+        return 1.0
+    kind = sched["type"]
+    if kind == "multistep":
+        factor = sched["gamma"] ** sum(1 for m in sched["milestones"] if m <= epoch)
+    elif kind == "step":
+        factor = sched["gamma"] ** (epoch // sched["step_size"])
+    elif kind == "exponential":
+        factor = sched["gamma"] ** epoch
+    else:  # cosine from 1 down to eta_min over t_max epochs
+        t_max = sched.get("t_max") or recipe.max_epochs
+        progress = min(epoch, t_max) / t_max
+        factor = sched["eta_min"] + (1 - sched["eta_min"]) * 0.5 * (1 + math.cos(math.pi * progress))
+    warmup = sched.get("warmup_epochs", 0)
+    if warmup and epoch < warmup:
+        factor *= (epoch + 1) / warmup
+    return float(factor)

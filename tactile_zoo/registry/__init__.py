@@ -1,0 +1,68 @@
+"""One registry for models, datasets and sensors, fed by decorators and by Python entry points.
+
+Built-ins register with the decorators when their modules are imported (``import tactile_zoo`` imports them).
+Third-party distributions register through the entry-point groups ``tactile_zoo.models`` and
+``tactile_zoo.datasets``. Discovery of plugins is separate from loading them, lazy (nothing is imported until the
+first list/create/load call), cached, and deterministic (sorted by distribution, then entry-point name).
+
+Name resolution, in order:
+
+1. ``dist:name`` selects the entry ``name`` of distribution ``dist`` (every plugin entry stays reachable so);
+2. a built-in (or locally registered) name always wins a clash with a plugin;
+3. a plugin name that two distributions both register is ambiguous: a :class:`PluginError` names both.
+
+Lookups are normalised (case, ``-``, ``_`` and spaces ignored): ``X-Tacformer``, ``x_tacformer`` and
+``XTacformer`` are one name. The registry imports nothing else from tactile-zoo but its errors and the recipe
+schema. Its parts: :mod:`.entries` (tables, metadata, decorators), :mod:`.discovery` (entry points, plugin modules)
+and :mod:`.lookup` (names to objects).
+"""
+
+from __future__ import annotations
+
+from ..errors import UnknownNameError
+from ..recipe import RECIPE_KEYS
+
+# the private names are re-exported for the test suite and the CLI's policy line (``registry._enabled()``)
+from .discovery import (  # noqa: F401
+    ENTRY_POINT_GROUPS,
+    PluginInfo,
+    PluginWarning,
+    _enabled,
+    _strict,
+    import_plugin_modules,
+    plugins,
+    reset_plugins,
+    set_plugin_policy,
+)
+from .entries import (  # noqa: F401
+    _TABLES,
+    DATASET_META_KEYS,
+    DEFAULT_REVISION,
+    MODEL_INPUTS,
+    MODEL_META_KEYS,
+    Entry,
+    _unregister,
+    normalize_name,
+    register_dataset,
+    register_model,
+    register_sensor,
+)
+from .lookup import (
+    create_model,
+    get_dataset_entry,
+    get_model_entry,
+    get_sensor,
+    list_datasets,
+    list_models,
+    list_sensors,
+    load_dataset,
+    revision_of,
+)
+
+__all__ = [
+    "Entry", "PluginInfo", "PluginWarning", "register_model", "register_dataset", "register_sensor",
+    "list_models", "list_datasets", "list_sensors", "create_model", "load_dataset", "get_sensor",
+    "get_model_entry", "get_dataset_entry", "plugins", "normalize_name", "reset_plugins", "set_plugin_policy",
+    "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
+    "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError",
+]

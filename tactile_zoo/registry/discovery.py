@@ -1,0 +1,182 @@
+"""Plugin discovery: entry points of installed distributions, and ``--plugin-module`` imports.
+
+Discovery is kept apart from loading (:func:`_discover_entry_points` only lists), runs lazily on the first lookup,
+is cached, and is deterministic (sorted by distribution, then entry-point name). A plugin that fails to load is
+skipped with a :class:`PluginWarning` naming its distribution, or is an error under the strict policy.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import os
+import sys
+import warnings
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from ..errors import PluginError
+from .entries import _LOADING_DIST, _LOCK, _TABLES, Entry, _register, _same_definition, _snake_case, normalize_name
+
+ENTRY_POINT_GROUPS = {"model": "tactile_zoo.models", "dataset": "tactile_zoo.datasets"}
+
+class PluginWarning(UserWarning):
+    """A third-party plugin was skipped or shadowed."""
+
+
+@dataclass
+class PluginInfo:
+    """One discovered entry point and what became of it (``status``: ok, failed, shadowed, clash)."""
+
+    kind: str
+    group: str
+    dist: str
+    version: str
+    name: str
+    value: str
+    status: str = "pending"
+    error: str | None = None
+
+
+_PLUGINS: list[PluginInfo] | None = None  # None until discovery has run
+_POLICY: dict[str, bool | None] = {"strict": None, "enabled": None}
+_DISCOVERED_UNDER: tuple[bool, bool] | None = None  # the (strict, enabled) policy _PLUGINS was discovered under
+
+
+def _env_flag(name: str) -> bool:
+    return os.environ.get(name, "").strip().lower() in {"1", "true", "yes", "on"}
+
+
+def set_plugin_policy(*, strict: bool | None = None, enabled: bool | None = None) -> None:
+    """Override ``TACTILE_ZOO_STRICT_PLUGINS`` / ``TACTILE_ZOO_NO_PLUGINS`` (``None`` defers to the environment)."""
+    _POLICY["strict"], _POLICY["enabled"] = strict, enabled
+
+
+def _strict() -> bool:
+    return _POLICY["strict"] if _POLICY["strict"] is not None else _env_flag("TACTILE_ZOO_STRICT_PLUGINS")
+
+
+def _enabled() -> bool:
+    return _POLICY["enabled"] if _POLICY["enabled"] is not None else not _env_flag("TACTILE_ZOO_NO_PLUGINS")
+
+
+def _discover_entry_points() -> list[tuple[PluginInfo, importlib.metadata.EntryPoint]]:
+    """Find (not load) every entry point of both groups, sorted, one per (distribution, group, name)."""
+    found: dict[tuple[str, str, str], tuple[PluginInfo, importlib.metadata.EntryPoint]] = {}
+    for kind, group in ENTRY_POINT_GROUPS.items():
+        for ep in importlib.metadata.entry_points(group=group):
+            dist = ep.dist.name if ep.dist is not None else "<unknown>"
+            version = ep.dist.version if ep.dist is not None else "?"
+            key = (normalize_name(dist), group, ep.name)
+            found.setdefault(key, (PluginInfo(kind, group, dist, version, ep.name, ep.value), ep))
+    return [found[k] for k in sorted(found)]
+
+
+def _load_plugin(info: PluginInfo, ep: importlib.metadata.EntryPoint) -> Entry:
+    """Import one entry point and register its target under the plugin's distribution."""
+    _LOADING_DIST.append((info.dist, info.version))
+    try:
+        target = ep.load()
+        if not callable(target):
+            raise PluginError(f"entry point {info.name!r} ({info.value}) is a {type(target).__name__}, not a class "
+                              f"or callable")
+        meta = dict(getattr(target, "zoo_meta", None) or {})
+        table = _TABLES[info.kind]
+        key = normalize_name(_snake_case(info.name))
+        with _LOCK:
+            old = table.builtin.get(key)
+            if (old is not None and (old.obj is target or _same_definition(old.obj, target))
+                    and str(getattr(target, "__module__", "")).partition(".")[0] != "tactile_zoo"):
+                # the plugin module was imported (its decorator run) before discovery and filed the object as a
+                # local registration; it is the same registration, and it belongs to this distribution
+                del table.builtin[key]
+                meta = {**old.meta, **meta}
+            return _register(info.kind, target, info.name, meta)
+    finally:
+        _LOADING_DIST.pop()
+
+
+def _settle(loaded: list[tuple[PluginInfo, Entry]]) -> None:
+    """Once every plugin is loaded: mark each ok, shadowed by a built-in, or clashing with another plugin."""
+    warned: set[tuple[str, str]] = set()
+    for info, entry in loaded:
+        table, key = _TABLES[info.kind], normalize_name(entry.name)
+        rivals = table.plugin.get(key, [])
+        if key in table.builtin:
+            info.status = "shadowed"
+            info.error = f"built-in {info.kind} {table.builtin[key].name!r} wins; use {entry.qualified_name!r}"
+            warnings.warn(f"plugin {info.kind} {entry.qualified_name!r} is shadowed by the built-in of the same name; "
+                          f"use {entry.qualified_name!r} to reach it", PluginWarning, stacklevel=4)
+        elif len(rivals) > 1:
+            dists = ", ".join(repr(e.dist) for e in rivals)
+            qualified = ", ".join(repr(e.qualified_name) for e in rivals)
+            info.status = "clash"
+            info.error = f"{info.kind} {entry.name!r} is registered by distributions {dists}; use {qualified}"
+            if _strict():
+                raise PluginError(f"plugin clash: {info.error}")
+            if (info.kind, key) not in warned:
+                warned.add((info.kind, key))
+                warnings.warn(f"plugin clash: {info.error}", PluginWarning, stacklevel=4)
+        else:
+            info.status = "ok"
+
+
+def _ensure_discovered() -> list[PluginInfo]:
+    global _PLUGINS, _DISCOVERED_UNDER
+    policy = (_strict(), _enabled())
+    if _PLUGINS is not None and _DISCOVERED_UNDER == policy:
+        return _PLUGINS
+    with _LOCK:
+        if _PLUGINS is not None and _DISCOVERED_UNDER == policy:
+            return _PLUGINS
+        # first call, or the policy changed since (CLI flag, environment): discover under the current one; until
+        # that succeeds nothing counts as discovered, so a strict-mode error leaves no half-filled cache behind
+        _PLUGINS, _DISCOVERED_UNDER = None, None
+        for table in _TABLES.values():
+            table.remove_plugins()
+        infos: list[PluginInfo] = []
+        loaded: list[tuple[PluginInfo, Entry]] = []
+        if policy[1]:
+            for info, ep in _discover_entry_points():
+                infos.append(info)
+                try:
+                    loaded.append((info, _load_plugin(info, ep)))
+                except Exception as exc:  # a broken plugin must never take the built-ins down with it
+                    info.status, info.error = "failed", f"{type(exc).__name__}: {exc}"
+                    if policy[0]:
+                        raise PluginError(f"plugin distribution {info.dist!r} ({info.group} entry {info.name!r} = "
+                                          f"{info.value}) failed to load: {info.error}") from exc
+                    warnings.warn(f"skipping plugin distribution {info.dist!r} ({info.group} entry {info.name!r} = "
+                                  f"{info.value}): {info.error}", PluginWarning, stacklevel=3)
+            _settle(loaded)
+        _PLUGINS, _DISCOVERED_UNDER = infos, policy
+        return infos
+
+
+def import_plugin_modules(modules: Iterable[str]) -> None:
+    """Import modules that register models or datasets with the decorators (``--plugin-module``), in order.
+
+    The explicit counterpart of entry-point discovery, for code that is not an installed distribution. A module that
+    fails to import is a :class:`PluginError` naming it; one imported before is not imported again.
+    """
+    for module in modules:
+        if module in sys.modules:
+            continue
+        try:
+            importlib.import_module(module)
+        except Exception as exc:
+            raise PluginError(f"--plugin-module {module!r} cannot be imported: {type(exc).__name__}: {exc}") from None
+
+
+def reset_plugins() -> None:
+    """Forget discovered plugins so the next lookup discovers again (after installing one, and in tests)."""
+    global _PLUGINS, _DISCOVERED_UNDER
+    with _LOCK:
+        for table in _TABLES.values():
+            table.remove_plugins()
+        _PLUGINS, _DISCOVERED_UNDER = None, None
+
+
+def plugins() -> list[PluginInfo]:
+    """Every discovered plugin entry point with its distribution, version, status and load error."""
+    return list(_ensure_discovered())

@@ -1,0 +1,51 @@
+"""Committed Table I cells describe what the current code runs: the same resolved configuration and hash.
+
+The cells under ``benchmarks/results/paper-table1`` were computed before cell hashes covered the code's revisions
+(hash format 1) and re-keyed by ``python -m benchmarks.check_cells --migrate`` after the check below passed; each
+records its format-1 hash in ``migrated_from``. A change to a model's or dataset's code bumps its revision, and the
+cells then fail here until they are rerun.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO))
+
+from benchmarks import check_cells  # noqa: E402
+from tactile_zoo.bench.grid import config_hash  # noqa: E402
+
+CELLS = sorted((REPO / "benchmarks" / "results" / "paper-table1" / "cells").glob("*.json"))
+
+pytestmark = pytest.mark.real_data
+
+
+def test_there_are_committed_cells() -> None:
+    assert len(CELLS) >= 24, "the Table I folder lost cells"
+
+
+@pytest.mark.parametrize("path", CELLS, ids=lambda p: p.stem.rsplit("__", 1)[0])
+def test_a_committed_cell_maps_to_its_configuration(path: Path, shared_data: Path) -> None:
+    record = json.loads(path.read_text())
+    ok, why, current = check_cells.check(record, str(shared_data))
+    assert ok, f"{path.name}: {why}"
+    assert current == record["config"]  # key for key, the revisions included
+    legacy = {k: v for k, v in current.items() if k not in check_cells.REVISION_KEYS}
+    assert record["migrated_from"]["config_hash"] == config_hash(legacy, hash_format=1)
+    assert path.stem == record["cell_id"] and record["cell_id"].endswith(config_hash(current))
+
+
+def test_a_changed_revision_no_longer_maps(shared_data: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from tactile_zoo import registry
+
+    record = json.loads(CELLS[0].read_text())
+    entry = registry.get_model_entry(record["model"])
+    monkeypatch.setitem(registry._TABLES["model"].builtin, registry.normalize_name(entry.name),
+                        registry.Entry(entry.kind, entry.name, entry.obj, {**entry.meta, "revision": 2}))
+    ok, why, _ = check_cells.check(record, str(shared_data))
+    assert not ok and "differs in ['model_revision']" in why
