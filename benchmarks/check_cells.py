@@ -9,9 +9,11 @@ For every cell record in a bench folder this rebuilds the cell through the harne
    revisions, format 2 with them).
 
 A cell that passes was computed by what the current code computes (revision 1 is the code that produced
-hash-format-1 cells; a changed model or dataset bumps its revision and no longer passes). ``--migrate`` then rewrites
-such a format-1 record in place under the current format: new hash and file name, the revisions in its ``config``,
-and ``migrated_from`` naming the old hash, so a resumed bench command reuses the cell instead of recomputing it.
+hash-format-1 cells). A cell whose model or dataset has since been bumped to a newer revision is reported as
+``stale``: computed by older code, to be rerun (``report.md`` flags it too); any other mismatch is a failure.
+``--migrate`` then rewrites such a format-1 record in place under the current format: new hash and file name, the
+revisions in its ``config``, and ``migrated_from`` naming the old hash, so a resumed bench command reuses the cell
+instead of recomputing it.
 
 ``--compare OTHER`` checks that the cells of another folder (a rerun of some of the same cells) computed the same
 numbers, bit for bit: metrics, predictions and probabilities of every split, the training curve (timings aside), the
@@ -53,22 +55,25 @@ def _rebuilt(record: dict[str, Any], root: str | None) -> dict[str, Any]:
     return cells[0].config
 
 
-def check(record: dict[str, Any], root: str | None) -> tuple[bool, str, dict[str, Any]]:
-    """(maps, explanation, the current configuration) for one record."""
+def check(record: dict[str, Any], root: str | None) -> tuple[str, str, dict[str, Any]]:
+    """(status, explanation, the current configuration) for one record; status ``maps``, ``stale`` (computed by an
+    older revision of its model's or dataset's code: rerun it) or ``differs`` (anything else: a real mismatch)."""
     stored = record["config"]
     current = _rebuilt(record, root)
     old_format = 2 if all(k in stored for k in REVISION_KEYS) else 1  # format 1 predates the revisions
     comparable = REVISION_KEYS if old_format == 1 else ()
+    recorded = {k: stored.get(k, 1) for k in REVISION_KEYS}
+    older = [f"{k} {recorded[k]} < {current[k]}" for k in REVISION_KEYS if recorded[k] < current[k]]
+    if older:
+        return "stale", f"computed by older code ({', '.join(older)}): rerun it", current
     a, b = _without(current, comparable), _without(stored, comparable)
     if a != b:
         differing = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
-        return False, f"configuration differs in {differing}", current
-    if old_format == 1 and any(current[k] != 1 for k in REVISION_KEYS):
-        return False, "computed before revisions existed, but the code's revision is no longer 1", current
+        return "differs", f"configuration differs in {differing}", current
     expected = config_hash(_without(current, comparable), hash_format=old_format)
     if expected != record["config_hash"]:
-        return False, f"hash {record['config_hash']} != {expected} recomputed in format {old_format}", current
-    return True, f"maps (format {old_format})", current
+        return "differs", f"hash {record['config_hash']} != {expected} recomputed in format {old_format}", current
+    return "maps", f"maps (format {old_format})", current
 
 
 def migrate(path: Path, record: dict[str, Any], current: dict[str, Any]) -> Path:
@@ -133,17 +138,18 @@ def main(argv: list[str] | None = None) -> int:
     if not paths:
         print(f"no cell records under {args.folder / 'cells'}", file=sys.stderr)
         return 2
-    failures = 0
+    counts = {"maps": 0, "stale": 0, "differs": 0}
     for path in paths:
         record = json.loads(path.read_text())
-        ok, why, current = check(record, args.root)
-        failures += not ok
-        line = f"{'ok  ' if ok else 'FAIL'} {path.name}: {why}"
-        if ok and args.migrate and not all(k in record["config"] for k in REVISION_KEYS):
+        status, why, current = check(record, args.root)
+        counts[status] += 1
+        line = f"{status:<7} {path.name}: {why}"
+        if status == "maps" and args.migrate and not all(k in record["config"] for k in REVISION_KEYS):
             line += f" -> {migrate(path, record, current).name}"
         print(line)
-    print(f"{len(paths) - failures} of {len(paths)} cells map to their configuration under the current code")
-    return 1 if failures else 0
+    print(f"{counts['maps']} of {len(paths)} cells map to their configuration under the current code; "
+          f"{counts['stale']} stale (older code, to rerun), {counts['differs']} differ")
+    return 1 if counts["differs"] else 0
 
 
 if __name__ == "__main__":

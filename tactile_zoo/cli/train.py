@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
 from .. import registry
+from ..errors import ConfigError
 from ._common import add_recipe_flags, checkpoint_dataset, echo, fold_arg
 
 __all__ = ["add_train", "add_evaluate"]
@@ -84,11 +86,27 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+#: checkpoint suffixes read as the source's released Keras models (D-CNN) instead of a `train --save` checkpoint
+KERAS_SUFFIXES = (".h5", ".hdf5")
+
+
 def add_evaluate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("evaluate", help="evaluate a checkpoint saved by `tactile-zoo train --save`")
-    p.add_argument("checkpoint")
-    p.add_argument("dataset", nargs="?", default=None, help="default: the dataset it was trained on")
-    p.add_argument("--split", default="test", help="split to evaluate (default test)")
+    p = sub.add_parser("evaluate", help="evaluate a checkpoint saved by `tactile-zoo train --save`, or a released "
+                                        "Keras D-CNN (.h5)",
+                       description="Evaluate a checkpoint on a split. A CHECKPOINT ending in .h5 or .hdf5 is one of "
+                                   "the Keras 2.2.4 D-CNN models released with Augment8000 "
+                                   "(VGG16_scaling_time_warp{1..10}.h5), built as model dcnn for DATASET (required "
+                                   "then): tactile-zoo evaluate MODEL.h5 augment8000 --split all --dataset-arg "
+                                   "stats=source --root DIR.")
+    p.add_argument("checkpoint", help="a .pt file from `train --save`, or a released Keras D-CNN .h5/.hdf5 file")
+    p.add_argument("dataset", nargs="?", default=None,
+                   help="default: the dataset it was trained on (required for a Keras file)")
+    p.add_argument("--split", default="test",
+                   help="split to evaluate (default test), or all (every sample the dataset loaded). Augment8000's "
+                        "120 real-life samples: `test` of every fold when the training file is present too, else "
+                        "`all` (with the real-life file alone, `test` is one fold of them); the released models need "
+                        "--dataset-arg stats=source (the published normalisation constants) when the training file "
+                        "is present")
     p.add_argument("--fold", default=None, help="fold (default: the checkpoint's when the dataset is the same)")
     p.add_argument("--root", default=None, help="data home")
     p.add_argument("--dataset-arg", dest="dataset_args", action="append", default=[], metavar="KEY=VALUE",
@@ -103,10 +121,21 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from ..engine import build_from_checkpoint, evaluate, load_checkpoint
 
     registry.import_plugin_modules(args.plugin_modules)
-    blob = load_checkpoint(args.checkpoint)
-    config = blob["config"]
-    ds, dataset, fold = checkpoint_dataset(args, config, "DATASET")
-    model = build_from_checkpoint(blob, ds.spec, where=f"checkpoint {args.checkpoint}")
+    # "all" is the dataset's split=None: every sample (the only way to the 120 real-life Augment8000 samples at once
+    # when the training file is absent)
+    chosen = argparse.Namespace(**{**vars(args), "split": None}) if args.split == "all" else args
+    if Path(args.checkpoint).suffix.lower() in KERAS_SUFFIXES:
+        if not Path(args.checkpoint).is_file():
+            raise ConfigError(f"checkpoint {args.checkpoint} does not exist")
+        config: dict[str, Any] = {"model": "dcnn"}  # names no dataset: DATASET is required
+        ds, dataset, fold = checkpoint_dataset(chosen, config, "DATASET")
+        # through the registry: the command line never imports a model module
+        model = registry.get_model_entry("dcnn").obj.from_keras(args.checkpoint, ds.spec)
+    else:
+        blob = load_checkpoint(args.checkpoint)
+        config = blob["config"]
+        ds, dataset, fold = checkpoint_dataset(chosen, config, "DATASET")
+        model = build_from_checkpoint(blob, ds.spec, where=f"checkpoint {args.checkpoint}")
     result = evaluate(model, ds, device=args.device or "auto")
     metrics = {k: v for k, v in result.metrics.items() if k != "confusion"}
     if args.json:

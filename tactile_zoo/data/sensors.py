@@ -5,7 +5,10 @@ carry it and caches can key on it. Four are built in:
 
 ``neutouch``
     The NeuTouch fingertip of Ev-Objects / Ev-Containers: 39 taxels, channels = ON/OFF event polarity. The default
-    graph is the minimum spanning tree the TactileSGNet reference trains on (see :func:`mst_edges`).
+    graph is the exact 38-edge tree the TactileSGNet reference trains on (:data:`TACTILESGNET_EDGES`): Prim's tree
+    grown from taxel 20, with that code's own order among equal-length edges. :func:`mst_edges` (``"mst"``) builds
+    the same tree with a rounding-proof tie rule and differs from it in 2 of 38 edges, each swapped for its mirror
+    image of equal length.
 ``biotac_sp``
     BioTac SP of BioTac-DoS: 24 electrodes in 3-D; the image layout is the 12x11 one of the ConvLSTM source
     (Zapata-Impata et al., Sensors 2019), whose empty cells image models fill with their neighbours' mean twice.
@@ -34,8 +37,8 @@ import torch
 from ..errors import ConfigError
 from ..registry import register_sensor
 
-__all__ = ["Sensor", "mst_edges", "knn_edges", "radius_edges", "rasterize", "NEUTOUCH", "BIOTAC_SP", "OPTOFORCE3",
-           "USKIN_ALLEGRO"]
+__all__ = ["Sensor", "TACTILESGNET_EDGES", "mst_edges", "knn_edges", "radius_edges", "rasterize", "NEUTOUCH",
+           "BIOTAC_SP", "OPTOFORCE3", "USKIN_ALLEGRO"]
 
 Pos = tuple[float, ...]
 
@@ -102,7 +105,8 @@ class Sensor:
         """The taxel graph as a ``LongTensor [2, E]``: symmetric, no self-loops, no duplicate edges, sorted.
 
         Kinds: ``mst`` (``threshold=`` adds all pairs closer than it), ``knn`` (``k=``), ``radius`` (``r=``),
-        ``full``, ``grid`` (4-neighbours on the image grid, within a group), ``default`` (the sensor's own).
+        ``full``, ``grid`` (4-neighbours on the image grid, within a group), ``edges`` (an explicit list,
+        ``pairs=((a, b), ...)``), ``default`` (the sensor's own).
         """
         if kind == "default":
             kind, kwargs = self.default_graph, {**dict(self.graph_kwargs), **kwargs}
@@ -119,9 +123,13 @@ class Sensor:
         base_groups = self.groups or (0,) * self.num_nodes
         n_groups = max(base_groups) + 1
         groups = tuple(g + i * n_groups for i in range(copies) for g in base_groups)
-        # an MST over copies stays one tree; other kinds keep their parameters
-        return Sensor(f"{self.name}_x{copies}", positions, (h, w * copies), grid, self.default_graph,
-                      self.graph_kwargs, groups, self.grid_fill, self.channels, self.description)
+        # an MST over copies stays one tree; other kinds keep their parameters. An explicit edge list describes one
+        # copy, so a tiled sensor takes one MST over all copies instead (scaling studies want one connected graph)
+        graph, kwargs = self.default_graph, self.graph_kwargs
+        if graph == "edges":
+            graph, kwargs = "mst", ()
+        return Sensor(f"{self.name}_x{copies}", positions, (h, w * copies), grid, graph, kwargs, groups,
+                      self.grid_fill, self.channels, self.description)
 
 
 # ----------------------------------------------------------------------------------------------- graph builders
@@ -211,6 +219,15 @@ def _grid_edges(sensor: Sensor, diagonal: bool = False) -> set[tuple[int, int]]:
     return pairs
 
 
+def _explicit_edges(sensor: Sensor, pairs: tuple[tuple[int, int], ...]) -> set[tuple[int, int]]:
+    n = sensor.num_nodes
+    out = {(min(int(a), int(b)), max(int(a), int(b))) for a, b in pairs}
+    bad = sorted(p for p in out if not (0 <= p[0] < n and 0 <= p[1] < n) or p[0] == p[1])
+    if bad:
+        raise ConfigError(f"sensor {sensor.name!r}: edges {bad[:3]} are self-loops or name no taxel (0..{n - 1})")
+    return out
+
+
 @functools.lru_cache(maxsize=256)
 def _edge_index_cached(sensor: Sensor, kind: str, kwargs: tuple[tuple[str, Any], ...]) -> torch.Tensor:
     kw = dict(kwargs)
@@ -227,9 +244,11 @@ def _edge_index_cached(sensor: Sensor, kind: str, kwargs: tuple[tuple[str, Any],
             pairs = {(a, b) for a in range(n) for b in range(a + 1, n)}
         elif kind == "grid":
             pairs = _grid_edges(sensor, **kw)
+        elif kind == "edges":
+            pairs = _explicit_edges(sensor, **kw)
         else:
             raise ConfigError(f"unknown graph kind {kind!r} for sensor {sensor.name!r}; "
-                              f"choose mst, knn, radius, full, grid or default")
+                              f"choose mst, knn, radius, full, grid, edges or default")
     except TypeError as exc:
         raise ConfigError(f"bad arguments {kw} for a {kind!r} graph of sensor {sensor.name!r}: {exc}") from None
     return _pairs_to_edge_index(pairs)
@@ -269,9 +288,19 @@ _NEUTOUCH_XY = (
     (5.3, 3), (6, 0),
 )
 _NEUTOUCH_POS = tuple((float(x), float(y)) for x, y in _NEUTOUCH_XY)
+#: The 38 undirected edges (0-based taxels) of the graph the TactileSGNet reference code builds for its published
+#: runs (clear-nus/TactileSGNet, ``TactileGraph(k=3, useKNN=0)`` in to_graph.py): Prim's tree from taxel 20, where a
+#: visited taxel's nearest unvisited one is the first of a ``torch.sort``, an order among exactly equal distances that
+#: no rounding-proof rule reproduces, hence the list itself.
+TACTILESGNET_EDGES = (
+    (0, 5), (1, 8), (2, 9), (3, 6), (3, 10), (4, 7), (4, 12), (5, 8), (5, 9), (6, 11), (7, 13), (9, 13), (11, 19),
+    (13, 21), (14, 20), (15, 20), (16, 20), (17, 19), (18, 21), (19, 28), (20, 26), (21, 27), (22, 26), (23, 26),
+    (23, 27), (24, 34), (25, 35), (27, 30), (27, 31), (28, 29), (28, 32), (29, 34), (30, 33), (30, 37), (31, 35),
+    (32, 33), (32, 36), (33, 38),
+)
 NEUTOUCH = register_sensor(Sensor(
     name="neutouch", positions=_NEUTOUCH_POS, grid_shape=(9, 13), grid=rasterize(_NEUTOUCH_POS, (9, 13)),
-    default_graph="mst", graph_kwargs=(("root", 20),), channels=("on", "off"),
+    default_graph="edges", graph_kwargs=(("pairs", TACTILESGNET_EDGES),), channels=("on", "off"),
     description="NeuTouch event-based fingertip, 39 taxels (Taunyazov et al., RSS 2020)"))
 
 _BIOTAC_HALF = ((0.386, -0.109, 0.157), (0.319, -0.205, 0.121), (0.087, -0.129, 0.282), (0.084, -0.236, 0.202),

@@ -14,12 +14,19 @@ the ``N x C`` taxel channels flattened node-major, then the ``G`` globals (Ev-Ob
 Keras semantics in PyTorch: "same" convolution and pooling as TensorFlow pads, batch-norm epsilon 1e-3,
 Glorot-uniform kernels and zero biases. The flatten size fixes the input length to ``spec.num_steps`` frames; the
 model is not causal.
+
+:func:`from_keras` builds the model from one of the source's released Keras 2.2.4 HDF5 files (evaluation of the
+published weights; needs the optional ``h5py``).
 """
 
 from __future__ import annotations
 
+import json
 import math
+import os
+from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -29,7 +36,7 @@ from ..errors import ConfigError
 from ..registry import register_model
 from ._inputs import check_inputs
 
-__all__ = ["DCNN"]
+__all__ = ["DCNN", "from_keras"]
 
 KERAS_BN_MOMENTUM = 0.01  # Keras' BatchNormalization(momentum=0.99) in PyTorch terms
 BN_EPS = 1e-3  # Keras' BatchNormalization epsilon
@@ -162,3 +169,164 @@ class DCNN(nn.Module):
 
     def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
         return self.classifier(self.features(self.image(x, g)))
+
+    @classmethod
+    def from_keras(cls, path: str | os.PathLike, spec: DatasetSpec) -> DCNN:
+        """:func:`from_keras` as a class method: the way in for the layers above the models, which reach a model
+        only through the registry (``get_model_entry("dcnn").obj.from_keras(...)``)."""
+        return from_keras(path, spec)
+
+
+# ------------------------------------------------------------------------------------ released Keras weights
+#: the layer classes of the source's Sequential D-CNN, in order
+_KERAS_LAYERS = ("Conv2D", "BatchNormalization", "MaxPooling2D") * 3 + \
+    ("Flatten", "Dense", "BatchNormalization", "Dense", "BatchNormalization", "Dense")
+
+
+def _text(value: Any) -> str:
+    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
+
+
+def _keras_layers(file: Any, where: str) -> list[dict[str, Any]]:
+    """The ``model_config`` layers of a full-model file as ``{"class_name", "config"}`` dicts, checked to be the
+    D-CNN (an ``InputLayer``, which later Keras versions write, is dropped)."""
+    if "model_config" not in file.attrs:
+        raise ConfigError(f"{where}: no 'model_config' attribute; from_keras needs a full-model file saved by "
+                          f"model.save() (a weights-only file does not say the architecture)")
+    config = json.loads(_text(file.attrs["model_config"]))
+    if config.get("class_name") != "Sequential":
+        raise ConfigError(f"{where}: a Keras {config.get('class_name')!r} model; the D-CNN is a Sequential one")
+    inner = config["config"]
+    layers = inner["layers"] if isinstance(inner, dict) else inner  # Keras < 2.2.3 wrote the bare list
+    layers = [layer for layer in layers if layer["class_name"] != "InputLayer"]
+    found = tuple(layer["class_name"] for layer in layers)
+    if found != _KERAS_LAYERS:
+        raise ConfigError(f"{where}: the layers {', '.join(found)} are not the D-CNN's {', '.join(_KERAS_LAYERS)}")
+    return layers
+
+
+def _check_layer(layer: dict[str, Any], where: str, activation: str | tuple[str, ...] | None = None) -> None:
+    """Refuse a setting our modules do not compute (they hard-code Keras' defaults and the source's choices)."""
+    cfg, name = layer["config"], f"{where}: layer {layer['config'].get('name')!r}"
+    expect: dict[str, Any] = {"data_format": "channels_last"}
+    if layer["class_name"] == "Conv2D":
+        expect.update(padding="same", strides=[1, 1], dilation_rate=[1, 1], use_bias=True)
+    elif layer["class_name"] == "MaxPooling2D":
+        expect.update(padding="same", pool_size=[2, 2], strides=[2, 2])
+    elif layer["class_name"] == "BatchNormalization":
+        expect = {"axis": -1, "epsilon": BN_EPS, "center": True, "scale": True}
+    elif layer["class_name"] == "Dense":
+        expect = {"use_bias": True}
+    for key, want in expect.items():
+        got = cfg.get(key)
+        if (list(got) if isinstance(got, (list, tuple)) else got) != want:
+            raise ConfigError(f"{name}: {key}={got!r}; the D-CNN mapping needs {key}={want!r}")
+    wanted = (activation,) if isinstance(activation, str) else activation
+    if wanted is not None and cfg.get("activation") not in wanted:
+        raise ConfigError(f"{name}: activation {cfg.get('activation')!r}; the D-CNN has {' or '.join(wanted)} here")
+
+
+def _keras_weights(file: Any, where: str) -> dict[str, dict[str, np.ndarray]]:
+    """``{layer name: {"kernel" | "bias" | "gamma" | ...: float32 array}}`` found through the ``layer_names`` and
+    ``weight_names`` attributes, as Keras itself loads them (the datasets sit at ``<layer>/<layer>_1/kernel:0``)."""
+    group = file["model_weights"] if "model_weights" in file else file
+    if "layer_names" not in group.attrs:
+        raise ConfigError(f"{where}: no 'layer_names' attribute on the weights; not a Keras HDF5 model file")
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for layer in map(_text, group.attrs["layer_names"]):
+        names = [_text(n) for n in group[layer].attrs.get("weight_names", [])]
+        # "conv2d_91_1/kernel:0" -> "kernel"
+        out[layer] = {n.rsplit("/", 1)[-1].split(":")[0]: np.asarray(group[layer][n], dtype=np.float32) for n in names}
+    return out
+
+
+def _weight(weights: dict[str, dict[str, np.ndarray]], layer: str, name: str, ndim: int, where: str) -> np.ndarray:
+    value = weights.get(layer, {}).get(name)
+    if value is None:
+        raise ConfigError(f"{where}: no weight {name!r} for layer {layer!r} under model_weights")
+    if value.ndim != ndim:
+        raise ConfigError(f"{where}: {layer}/{name} has shape {value.shape}, expected {ndim} dimensions")
+    return value
+
+
+def _assign(target: Tensor, value: np.ndarray, where: str) -> None:
+    if tuple(target.shape) != value.shape:
+        raise ConfigError(f"{where}: shape {value.shape} after the layout change, the model needs "
+                          f"{tuple(target.shape)}")
+    with torch.no_grad():
+        target.copy_(torch.from_numpy(np.ascontiguousarray(value)))  # copy_ keeps the channels-last layout
+
+
+def from_keras(path: str | os.PathLike, spec: DatasetSpec) -> DCNN:
+    """Build a :class:`DCNN` for ``spec`` from a released Keras 2.2.4 HDF5 model file of the source
+    (``VGG16_scaling_time_warp{1..10}.h5``: the file name says VGG16, the model inside is the D-CNN), in eval mode.
+
+    The file's ``model_config`` must be the D-CNN with the settings our modules compute ("same" convolutions and
+    pools, batch-norm epsilon 1e-3, ReLU, channels-last); its input ``(T, F, 1)`` must be ``spec``'s image
+    ``(num_steps, N*C + G)`` and its last layer ``spec.num_classes`` wide. Keras layouts become PyTorch's: conv
+    kernels ``(kh, kw, in, out)`` -> ``(out, in, kh, kw)``, dense kernels ``(in, out)`` -> ``(out, in)``, and the
+    first dense kernel's rows go from Keras' channels-last flatten order ``(H, W, C)`` to ours ``(C, H, W)``; batch
+    norm gamma, beta, moving mean and variance become weight, bias, running mean and variance. The model returns the
+    logits of Keras' softmax layer (same argmax). Inputs must be preprocessed as the source did (Augment8000: the
+    object-weight compensation and the published normalisation, ``augment8000(stats="source")``).
+
+    Raises:
+        ConfigError: h5py is missing, or the file is not such a D-CNN for ``spec``.
+    """
+    try:
+        import h5py  # optional: only this reader needs it
+    except ImportError:
+        raise ConfigError("reading Keras HDF5 files needs h5py, which is not installed: pip install h5py (or pip "
+                          "install 'tactile-zoo[keras]')") from None
+    where = os.fspath(path)
+    try:
+        file = h5py.File(where, "r")
+    except OSError as exc:
+        raise ConfigError(f"{where}: cannot be read as an HDF5 file ({exc})") from None
+    with file:
+        layers = _keras_layers(file, where)
+        weights = _keras_weights(file, where)
+    convs, bns, dense = ([layer for layer in layers if layer["class_name"] == kind]
+                         for kind in ("Conv2D", "BatchNormalization", "Dense"))
+    for layer in layers[:-1]:
+        _check_layer(layer, where, {"Conv2D": "relu", "Dense": "relu"}.get(layer["class_name"]))
+    _check_layer(layers[-1], where, ("softmax", "linear"))  # either way the logits' argmax is the prediction
+    shape = convs[0]["config"].get("batch_input_shape")
+    features = spec.num_nodes * spec.num_channels + spec.num_globals
+    if shape is None or list(shape[1:]) != [spec.num_steps, features, 1]:
+        raise ConfigError(f"{where}: input shape {shape and tuple(shape[1:])}; dataset {spec.name!r} gives "
+                          f"({spec.num_steps}, {features}, 1)")
+    if dense[-1]["config"]["units"] != spec.num_classes:
+        raise ConfigError(f"{where}: {dense[-1]['config']['units']} classes; dataset {spec.name!r} has "
+                          f"{spec.num_classes}")
+    model = DCNN(spec, filters=tuple(c["config"]["filters"] for c in convs),  # type: ignore[arg-type]
+                 kernels=tuple(tuple(c["config"]["kernel_size"]) for c in convs),
+                 dense=tuple(d["config"]["units"] for d in dense[:2]),  # type: ignore[arg-type]
+                 # only matters for fine-tuning: Keras' moving-average momentum in PyTorch's convention
+                 bn_momentum=1.0 - float(bns[0]["config"].get("momentum", 0.99)))
+    ours_bn = [m for m in model.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    ours_dense = [m for m in model.classifier if isinstance(m, nn.Linear)]
+    h, w = _pooled(model.num_steps, 3), _pooled(model.num_features, 3)
+    for layer, block in zip(convs, model.features):
+        conv, name = block[1], layer["config"]["name"]
+        kernel = _weight(weights, name, "kernel", 4, where)  # (kh, kw, in, out) -> (out, in, kh, kw)
+        _assign(conv.weight, kernel.transpose(3, 2, 0, 1), f"{where}: {name}/kernel")
+        _assign(conv.bias, _weight(weights, name, "bias", 1, where), f"{where}: {name}/bias")
+    for i, (layer, linear) in enumerate(zip(dense, ours_dense)):
+        name = layer["config"]["name"]
+        kernel = _weight(weights, name, "kernel", 2, where).T  # (in, out) -> (out, in)
+        if i == 0:  # columns in Keras' channels-last flatten order (H, W, C) -> ours, over NCHW maps (C, H, W)
+            if kernel.shape[1] != h * w * model.features[-1][1].out_channels:
+                raise ConfigError(f"{where}: {name}/kernel has {kernel.shape[1]} inputs, the flattened "
+                                  f"{h} x {w} x {model.features[-1][1].out_channels} maps are not that many")
+            kernel = kernel.reshape(-1, h, w, kernel.shape[1] // (h * w)).transpose(0, 3, 1, 2).reshape(len(kernel), -1)
+        _assign(linear.weight, kernel, f"{where}: {name}/kernel")
+        _assign(linear.bias, _weight(weights, name, "bias", 1, where), f"{where}: {name}/bias")
+    for layer, bn in zip(bns, ours_bn):
+        name = layer["config"]["name"]
+        for ours, theirs in (("weight", "gamma"), ("bias", "beta"), ("running_mean", "moving_mean"),
+                             ("running_var", "moving_variance")):
+            _assign(getattr(bn, ours), _weight(weights, name, theirs, 1, where), f"{where}: {name}/{theirs}")
+        # the statistics are trained ones: fine-tuning must average into them, not restart from its first batch
+        bn.num_batches_tracked.fill_(1)
+    return model.eval()

@@ -48,7 +48,7 @@ __all__ = ["XTacformer"]
             "grad_clip": 1.0},
     causal=True,
     streaming=True,
-    revision=1,
+    revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list
 )
 class XTacformer(Tacformer):
     """X-Tacformer: Tacformer's spatial branch plus the temporal graph attention branch (structure in the module

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import json
 import math
 from collections import deque
 from fractions import Fraction
@@ -12,7 +13,7 @@ import pytest
 import torch
 from scipy.sparse.csgraph import minimum_spanning_tree
 
-from tactile_zoo.data.sensors import Sensor, knn_edges, mst_edges, radius_edges, rasterize
+from tactile_zoo.data.sensors import TACTILESGNET_EDGES, Sensor, knn_edges, mst_edges, radius_edges, rasterize
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.registry import get_sensor
 
@@ -72,19 +73,37 @@ def reference_prim(positions, root: int) -> set[tuple[int, int]]:
 
 
 # ----------------------------------------------------------------------------------------------- MST
-def test_neutouch_default_graph_is_the_mst_rooted_at_the_centre_taxel():
+def test_neutouch_default_graph_is_the_reference_tree():
     edges = undirected(NEUTOUCH.edge_index())
     assert NEUTOUCH.num_nodes == 39 and len(edges) == 38
     assert len(components(39, edges)) == 1  # 38 edges + connected = a spanning tree
-    assert edges == undirected(NEUTOUCH.edge_index("mst", root=20)) == reference_prim(NEUTOUCH.positions, 20)
-    assert NEUTOUCH.positions[20] == (0.0, 0.0)
-    # the root's nearest taxels are 15 and 16 (a tie): the lower index joins first, from the root
-    assert (15, 20) in edges and (16, 20) in edges
-    # and it is a minimum spanning tree
+    assert edges == {tuple(sorted(p)) for p in TACTILESGNET_EDGES}
+    assert NEUTOUCH.positions[20] == (0.0, 0.0) and (15, 20) in edges and (16, 20) in edges
+    # a minimum spanning tree, like ours from the same root: they differ only in two edges, each swapped for its
+    # mirror image of the same length (the reference's order among exactly equal distances)
+    ours = undirected(NEUTOUCH.edge_index("mst", root=20))
+    assert ours == reference_prim(NEUTOUCH.positions, 20)
+    assert sorted(edges - ours) == [(9, 13), (23, 27)] and sorted(ours - edges) == [(8, 11), (22, 28)]
+    for a, b in ((9, 13), (23, 27)):
+        mirror = {(9, 13): (8, 11), (23, 27): (22, 28)}[a, b]
+        assert math.dist(NEUTOUCH.positions[a], NEUTOUCH.positions[b]) == pytest.approx(
+            math.dist(NEUTOUCH.positions[mirror[0]], NEUTOUCH.positions[mirror[1]]), rel=1e-12)
     dist = torch.cdist(torch.tensor(NEUTOUCH.positions, dtype=torch.float64),
                        torch.tensor(NEUTOUCH.positions, dtype=torch.float64))
     optimum = minimum_spanning_tree(dist.numpy()).sum()
     assert sum(float(dist[a, b]) for a, b in edges) == pytest.approx(optimum, rel=1e-12)
+
+
+@pytest.mark.real_data
+def test_neutouch_default_graph_equals_the_shared_reference_edge_list(shared_data):
+    listed = json.loads((shared_data / "ev_objects" / "reference_mst_edges.json").read_text())["edges"]
+    assert undirected(NEUTOUCH.edge_index()) == {tuple(sorted(p)) for p in listed}
+
+
+def test_explicit_edges_are_checked_and_a_tiled_reference_sensor_is_one_mst():
+    with pytest.raises(ConfigError, match="self-loops or name no taxel"):
+        NEUTOUCH.edge_index("edges", pairs=((0, 39),))
+    assert undirected(NEUTOUCH.edge_index("edges", pairs=((1, 0), (0, 1), (2, 3)))) == {(0, 1), (2, 3)}
 
 
 def tree_length(positions, edges: set[tuple[int, int]]) -> float:

@@ -43,13 +43,13 @@ def test_reference_configuration_and_metadata() -> None:
     for lif in model.lifs:
         assert (lif.beta, lif.threshold, lif.reset, lif.detach_reset) == (0.2, 0.5, "zero", False)
         assert (lif.surrogate.kind, lif.surrogate.param, lif.backend) == ("rect", 1.0, "fused")
-    assert torch.equal(model.gc.edge_index, tz.get_sensor("neutouch").edge_index())  # the MST
+    assert torch.equal(model.gc.edge_index, tz.get_sensor("neutouch").edge_index())  # the reference tree
     meta = get_model_entry("sgnet").meta
     assert meta["year"] == 2020 and set(meta["tags"]) == {"spiking", "graph"}
     assert set(meta["inputs"]) == {"graph", "globals"} and meta["causal"] and meta["streaming"]
     recipe = meta["recipe"]
     assert (recipe["loss"], recipe["optimizer"], recipe["amsgrad"], recipe["lr"]) == ("mse_rate", "adam", True, 1e-3)
-    assert recipe["schedule"] == {"type": "multistep", "milestones": [40, 80], "gamma": 0.1}
+    assert recipe["schedule"] == {"type": "multistep", "milestones": [41, 81], "gamma": 0.1}  # x0.1 after epochs 41, 81
     assert recipe["max_epochs"] == 100 and recipe["patience"] is None and recipe["batch_size"] == 8
 
 
