@@ -96,7 +96,7 @@ def test_info_sensor(capsys):
     assert main(["info", "NeuTouch", "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["kind"] == "sensor" and info["name"] == "neutouch" and info["taxels"] == 39
-    assert info["default_graph"] == "mst" and info["edges"] == 38 and info["channels"] == ["on", "off"]
+    assert info["default_graph"] == "edges" and info["edges"] == 38 and info["channels"] == ["on", "off"]
     assert main(["info", "biotac_sp"]) == 0
     rows = {line.split()[0]: line.split(None, 1)[1] for line in _lines(capsys.readouterr().out)}
     assert rows["kind"] == "sensor" and rows["taxels"] == "24" and rows["grid_shape"] == "[12, 11]"

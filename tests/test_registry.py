@@ -189,11 +189,11 @@ def test_list_patterns_wildcards_and_tags():
     ({"year": "2020"}, "year"),
     ({"recipe": ["ce"]}, "recipe"),
     ({"recipe": {"los": "ce"}}, "los"),
-    ({"recipe": {"loss": "nll"}}, "recipe: loss"),
-    ({"recipe": {"optimizer": "lbfgs"}}, "recipe: optimizer"),
-    ({"recipe": {"lr": -0.1}}, "recipe: lr"),
-    ({"recipe": {"batch_size": 0}}, "recipe: batch_size"),
-    ({"recipe": {"schedule": {"type": "sawtooth"}}}, "recipe: schedule type"),
+    ({"recipe": {"loss": "nll"}}, "recipe 'default': loss"),
+    ({"recipe": {"optimizer": "lbfgs"}}, "recipe 'default': optimizer"),
+    ({"recipe": {"lr": -0.1}}, "recipe 'default': lr"),
+    ({"recipe": {"batch_size": 0}}, "recipe 'default': batch_size"),
+    ({"recipe": {"schedule": {"type": "sawtooth"}}}, "recipe 'default': schedule type"),
 ])
 def test_bad_model_metadata_is_a_config_error(meta, culprit):
     name = unique("bad_meta")

@@ -21,6 +21,7 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     download: false
     force: false
     prefixes: [0.1, 0.25, 0.5, 0.75, 1.0]
+    recipe_name: source             # which named recipe every model starts from (default: each model's default)
     recipe: {lr: 0.001}             # every model
     hparams: {}                     # every model's constructor keywords
     model_overrides:
@@ -75,6 +76,7 @@ class BenchConfig:
     threads: int | None = None
     plugin_modules: list[str] = field(default_factory=list)
     prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))
+    recipe_name: str | None = None
     recipe: dict[str, Any] = field(default_factory=dict)
     hparams: dict[str, Any] = field(default_factory=dict)
     model_overrides: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
@@ -99,6 +101,10 @@ class BenchConfig:
         if self.scheduler is not None and self.executor != "dask":
             raise ConfigError("--scheduler only applies to --executor dask")
         self.prefixes = parse_prefixes(self.prefixes)
+        if isinstance(self.recipe, str):  # ``recipe: source`` in a YAML file names a recipe
+            self.recipe_name, self.recipe = self.recipe, {}
+        if self.recipe_name is not None and (not isinstance(self.recipe_name, str) or not self.recipe_name.strip()):
+            raise ConfigError(f"--recipe must name a recipe (e.g. source), got {self.recipe_name!r}")
         self.plugin_modules = _names("plugin_modules", self.plugin_modules, allow_empty=True)
         for key in ("recipe", "hparams", "model_overrides", "dataset_kwargs"):
             if not isinstance(getattr(self, key), Mapping):

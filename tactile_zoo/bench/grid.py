@@ -226,7 +226,8 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
 def _cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     entry = registry.get_model_entry(model)
     recipe_over, hparams = config.overrides_for(model, (entry.name, entry.qualified_name))
-    return resolve_cell(model, dataset, recipe=recipe_over, hparams=hparams, epochs=config.effective_epochs(),
+    return resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
+                        epochs=config.effective_epochs(),
                         dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
                         prefixes=config.prefixes)
 

@@ -13,7 +13,8 @@ Plots (matplotlib, Agg backend, PNG):
 * ``plots/bars_<dataset>.png``: mean accuracy per model with the sample standard deviation over cells as error bars
   and the chance level;
 * ``plots/confusion/<dataset>__<model>.png``: the confusion matrix of the model's best cell on that dataset (highest
-  test accuracy, then lowest fold and seed), class names on the axes, rows normalised;
+  validation accuracy, then lowest fold and seed: never chosen by test accuracy), class names on the axes, rows
+  normalised;
 * ``plots/curves_<dataset>.png``: training loss, validation loss (both on a log scale when positive) and validation
   accuracy per epoch of each model's best cell;
 * ``plots/early_<dataset>.png``: accuracy versus the fraction of the sequence seen (early classification), one line
@@ -189,12 +190,12 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
                 "below include them. Rerun them: the same `tactile-zoo bench` command with `--force`, or with a "
                 "fresh `--out`.", "", *outdated, ""]
     out += ["## Summary", ""]
-    rows = [[s["model"], s["dataset"], str(s["n_cells"]),
+    rows = [[s["model"], s["recipe"], s["dataset"], str(s["n_cells"]),
              f"{_f(s['accuracy_mean'])} ± {_f(s['accuracy_std'])}", _f(s["balanced_accuracy_mean"]),
              _f(s["macro_f1_mean"]), _f(s["train_seconds_mean"], 1), _f(s["rank"]), _f(s["mean_rank"], 2)]
             for s in sorted(summary, key=lambda s: (s["dataset"], s["rank"] or 1e9, s["model"]))]
-    out.append(_table(["model", "dataset", "cells", "accuracy", "balanced acc.", "macro-F1", "train s", "rank",
-                       "mean rank"], rows) if rows else "No finished cell yet.")
+    out.append(_table(["model", "recipe", "dataset", "cells", "accuracy", "balanced acc.", "macro-F1", "train s",
+                       "rank", "mean rank"], rows) if rows else "No finished cell yet.")
     out.append("")
     if "heatmap" in figures:
         out += ["## Accuracy by model and dataset", "", f"![heat map]({figures['heatmap']})", ""]
@@ -256,9 +257,17 @@ def _early_table(records: list[dict[str, Any]], dataset: str) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- plots
+def _val_accuracy(record: dict[str, Any]) -> float:
+    val = (record.get("metrics") or {}).get("val") or {}
+    accuracy = val.get("accuracy")
+    return float(accuracy) if isinstance(accuracy, int | float) and accuracy == accuracy else float("-inf")
+
+
 def _best_cells(records: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
+    """Each model's "best" cell per dataset, by VALIDATION accuracy (then fold, seed): a cell picked for showing by its
+    test accuracy would put a selected-on-test figure in the report."""
     best: dict[tuple[str, str], dict[str, Any]] = {}
-    for rec in sorted(_ok(records), key=lambda r: (-r["metrics"]["test"]["accuracy"], r["fold"], r["seed"])):
+    for rec in sorted(_ok(records), key=lambda r: (-_val_accuracy(r), r["fold"], r["seed"])):
         best.setdefault((rec["model"], rec["dataset"]), rec)
     return best
 

@@ -19,6 +19,8 @@ import math
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
+from ..engine.cell import recipe_name_of
+
 if TYPE_CHECKING:  # pandas is imported on first use: it adds most of a second to every worker's start-up
     import pandas as pd
 
@@ -28,12 +30,12 @@ __all__ = ["LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderbo
 #: The leaderboard's fixed columns (the issue's list, in its order); extra columns follow ``error``:
 #: ``accuracy_<split>`` for each extra test split, ``accuracy_at_<p>`` per prefix percentage, ``earliness``.
 LEADERBOARD_COLUMNS = (
-    "model", "dataset", "protocol", "fold", "seed", "status", "accuracy", "balanced_accuracy", "macro_f1", "n_train",
-    "n_val", "n_test", "epochs_run", "best_epoch", "train_seconds", "infer_ms_per_sample", "params",
+    "model", "recipe", "dataset", "protocol", "fold", "seed", "status", "accuracy", "balanced_accuracy", "macro_f1",
+    "n_train", "n_val", "n_test", "epochs_run", "best_epoch", "train_seconds", "infer_ms_per_sample", "params",
     "peak_memory_mb", "device", "config_hash", "tactile_zoo_version", "torch_version", "error",
 )
 SUMMARY_COLUMNS = (
-    "model", "dataset", "n_cells", "accuracy_mean", "accuracy_std", "balanced_accuracy_mean", "macro_f1_mean",
+    "model", "recipe", "dataset", "n_cells", "accuracy_mean", "accuracy_std", "balanced_accuracy_mean", "macro_f1_mean",
     "train_seconds_mean", "rank", "mean_rank",
 )
 #: Columns that depend on the machine (left out when comparing two runs' numbers).
@@ -66,7 +68,8 @@ def _cell_row(rec: dict[str, Any], extra_splits: set[str], prefixes: set[float])
     test = metrics.get("test") or {}
     versions = rec.get("versions") or {}
     row: dict[str, Any] = {
-        "model": rec["model"], "dataset": rec["dataset"], "protocol": rec.get("protocol", ""),
+        "model": rec["model"], "recipe": recipe_name_of(rec.get("config") or {}), "dataset": rec["dataset"],
+        "protocol": rec.get("protocol", ""),
         "fold": rec.get("fold"), "seed": rec.get("seed"), "status": rec["status"],
         "accuracy": test.get("accuracy"), "balanced_accuracy": test.get("balanced_accuracy"),
         "macro_f1": test.get("macro_f1"), "n_train": rec.get("n_train"), "n_val": rec.get("n_val"),
@@ -160,10 +163,13 @@ def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple
     if not ok:
         return [], summary_columns
     # object columns keep each value as the Python object it was (int, float, None): no NaN, no float64 upcast
-    cells = pd.DataFrame({c: [row.get(c) for row in ok] for c in ("model", "dataset", *averaged)}, dtype=object)
+    cells = pd.DataFrame({c: [row.get(c) for row in ok] for c in ("model", "recipe", "dataset", *averaged)},
+                         dtype=object)
     out: list[dict[str, Any]] = []
     for (model, dataset), group in cells.groupby(["model", "dataset"], sort=True, dropna=False):
-        entry: dict[str, Any] = {"model": model, "dataset": dataset, "n_cells": len(group),
+        # one row per model and dataset; a group mixing recipes names them all (report.md warns about the mix)
+        recipes = "+".join(sorted({str(r) for r in group["recipe"]}))
+        entry: dict[str, Any] = {"model": model, "recipe": recipes, "dataset": dataset, "n_cells": len(group),
                                  "accuracy_mean": _mean(group["accuracy"].tolist()),
                                  "accuracy_std": _std(group["accuracy"].tolist()),
                                  "balanced_accuracy_mean": _mean(group["balanced_accuracy"].tolist()),

@@ -17,6 +17,9 @@ def echo(*args: Any) -> None:
 
 
 def add_recipe_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--recipe", dest="recipe_name", default=None, metavar="NAME",
+                   help="start every model from its named recipe NAME (e.g. source; default: each model's default; "
+                        "`tactile-zoo info MODEL` lists them); --set overrides keys on top")
     p.add_argument("--epochs", default=None, help="replace every model's max_epochs")
     p.add_argument("--set", dest="sets", action="append", default=[], metavar="[MODEL:]KEY=VALUE",
                    help="override a training-recipe key (lr, batch_size, patience, schedule, ...) for every model or "

@@ -48,7 +48,7 @@ def _bench_config(args: argparse.Namespace) -> Any:
 
     flags = {key: getattr(args, key) for key in (
         "models", "datasets", "root", "download", "seeds", "folds", "epochs", "refit", "quick", "device", "out",
-        "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes")}
+        "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes", "recipe_name")}
     return merge_config(load_yaml_config(args.config) if args.config else None, flags, args.sets, args.hparams,
                         args.dataset_args)
 

@@ -33,7 +33,7 @@ def _single_config(args: argparse.Namespace) -> Any:
 
     flags = {"models": [args.model], "datasets": [args.dataset], "root": args.root, "download": args.download,
              "epochs": args.epochs, "refit": args.refit, "quick": args.quick, "device": args.device,
-             "plugin_modules": args.plugin_modules}
+             "plugin_modules": args.plugin_modules, "recipe_name": args.recipe_name}
     return merge_config(None, flags, args.sets, args.hparams, args.dataset_args)
 
 
@@ -59,7 +59,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     dataset = resolve_datasets([args.dataset])[0]
     recipe_over, hparams = config.overrides_for(model, (registry.get_model_entry(model).name,))
     # the harness's own cell: same resolution (the dataset's epoch budget included), same numbers
-    cell = resolve_cell(model, dataset, recipe=recipe_over, hparams=hparams, epochs=config.effective_epochs(),
+    cell = resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
+                        epochs=config.effective_epochs(),
                         dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
                         prefixes=config.prefixes)
     outcome = train_cell(cell, fold=fold, seed=seed, root=config.root, download=config.download,

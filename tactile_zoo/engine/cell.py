@@ -32,7 +32,7 @@ from .tensors import take
 from .train import FitResult, fit
 
 __all__ = ["CellConfig", "CellResult", "ModelCannotConsume", "resolve_cell", "train_cell", "load_splits",
-           "build_model"]
+           "build_model", "recipe_name_of"]
 
 SPLITS = ("train", "val", "test")
 
@@ -46,12 +46,13 @@ class CellConfig:
     """What one cell runs, fold and seed aside: everything that can change its numbers.
 
     ``to_dict()`` is the plain form stored in a cell record; every key but ``causal`` (a property of the model, not
-    a setting) enters the harness's cell hash.
+    a setting) and ``recipe_name`` (a label: the resolved recipe itself is hashed) enters the harness's cell hash.
     """
 
     model: str  # the listed registry name (``dist:name`` for a shadowed or clashing plugin)
     dataset: str
     recipe: Recipe
+    recipe_name: str = "source"  # which of the model's named recipes ``recipe`` started from (overrides on top)
     model_source: str = "builtin"  # the plugin distribution, or "builtin"
     hparams: Mapping[str, Any] = field(default_factory=dict)
     dataset_kwargs: Mapping[str, Any] = field(default_factory=dict)
@@ -71,13 +72,14 @@ class CellConfig:
                 "dataset_revision": self.dataset_revision}
 
     def to_dict(self) -> dict[str, Any]:
-        return {**self.hashed(), "causal": self.causal}
+        return {**self.hashed(), "causal": self.causal, "recipe_name": self.recipe_name}
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any]) -> CellConfig:
         """The inverse of :meth:`to_dict` (a record's ``config``; revisions absent from older records mean 1)."""
         return cls(model=values["model"], dataset=values["dataset"],
                    recipe=Recipe.from_dict(values["recipe"], where=f"recipe of {values['model']}"),
+                   recipe_name=recipe_name_of(values),
                    model_source=values.get("model_source", "builtin"), hparams=dict(values.get("hparams") or {}),
                    dataset_kwargs=dict(values.get("dataset_kwargs") or {}), refit=bool(values.get("refit")),
                    subset=values.get("subset") or None, prefixes=tuple(values.get("prefixes") or (1.0,)),
@@ -86,7 +88,15 @@ class CellConfig:
                    dataset_revision=int(values.get("dataset_revision", registry.DEFAULT_REVISION)))
 
 
-def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any] | None = None,
+def recipe_name_of(config: Mapping[str, Any]) -> str:
+    """The recipe name of a cell's stored configuration. Records from before named recipes ran the registered
+    recipe, which a built-in model now calls ``"source"`` and a plugin's lone recipe ``"default"``."""
+    legacy = "source" if config.get("model_source", "builtin") == "builtin" else "default"
+    return str(config.get("recipe_name") or legacy)
+
+
+def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any] | str | None = None,
+                 recipe_name: str | None = None,
                  hparams: Mapping[str, Any] | None = None, epochs: int | None = None,
                  dataset_kwargs: Mapping[str, Any] | None = None, refit: bool = False,
                  subset: Mapping[str, int] | None = None, prefixes: Sequence[float] = DEFAULT_PREFIXES) -> CellConfig:
@@ -95,7 +105,10 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
     Args:
         model: a registered model name, as listed (``list_models()``).
         dataset: a registered dataset name, as listed.
-        recipe: overrides of single keys on top of the model's registered recipe, or a :class:`Recipe` used as is.
+        recipe: overrides of single keys on top of the model's named recipe, a :class:`Recipe` used as is, or a
+            recipe name (the same as ``recipe_name``).
+        recipe_name: which of the model's registered recipes to start from (``"source"``...); default: the model's
+            default recipe.
         hparams: the model's constructor keywords.
         epochs: replaces ``max_epochs`` (the CLI's ``--epochs``); without it the dataset's epoch budget (registry
             metadata ``max_epochs``) caps an overriding-dict or registered recipe, its schedule compressed to fit.
@@ -106,15 +119,22 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
     """
     entry = registry.get_model_entry(model)
     data_entry = registry.get_dataset_entry(dataset)
+    if isinstance(recipe, str):
+        recipe, recipe_name = None, recipe
+    try:
+        name, base = registry.model_recipe(entry.meta, recipe_name)
+    except ConfigError as exc:
+        raise ConfigError(f"model {model!r}: {exc}") from None
     if isinstance(recipe, Recipe):
-        resolved = resolve_recipe(recipe, None, epochs)
+        name, resolved = "custom", resolve_recipe(recipe, None, epochs)
     else:
-        resolved = resolve_recipe(entry.meta.get("recipe"), recipe, epochs, where=f"recipe of model {model!r}")
+        resolved = resolve_recipe(base, recipe, epochs, where=f"recipe of model {model!r}")
         budget = data_entry.meta.get("max_epochs")
         if epochs is None and budget is not None:
             resolved = cap_epochs(resolved, int(budget))
-    return CellConfig(model=model, dataset=dataset, recipe=resolved, model_source=entry.dist or "builtin",
-                      hparams=dict(hparams or {}), dataset_kwargs=dict(dataset_kwargs or {}), refit=bool(refit),
+    return CellConfig(model=model, dataset=dataset, recipe=resolved, recipe_name=name,
+                      model_source=entry.dist or "builtin", hparams=dict(hparams or {}),
+                      dataset_kwargs=dict(dataset_kwargs or {}), refit=bool(refit),
                       subset=dict(subset) if subset else None, prefixes=tuple(prefixes),
                       causal=bool(entry.meta.get("causal", False)), model_revision=registry.revision_of(entry),
                       dataset_revision=registry.revision_of(data_entry))

@@ -179,22 +179,21 @@ def _clone_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
 
 
 def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: int
-                 ) -> tuple[torch.nn.Module, dict[str, Any] | None]:
-    """A module (built from its registry name after seeding) and its registered default recipe."""
+                 ) -> tuple[torch.nn.Module, Any]:
+    """A module (built from its registry name after seeding) and its registry metadata (its named recipes)."""
     if isinstance(model, str):
         from ..registry import get_model_entry
         from .cell import build_model
 
-        return build_model(model, spec, hparams, seed), get_model_entry(model).meta.get("recipe")
+        return build_model(model, spec, hparams, seed), get_model_entry(model).meta
     if not isinstance(model, torch.nn.Module):
         raise ConfigError(f"fit() needs a torch.nn.Module or a registered model name, got {type(model).__name__}")
     if hparams:
         raise ConfigError("hparams only apply when fit() builds the model from its name")
-    meta = getattr(model, "zoo_meta", None) or {}
-    return model, meta.get("recipe")
+    return model, getattr(model, "zoo_meta", None) or {}
 
 
-def _fit_named_cell(model: str, dataset: str, recipe: Recipe | dict[str, Any] | None, seed: int, device: Any,
+def _fit_named_cell(model: str, dataset: str, recipe: Recipe | dict[str, Any] | str | None, seed: int, device: Any,
                     epochs: int | None, refit: bool, hparams: dict[str, Any] | None, root: Any, fold: int,
                     dataset_kwargs: dict[str, Any] | None, progress: bool,
                     callback: Callable[[dict[str, Any]], None] | None) -> FitResult:
@@ -208,7 +207,7 @@ def _fit_named_cell(model: str, dataset: str, recipe: Recipe | dict[str, Any] | 
 
 
 @flush_denormals()
-def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | None = None, seed: int = 0,
+def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | str | None = None, seed: int = 0,
         val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None, *,
         test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None, root: Any = None,
         fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = False,
@@ -222,8 +221,9 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
             ``fold`` are loaded from ``root`` with ``dataset_kwargs``, unless given explicitly). A model name with a
             dataset name runs exactly the harness's cell (:func:`tactile_zoo.engine.cell.train_cell`): the dataset's
             epoch budget applies and the numbers equal the leaderboard's for the same settings and thread count.
-        recipe: a :class:`Recipe` (used as is), a dict of overrides on top of the model's registered recipe, or
-            ``None`` for the registered recipe (the harness default for a model without one).
+        recipe: a :class:`Recipe` (used as is), a registered recipe's name (``"source"``), a dict of overrides on
+            top of the model's default recipe, or ``None`` for that default (the harness default for a model that
+            registers none).
         seed: seeds model initialisation (name given), dropout and the batch order.
         val_dataset: the split that selects the epoch and drives early stopping; never the test split.
         device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``...
@@ -249,11 +249,15 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
     if len(train) == 0:
         raise ConfigError("the training split is empty")
     dev = resolve_device(device)
-    module, base_recipe = _named_model(model, train.spec, hparams, seed)
+    module, meta = _named_model(model, train.spec, hparams, seed)
     if isinstance(recipe, Recipe):
         rec = resolve_recipe(recipe, None, epochs)
     else:
-        rec = resolve_recipe(base_recipe, recipe, epochs)
+        from ..registry import model_recipe
+
+        name, base_recipe = model_recipe(meta, recipe if isinstance(recipe, str) else None)
+        rec = resolve_recipe(base_recipe, None if isinstance(recipe, str) else recipe, epochs,
+                             where=f"recipe {name!r}")
     seed_everything(seed)  # dropout and any other randomness during training
     module.to(dev)
     module.zoo_loss = rec.loss  # so evaluate(model, ...) later knows how scores become probabilities

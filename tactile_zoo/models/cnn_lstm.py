@@ -69,8 +69,8 @@ class FrameEncoder(nn.Module):
     tags=["recurrent", "convolutional"],
     inputs=["grid", "globals"],
     # ours, from seed-0 validation runs on Ev-Objects (docs/models.md): with 50 bins the best epoch came at 80-106
-    recipe={"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
-            "max_epochs": 150, "patience": 30, "batch_size": 32, "grad_clip": 1.0},
+    recipes={"source": {"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False,
+                        "schedule": None, "max_epochs": 150, "patience": 30, "batch_size": 32, "grad_clip": 1.0}},
     causal=True,
     streaming=True,
     revision=1,

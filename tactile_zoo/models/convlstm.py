@@ -23,12 +23,15 @@ import torch
 from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
+from ..errors import ConfigError
 from ..nn.convlstm import ConvLSTM, ConvLSTMConfig
 from ..registry import register_model
 from ._binned import BinnedStreamer, bins_for
 from ._inputs import sensor_grid
 
-__all__ = ["ConvLSTMNet"]
+__all__ = ["ConvLSTMNet", "FRAME_NORMS"]
+
+FRAME_NORMS = (None, "minmax")
 
 
 
@@ -44,8 +47,8 @@ __all__ = ["ConvLSTMNet"]
     tags=["recurrent", "convolutional"],
     inputs=["grid", "globals"],
     # the source gives Adam 1e-3, batch 32, cross-entropy; epochs and patience are ours (docs/models.md)
-    recipe={"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
-            "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0},
+    recipes={"source": {"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False,
+                        "schedule": None, "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0}},
     causal=True,
     streaming=True,
     revision=1,
@@ -53,9 +56,10 @@ __all__ = ["ConvLSTMNet"]
 class ConvLSTMNet(BinnedStreamer):
     """ConvLSTM classifier of Zapata-Impata et al. (2019): sensor images, two ConvLSTM layers, pooled last state.
 
-    Departures (ours): frames averaged into at most ``max_frames`` bins (cost), "same" padding, logistic gates
-    (Keras' default is a hard sigmoid), our epoch budget. Model card: docs/models.md, section "`convlstm`: ConvLSTM
-    (Zapata-Impata et al., 2019)".
+    Departures (ours, defaults): frames averaged into at most ``max_frames`` bins (cost), Keras-style initialisation,
+    no per-frame min-max scaling of the image, our epoch budget; ``init="torch"`` and ``frame_norm="minmax"`` give the
+    source's PyTorch notebook (with the dataset's raw readings). Model card: docs/models.md, section "`convlstm`:
+    ConvLSTM (Zapata-Impata et al., 2019)".
 
     Args:
         spec: the dataset's :class:`DatasetSpec`.
@@ -68,6 +72,13 @@ class ConvLSTMNet(BinnedStreamer):
             results, see :mod:`tactile_zoo.nn.convlstm`.
         max_frames: the recurrence reads ``ceil(T / k)`` bins of ``k = ceil(T / max_frames)`` averaged frames, ``T``
             the spec's ``num_steps`` (ours, 50); ``None`` reads every frame, as the source did.
+        frame_norm: ``None`` (default) feeds the image as is; ``"minmax"`` rescales every image (each frame, or bin,
+            and channel) to [0, 1] by its own minimum and maximum over the grid, filled cells included, as the
+            source's preprocessing did (a constant image becomes 0).
+        init: ConvLSTM initialisation, ``"keras"`` (default: Glorot / orthogonal, forget bias 1) or ``"torch"``
+            (PyTorch's ``nn.Conv2d`` default, the source's); see :mod:`tactile_zoo.nn.convlstm`.
+        dropout: dropout after the hidden FC layer's ReLU (default 0.0; the source's read-out has the layer, its
+            released run sets 0.0).
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming:
@@ -76,20 +87,33 @@ class ConvLSTMNet(BinnedStreamer):
 
     def __init__(self, spec: DatasetSpec, hidden_channels: int = 16, num_layers: int = 2, kernel_size: int = 3,
                  fc_units: int = 16, fill_passes: int | None = None, backend: str = "fused",
-                 max_frames: int | None = 50) -> None:
+                 max_frames: int | None = 50, frame_norm: str | None = None, init: str = "keras",
+                 dropout: float = 0.0) -> None:
         super().__init__()
+        if frame_norm not in FRAME_NORMS:
+            raise ConfigError(f"convlstm: frame_norm must be one of {FRAME_NORMS}, got {frame_norm!r}")
+        if not 0.0 <= dropout < 1.0:
+            raise ConfigError(f"convlstm: dropout must be in [0, 1), got {dropout!r}")
+        self.frame_norm = frame_norm
         self.name, self.spec, self.bin_size = "convlstm", spec, bins_for("convlstm", spec.num_steps, max_frames)
         self.grid = sensor_grid(spec, fill_passes)
         self.convlstm = ConvLSTM(ConvLSTMConfig(spec.num_channels, hidden_channels, num_layers, kernel_size,
-                                                backend=backend))
+                                                backend=backend, init=init))
         self.fc = nn.Linear(hidden_channels + spec.num_globals, fc_units)
+        self.drop = nn.Dropout(dropout)
         self.head = nn.Linear(fc_units, spec.num_classes)
 
     def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
         # bins arrive summed, (T', B, N, C); their mean is the image, and an open bin's missing frames count as zeros
         frames = self.grid(xb / self.bin_size).transpose(0, 1)  # (B, T', C, H, W)
+        if self.frame_norm == "minmax":  # every image to [0, 1] by its own range (the source's feature scaling)
+            low = frames.amin(dim=(-2, -1), keepdim=True)
+            frames = (frames - low) / (frames.amax(dim=(-2, -1), keepdim=True) - low).clamp_min(1e-12)
         _, states = self.convlstm(frames, core)
         feats = states[-1][0].mean(dim=(-2, -1))  # (B, hidden): global average pooling of the top layer's h_T
         if gb is not None:  # globals join after pooling: the last bin's mean (the last step's values when unbinned)
             feats = torch.cat([feats, gb[-1]], dim=-1)  # (B, hidden + G)
-        return self.head(torch.relu(self.fc(feats))), states
+        hidden = torch.relu(self.fc(feats))
+        if self.drop.p > 0:  # skipped at 0, so the default draws nothing from the RNG
+            hidden = self.drop(hidden)
+        return self.head(hidden), states

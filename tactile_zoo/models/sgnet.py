@@ -53,9 +53,9 @@ class SGNetState:
     inputs=["graph", "globals"],
     # the reference's recipe (MSE on rates, Adam amsgrad 1e-3, x0.1 after epochs 41 and 81, 100 epochs) at batch 8
     # instead of 1 (see the model card), no early stopping: the reference trains the whole schedule
-    recipe={"loss": "mse_rate", "optimizer": "adam", "amsgrad": True, "lr": 1e-3, "weight_decay": 0.0,
-            "schedule": {"type": "multistep", "milestones": [41, 81], "gamma": 0.1}, "max_epochs": 100,
-            "patience": None, "batch_size": 8},
+    recipes={"source": {"loss": "mse_rate", "optimizer": "adam", "amsgrad": True, "lr": 1e-3, "weight_decay": 0.0,
+                        "schedule": {"type": "multistep", "milestones": [41, 81], "gamma": 0.1}, "max_epochs": 100,
+                        "patience": None, "batch_size": 8}},
     causal=True,
     streaming=True,
     revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list

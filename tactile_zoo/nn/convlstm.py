@@ -10,7 +10,8 @@ Update rule for one layer, ``*`` a 2-D convolution with "same" zero padding and 
     H_t = o_t o tanh(C_t)
 
 Shi et al. also add peephole terms ``W_c o C`` to the gates; the ConvLSTM source of the tactile model
-(yayaneath/BioTacSP-DoS, Keras ``ConvLSTM2D``) has none, and neither has this layer. Initial states are zero.
+(yayaneath/BioTacSP-DoS, PyTorch notebooks: its peephole weights are constant zeros) has none, and neither has this
+layer. Initial states are zero.
 
 Speed: the input-side convolutions ``W_x* * X_t`` do not depend on the recurrence, so one convolution computes them
 for all ``B*T`` frames at once; only the hidden-side convolution and the gates run once per step. A stack runs layer by
@@ -33,8 +34,11 @@ layer, so layer ``l+1``'s input convolution is again one call over all frames. T
     the same update written with ordinary differentiable ops, stepped in Python: the reference the fused backend
     is tested against, and the path for double backward.
 
-Initialisation follows Keras' ``ConvLSTM2D`` defaults, the framework of the source: Glorot-uniform input kernels,
-orthogonal recurrent kernels, zero biases except 1 on the forget gate (``unit_forget_bias``).
+Initialisation (``init``): ``"keras"`` (default) follows Keras' ``ConvLSTM2D`` defaults: Glorot-uniform input
+kernels, orthogonal recurrent kernels, zero biases except 1 on the forget gate (``unit_forget_bias``). ``"torch"``
+keeps PyTorch's own ``nn.Conv2d`` initialisation, the one of the tactile source's PyTorch cells (one convolution per
+gate there; the fused ``4h``-channel convolution here has the same fan-in, hence the same distributions), with no
+forget-gate bias.
 """
 
 from __future__ import annotations
@@ -48,7 +52,7 @@ from torch.autograd.function import once_differentiable
 
 from ..errors import ConfigError
 
-__all__ = ["ConvLSTMCell", "ConvLSTM", "ConvLSTMConfig", "BACKENDS"]
+__all__ = ["ConvLSTMCell", "ConvLSTM", "ConvLSTMConfig", "BACKENDS", "INITS"]
 
 State = tuple[Tensor, Tensor]  # (h, c), each (B, hidden, H, W)
 
@@ -177,6 +181,7 @@ class _FusedRecurrence(torch.autograd.Function):
 
 
 BACKENDS = ("fused", "autograd")
+INITS = ("keras", "torch")
 
 
 class ConvLSTMCell(nn.Module):
@@ -186,8 +191,9 @@ class ConvLSTMCell(nn.Module):
         in_channels: channels of the input frames.
         hidden_channels: channels of the hidden and cell state.
         kernel_size: odd side of the square kernels ("same" padding keeps the grid size, also on a 1x3 grid).
-        forget_bias: initial forget-gate bias.
+        forget_bias: initial forget-gate bias (``init="keras"`` only).
         backend: ``"fused"`` or ``"autograd"`` (module docstring).
+        init: ``"keras"`` (default) or ``"torch"`` (module docstring).
 
     Shapes:
         :meth:`forward`: ``x [B, T, C_in, H, W]`` -> ``(h_seq [B, T, hidden, H, W], (h_T, c_T))``;
@@ -196,7 +202,7 @@ class ConvLSTMCell(nn.Module):
     """
 
     def __init__(self, in_channels: int, hidden_channels: int, kernel_size: int = 3, forget_bias: float = 1.0,
-                 backend: str = "fused") -> None:
+                 backend: str = "fused", init: str = "keras") -> None:
         super().__init__()
         if kernel_size % 2 != 1 or kernel_size < 1:
             raise ConfigError(f"ConvLSTM kernel_size must be a positive odd integer, got {kernel_size}")
@@ -204,12 +210,15 @@ class ConvLSTMCell(nn.Module):
             raise ConfigError(f"ConvLSTM channels must be positive, got in={in_channels}, hidden={hidden_channels}")
         if backend not in BACKENDS:
             raise ConfigError(f"ConvLSTM backend must be one of {BACKENDS}, got {backend!r}")
+        if init not in INITS:
+            raise ConfigError(f"ConvLSTM init must be one of {INITS}, got {init!r}")
         self.hidden_channels, self.backend, self.padding = hidden_channels, backend, kernel_size // 2
         # gate order along the output channels: i, f, o (sigmoid, adjacent: one op), then g (tanh)
         self.input_conv = nn.Conv2d(in_channels, 4 * hidden_channels, kernel_size, padding=self.padding, bias=True)
         self.hidden_conv = nn.Conv2d(hidden_channels, 4 * hidden_channels, kernel_size, padding=self.padding,
                                      bias=False)
-        self.reset_parameters(forget_bias)
+        if init == "keras":  # "torch": the convolutions keep the initialisation they were built with
+            self.reset_parameters(forget_bias)
 
     def reset_parameters(self, forget_bias: float = 1.0) -> None:
         nn.init.xavier_uniform_(self.input_conv.weight)
@@ -270,6 +279,7 @@ class ConvLSTMConfig:
     kernel_size: int = 3
     forget_bias: float = 1.0
     backend: str = "fused"
+    init: str = "keras"
 
 
 class ConvLSTM(nn.Module):
@@ -290,7 +300,8 @@ class ConvLSTM(nn.Module):
         self.config = config
         widths = [config.in_channels] + [config.hidden_channels] * config.num_layers
         self.layers = nn.ModuleList(
-            ConvLSTMCell(widths[i], config.hidden_channels, config.kernel_size, config.forget_bias, config.backend)
+            ConvLSTMCell(widths[i], config.hidden_channels, config.kernel_size, config.forget_bias, config.backend,
+                         config.init)
             for i in range(config.num_layers))
 
     def init_state(self, batch_size: int, grid_shape: tuple[int, int]) -> list[State]:

@@ -42,6 +42,7 @@ from .entries import (  # noqa: F401
     MODEL_META_KEYS,
     Entry,
     _unregister,
+    model_recipe,
     normalize_name,
     register_dataset,
     register_model,
@@ -64,5 +65,5 @@ __all__ = [
     "list_models", "list_datasets", "list_sensors", "create_model", "load_dataset", "get_sensor",
     "get_model_entry", "get_dataset_entry", "plugins", "normalize_name", "reset_plugins", "set_plugin_policy",
     "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
-    "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError",
+    "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError", "model_recipe",
 ]

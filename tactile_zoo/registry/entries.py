@@ -21,7 +21,8 @@ T = TypeVar("T")
 
 #: Keys ``register_model(**meta)`` (and a plugin's ``zoo_meta``) accept; a typo is a ConfigError, not silence.
 MODEL_META_KEYS = frozenset({
-    "paper", "citation", "year", "url", "description", "tags", "inputs", "recipe", "causal", "streaming", "revision",
+    "paper", "citation", "year", "url", "description", "tags", "inputs", "recipe", "recipes", "default_recipe",
+    "causal", "streaming", "revision",
 })
 #: Keys ``register_dataset(**meta)`` accepts.
 DATASET_META_KEYS = frozenset({
@@ -168,18 +169,58 @@ def _check_model_meta(name: str, meta: Mapping[str, Any]) -> None:
             raise bad(key, "must be True or False", meta[key])
     if "year" in meta and (not isinstance(meta["year"], int) or isinstance(meta["year"], bool)):
         raise bad("year", "must be an integer", meta["year"])
-    if "recipe" in meta:
-        if not isinstance(meta["recipe"], Mapping):
-            raise bad("recipe", "must be a dict", meta["recipe"])
-        # the one recipe schema (tactile_zoo.recipe): a typo or a bad value fails at registration, not mid-grid
-        resolve_recipe(meta["recipe"], where=f"model {name!r}: recipe")
+    if "recipes" in meta or "recipe" in meta:
+        _check_recipes(name, meta)
+
+
+def _check_recipes(name: str, meta: Mapping[str, Any]) -> None:
+    """``recipes`` (name -> recipe) is where named recipes live; each is validated against the one recipe schema
+    (:mod:`tactile_zoo.recipe`), so a typo fails at registration, not mid-grid."""
+    recipes = meta.get("recipes", {"default": meta.get("recipe")})
+    if not isinstance(recipes, Mapping) or not recipes or not all(isinstance(k, str) and k for k in recipes):
+        raise ConfigError(f"model {name!r}: metadata 'recipes' must map recipe names to recipes, got {recipes!r}")
+    for recipe_name, recipe in recipes.items():
+        if not isinstance(recipe, Mapping):
+            raise ConfigError(f"model {name!r}: metadata 'recipe' {recipe_name!r} must be a dict, got {recipe!r}")
+        resolve_recipe(recipe, where=f"model {name!r}: recipe {recipe_name!r}")
+    default = meta.get("default_recipe", "source" if "source" in recipes else next(iter(recipes)))
+    if default not in recipes:
+        raise ConfigError(f"model {name!r}: default_recipe {default!r} is not one of its recipes {sorted(recipes)}")
+    if "recipe" in meta and "recipes" in meta and dict(meta["recipe"]) != dict(recipes[default]):
+        raise ConfigError(f"model {name!r}: metadata 'recipe' differs from its default recipe {default!r}; give "
+                          f"'recipes' only")
+
+
+def _normalise_recipes(kind: str, meta: dict[str, Any]) -> dict[str, Any]:
+    """Every model entry carries ``recipes``, ``default_recipe`` and, derived from them, ``recipe`` (the default one,
+    which most readers want); a lone ``recipe`` (a plugin's) is the recipe named ``"default"``."""
+    if kind != "model" or ("recipes" not in meta and "recipe" not in meta):
+        return meta
+    recipes = {k: dict(v) for k, v in (meta.get("recipes") or {"default": meta["recipe"]}).items()}
+    default = meta.get("default_recipe", "source" if "source" in recipes else next(iter(recipes)))
+    return {**meta, "recipes": recipes, "default_recipe": default, "recipe": dict(recipes[default])}
+
+
+def model_recipe(meta: Mapping[str, Any], name: str | None = None) -> tuple[str, Mapping[str, Any] | None]:
+    """(name, recipe) of a model's recipe ``name`` (``None``: its default); ``(name, None)`` means the harness's
+    default recipe for a model that registers none."""
+    recipes = meta.get("recipes") or {}
+    if name is None:
+        name = meta.get("default_recipe", "default")
+        return name, recipes.get(name, meta.get("recipe"))
+    if name in recipes:
+        return name, recipes[name]
+    if not recipes and name == "default":
+        return name, None
+    known = ", ".join(sorted(recipes)) or "none (it trains with the harness's default recipe, called 'default')"
+    raise ConfigError(f"model has no recipe named {name!r}; its recipes: {known}")
 
 
 def _register(kind: str, obj: Any, name: str | None, meta: Mapping[str, Any]) -> Entry:
     canonical = _snake_case(name or getattr(obj, "name", None) or getattr(obj, "__name__", ""))
     if not canonical:
         raise ConfigError(f"cannot derive a {kind} name from {obj!r}; pass name=")
-    meta = _check_meta(kind, canonical, meta)
+    meta = _normalise_recipes(kind, _check_meta(kind, canonical, meta))
     dist, version = _LOADING_DIST[-1] if _LOADING_DIST else (None, None)
     with _LOCK:
         return _TABLES[kind].add(Entry(kind, canonical, obj, MappingProxyType(meta), dist, version))

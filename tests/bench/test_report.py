@@ -32,7 +32,7 @@ def test_report_regenerates_everything_from_the_cell_files(reference_run: Path, 
         data = (out / "plots" / plot).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000, plot
     report = (out / "report.md").read_text()
-    for text in ("## Summary", "| tiny_mlp | tiny_blobs | 1 |", "## tiny_kfold", "plots/heatmap.png",
+    for text in ("## Summary", "| tiny_mlp | default | tiny_blobs | 1 |", "## tiny_kfold", "plots/heatmap.png",
                  "plots/early_tiny_blobs.png", "Early classification", "| tiny_rate | yes |",
                  "| tiny_mlp | no (truncated) |", "plots/confusion/tiny_kfold__tiny_rate.png"):
         assert text in report, text

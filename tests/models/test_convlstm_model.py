@@ -127,3 +127,78 @@ def test_streaming_with_bins_matches_forward_on_every_prefix() -> None:
             scores, state = model.step(x[:, t], None, state)
             assert state.pending == (t + 1) % 3
             assert torch.allclose(scores, model(x[:, : t + 1]), atol=1e-5), f"prefix of {t + 1} frames"
+
+
+def test_windows_of_five_are_not_binned() -> None:
+    # BioTac-DoS with window=5: num_steps 5, so max_frames=50 gives bins of one frame, i.e. the source's unbinned read
+    spec = spec_for("biotac_sp", 1, steps=5)
+    torch.manual_seed(5)
+    binned = tz.create_model("convlstm", spec).eval()
+    unbinned = tz.create_model("convlstm", spec, max_frames=None).eval()
+    unbinned.load_state_dict(binned.state_dict())
+    assert binned.bin_size == unbinned.bin_size == 1
+    x = torch.rand(3, 5, 24, 1)
+    with torch.no_grad():
+        assert torch.equal(binned(x), unbinned(x))
+
+
+def test_minmax_frame_norm_scales_every_image_by_its_own_range() -> None:
+    spec = spec_for("biotac_sp", 1, steps=5)
+    torch.manual_seed(6)
+    plain = tz.create_model("convlstm", spec).eval()
+    scaled = tz.create_model("convlstm", spec, frame_norm="minmax").eval()
+    scaled.load_state_dict(plain.state_dict())
+    x = 2000.0 + 1500.0 * torch.rand(2, 5, 24, 1)  # raw-like electrode values
+    images = plain.grid(x)  # (B, T, 1, 12, 11), the source's filled image
+    low, high = images.amin(dim=(-2, -1), keepdim=True), images.amax(dim=(-2, -1), keepdim=True)
+    with torch.no_grad():
+        seq, _ = plain.convlstm((images - low) / (high - low))
+        want = plain.head(torch.relu(plain.fc(seq[:, -1].mean(dim=(-2, -1)))))
+        assert torch.allclose(scaled(x), want, atol=1e-5)
+        # per frame: a positive gain and an offset per frame change nothing
+        gain, offset = 1.0 + torch.rand(2, 5, 1, 1), 100.0 * torch.randn(2, 5, 1, 1)
+        assert torch.allclose(scaled(x * gain + offset), scaled(x), atol=1e-4)
+        assert not torch.allclose(plain(x * gain + offset), plain(x), atol=1e-4)
+        assert torch.isfinite(scaled(torch.ones(2, 5, 24, 1))).all()  # a flat image does not divide by zero
+    with pytest.raises(ConfigError, match="frame_norm"):
+        tz.create_model("convlstm", spec, frame_norm="zscore")
+
+
+def test_torch_init_keeps_pytorch_conv_defaults() -> None:
+    spec = spec_for("biotac_sp", 1, steps=5)
+    keras = tz.create_model("convlstm", spec)
+    src = tz.create_model("convlstm", spec, init="torch")
+    for k_layer, t_layer in zip(keras.convlstm.layers, src.convlstm.layers):
+        hid = k_layer.hidden_channels
+        forget_k, forget_t = (layer.input_conv.bias[hid: 2 * hid] for layer in (k_layer, t_layer))
+        assert torch.equal(forget_k, torch.ones(hid)) and not torch.equal(forget_t, torch.ones(hid))
+        for conv in (t_layer.input_conv, t_layer.hidden_conv):  # kaiming_uniform(a=sqrt(5)): |w| <= 1/sqrt(fan_in)
+            bound = 1.0 / (conv.in_channels * 9) ** 0.5
+            assert conv.weight.abs().max() <= bound
+        assert t_layer.input_conv.bias.abs().max() <= 1.0 / (t_layer.input_conv.in_channels * 9) ** 0.5
+        # Keras' recurrent kernel is orthogonal: W W^T = I over its (4h, h*k*k) matrix; PyTorch's is not
+        w_k, w_t = (layer.hidden_conv.weight.reshape(4 * hid, -1) for layer in (k_layer, t_layer))
+        assert torch.allclose(w_k @ w_k.t(), torch.eye(4 * hid), atol=1e-5)
+        assert not torch.allclose(w_t @ w_t.t(), torch.eye(4 * hid), atol=1e-2)
+    with pytest.raises(ConfigError, match="init"):
+        tz.create_model("convlstm", spec, init="xavier")
+
+
+def test_readout_dropout_acts_in_training_only() -> None:
+    spec = spec_for("biotac_sp", 1, steps=5)
+    torch.manual_seed(7)
+    model = tz.create_model("convlstm", spec, dropout=0.5)
+    x = torch.rand(8, 5, 24, 1)
+    model.train()
+    with torch.no_grad():
+        assert not torch.equal(model(x), model(x))  # a fresh mask per call
+        model.eval()
+        assert torch.equal(model(x), model(x))
+    default = tz.create_model("convlstm", spec).train()
+    with torch.no_grad():
+        state = torch.get_rng_state()
+        first = default(x)
+        assert torch.equal(torch.get_rng_state(), state)  # dropout 0 (the default) draws nothing
+        assert torch.equal(default(x), first)
+    with pytest.raises(ConfigError, match="dropout"):
+        tz.create_model("convlstm", spec, dropout=1.0)

@@ -1,0 +1,92 @@
+"""Named recipes: a model registers ``recipes={"source": ..., ...}``; ``--recipe NAME`` / ``recipe="NAME"`` starts from
+one of them, the cell records the name, and the leaderboard and report show it."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+import tiny_zoo
+
+import tactile_zoo as tz
+from tactile_zoo import registry
+from tactile_zoo.cli import main
+from tactile_zoo.engine.cell import CellConfig, resolve_cell
+from tactile_zoo.errors import ConfigError
+
+TWO = {"source": {**tiny_zoo.TINY_RECIPE, "lr": 0.03}, "fast": {**tiny_zoo.TINY_RECIPE, "lr": 0.1, "max_epochs": 2}}
+
+
+@pytest.fixture()
+def two_recipes():
+    """tiny_mlp registered again with two named recipes (the tiny zoo's fixture restores it afterwards)."""
+    registry.register_model("tiny_two", recipes=TWO, tags=["test"])(tiny_zoo.TinyMLP)
+    yield "tiny_two"
+    registry._unregister("model", "tiny_two")
+
+
+def test_every_builtin_model_has_a_source_recipe_as_its_default() -> None:
+    for name in tz.list_models():
+        meta = registry.get_model_entry(name).meta
+        if registry.get_model_entry(name).dist is None and not name.startswith("tiny"):
+            assert meta["default_recipe"] == "source" and "source" in meta["recipes"], name
+            assert meta["recipe"] == meta["recipes"]["source"], name  # the derived default, for older readers
+
+
+def test_the_registry_derives_the_default_and_names_a_lone_recipe_default(two_recipes: str) -> None:
+    meta = registry.get_model_entry(two_recipes).meta
+    assert meta["default_recipe"] == "source" and meta["recipe"]["lr"] == 0.03 and set(meta["recipes"]) == {
+        "source", "fast"}
+    lone = registry.get_model_entry("tiny_mlp").meta
+    assert lone["default_recipe"] == "default" and lone["recipes"] == {"default": lone["recipe"]}
+
+
+@pytest.mark.parametrize(("meta", "culprit"), [
+    ({"recipes": {"source": {"lr": -1}}}, "recipe 'source': lr"),
+    ({"recipes": {}}, "must map recipe names"),
+    ({"recipes": TWO, "default_recipe": "slow"}, "default_recipe 'slow'"),
+    ({"recipes": TWO, "recipe": {"lr": 0.5}}, "differs from its default recipe"),
+])
+def test_bad_named_recipes_fail_at_registration(meta: dict, culprit: str) -> None:
+    with pytest.raises(ConfigError, match=culprit):
+        registry.register_model("tiny_bad_recipes", **meta)(tiny_zoo.TinyMLP)
+    assert "tiny_bad_recipes" not in tz.list_models()
+
+
+def test_resolve_cell_starts_from_the_named_recipe(two_recipes: str) -> None:
+    default = resolve_cell(two_recipes, "tiny_blobs")
+    fast = resolve_cell(two_recipes, "tiny_blobs", recipe_name="fast", recipe={"batch_size": 4})
+    assert (default.recipe_name, default.recipe.lr) == ("source", 0.03)
+    assert (fast.recipe_name, fast.recipe.lr, fast.recipe.max_epochs, fast.recipe.batch_size) == ("fast", 0.1, 2, 4)
+    assert resolve_cell(two_recipes, "tiny_blobs", recipe="fast").recipe == fast.recipe.replace(batch_size=16)
+    # the name is a label: the hash covers the resolved recipe, so the same recipe under another name is one cell
+    assert "recipe_name" not in fast.hashed() and fast.to_dict()["recipe_name"] == "fast"
+    assert CellConfig.from_dict(fast.to_dict()) == fast
+    with pytest.raises(ConfigError, match="no recipe named 'slow'; its recipes: fast, source"):
+        resolve_cell(two_recipes, "tiny_blobs", recipe_name="slow")
+
+
+def test_fit_takes_a_recipe_name(two_recipes: str) -> None:
+    result = tz.fit(two_recipes, "tiny_blobs", recipe="fast", seed=0)
+    assert result.recipe.lr == 0.1 and result.epochs_run == 2
+    with pytest.raises(ConfigError, match="no recipe named"):
+        tz.fit(two_recipes, "tiny_blobs", recipe="slow")
+
+
+def test_bench_records_the_recipe_name_in_cell_leaderboard_and_report(two_recipes: str, tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "run"
+    args = ["bench", "--models", two_recipes, "--datasets", "tiny_blobs", "--recipe", "fast", "--out", str(out),
+            "--no-plots", "-q"]
+    assert main(args) == 0
+    cell = json.loads(next((out / "cells").glob("*.json")).read_text())
+    assert cell["config"]["recipe_name"] == "fast" and cell["config"]["recipe"]["lr"] == 0.1
+    board = list(csv.DictReader((out / "leaderboard.csv").open()))
+    assert [row["recipe"] for row in board] == ["fast"]
+    assert list(csv.DictReader((out / "summary.csv").open()))[0]["recipe"] == "fast"
+    assert f"| {two_recipes} | fast | tiny_blobs |" in (out / "report.md").read_text()
+    capsys.readouterr()
+    assert main([*args[:-4], "--recipe", "slow", "--out", str(tmp_path / "x"), "--no-plots"]) == 2
+    assert "no recipe named 'slow'" in capsys.readouterr().err
