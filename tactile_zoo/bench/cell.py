@@ -101,7 +101,8 @@ def _ok_record(result: CellResult) -> dict[str, Any]:
         curve=fit.curve, refit_curve=fit.refit_curve, best_epoch=fit.best_epoch, epochs_run=fit.epochs_run,
         train_seconds=round(fit.train_seconds, 3), prefix=result.prefix, infer_ms_per_sample=result.infer_ms_per_sample,
         params=fit.params, peak_memory_mb=result.peak_memory_mb, peak_memory_source=result.peak_memory_source,
-        peak_gpu_memory_mb=result.peak_gpu_memory_mb, recipe=fit.recipe.to_dict())
+        peak_gpu_memory_mb=result.peak_gpu_memory_mb, recipe=fit.recipe.to_dict(),
+        **({"reference": result.reference} if result.reference is not None else {}))
 
 
 @flush_denormals()

@@ -22,6 +22,7 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     force: false
     prefixes: [0.1, 0.25, 0.5, 0.75, 1.0]
     recipe_name: source             # which named recipe every model starts from (default: each model's default)
+    evaluation: validation          # or reference: the sources' protocol (tactile_zoo.engine.cell.EVALUATIONS)
     recipe: {lr: 0.001}             # every model
     hparams: {}                     # every model's constructor keywords
     model_overrides:
@@ -77,6 +78,7 @@ class BenchConfig:
     plugin_modules: list[str] = field(default_factory=list)
     prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))
     recipe_name: str | None = None
+    evaluation: str = "validation"
     recipe: dict[str, Any] = field(default_factory=dict)
     hparams: dict[str, Any] = field(default_factory=dict)
     model_overrides: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)

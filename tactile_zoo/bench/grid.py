@@ -229,7 +229,7 @@ def _cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     return resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
                         epochs=config.effective_epochs(),
                         dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
-                        prefixes=config.prefixes)
+                        prefixes=config.prefixes, evaluation=config.evaluation)
 
 
 def build_grid(config: BenchConfig) -> Grid:

@@ -34,7 +34,7 @@ from .. import registry
 from ..errors import TactileZooError
 from .grid import safe_name
 from .results import RunDir, atomic_write_text
-from .tables import leaderboard_rows, prefix_label, rows_to_csv, summary_rows
+from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
 
 __all__ = ["write_outputs", "load_run"]
 
@@ -197,6 +197,7 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
     out.append(_table(["model", "recipe", "dataset", "cells", "accuracy", "balanced acc.", "macro-F1", "train s",
                        "rank", "mean rank"], rows) if rows else "No finished cell yet.")
     out.append("")
+    out += _reference_section(records)
     if "heatmap" in figures:
         out += ["## Accuracy by model and dataset", "", f"![heat map]({figures['heatmap']})", ""]
     datasets = sorted({r["dataset"] for r in _ok(records)})
@@ -257,6 +258,24 @@ def _early_table(records: list[dict[str, Any]], dataset: str) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- plots
+def _reference_section(records: list[dict[str, Any]]) -> list[str]:
+    rows = reference_rows(records)
+    if not rows:
+        return []
+    table = [[r["model"], r["dataset"], ",".join(map(str, r["seeds"])),
+              f"{_f(r['final_mean'])} ± {_f(r['final_std'])}",
+              "-" if r["final_interval"] is None else f"[{_f(r['final_interval'][0])}, {_f(r['final_interval'][1])}]",
+              f"{_f(r['best_test_epoch_mean'])} ± {_f(r['best_test_epoch_std'])}",
+              ",".join(map(str, r["best_test_epochs"]))] for r in rows]
+    return ["## Reference protocol (--evaluation reference)", "",
+            "Trained on every training recording for the recipe's fixed epochs; the test split was evaluated after "
+            "every epoch. **Final epoch** selects nothing: an honest figure (95 % bootstrap interval over seeds and "
+            "test samples). **Best test epoch** is chosen on the test set itself, the optimistic protocol under "
+            "which some sources publish: comparable with those sources only, never with the summary above.", "",
+            _table(["model", "dataset", "seeds", "final epoch (honest)", "95 % interval",
+                    "best test epoch (optimistic)", "best epochs"], table), ""]
+
+
 def _val_accuracy(record: dict[str, Any]) -> float:
     val = (record.get("metrics") or {}).get("val") or {}
     accuracy = val.get("accuracy")

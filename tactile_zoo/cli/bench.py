@@ -35,6 +35,11 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", default=None, help="torch threads per cell, under every executor (default 1, so "
                                                    "local and distributed runs give identical numbers; run cells "
                                                    "side by side with --executor process --workers N)")
+    p.add_argument("--evaluation", choices=["validation", "reference"], default=None,
+                   help="validation (default): the epoch is selected on the validation split and the test split is "
+                        "read once. reference: the sources' protocol: train on train+val for the recipe's fixed "
+                        "epochs, test after every epoch, keep the final epoch's accuracy (honest) and the best "
+                        "epoch's (chosen on test: optimistic, labelled so)")
     p.add_argument("--config", default=None, metavar="FILE.yaml", help="settings file (flags given here win)")
     p.add_argument("--dry-run", action="store_true", help="print the grid of cells and exit")
     p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "
@@ -48,7 +53,8 @@ def _bench_config(args: argparse.Namespace) -> Any:
 
     flags = {key: getattr(args, key) for key in (
         "models", "datasets", "root", "download", "seeds", "folds", "epochs", "refit", "quick", "device", "out",
-        "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes", "recipe_name")}
+        "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes", "recipe_name",
+        "evaluation")}
     return merge_config(load_yaml_config(args.config) if args.config else None, flags, args.sets, args.hparams,
                         args.dataset_args)
 
