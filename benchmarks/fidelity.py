@@ -1,0 +1,170 @@
+"""The fidelity ledger's tables (``docs/fidelity.md``), regenerated from committed results only.
+
+    python -m benchmarks.fidelity            # rewrite the tables between the ledger's markers
+    python -m benchmarks.fidelity --check    # exit 1 if docs/fidelity.md is not what the results give
+
+Sources read (nothing is trained here):
+
+- ``benchmarks/results/paper-table1/cells``: the zoo's honest protocol (epoch selected on validation, test read
+  once), ``source`` recipe;
+- ``benchmarks/results/reference-protocol/cells``: SGnet under TactileSGNet's own protocol (``--evaluation
+  reference``: final epoch, and the best test epoch the source publishes);
+- ``benchmarks/results/convlstm-biotac/cells``: ConvLSTM on BioTac-DoS, its source's data;
+- ``benchmarks/results/dcnn_released.csv``: the ten released D-CNN models on the 120 Augment8000 real-life samples.
+
+A cell computed by an older revision of its model's or dataset's code is left out (``report.md`` flags it), as is a
+cell of another recipe than ``source``. Intervals are 95 % bootstraps over seeds and test samples
+(:func:`tactile_zoo.bench.intervals.bootstrap_accuracy`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import statistics
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+from tactile_zoo import registry
+from tactile_zoo.bench.intervals import bootstrap_accuracy
+from tactile_zoo.engine.cell import recipe_name_of
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results"
+LEDGER = REPO / "docs" / "fidelity.md"
+BEGIN, END = "<!-- ledger tables: begin (python -m benchmarks.fidelity) -->", "<!-- ledger tables: end -->"
+NAMES = {"sgnet": "SGnet", "dcnn": "D-CNN", "convlstm": "ConvLSTM", "cnn_lstm": "CNN-LSTM", "tacformer": "Tacformer",
+         "x_tacformer": "X-Tacformer"}
+EV = ("ev_objects", "ev_containers")
+#: Table I of the X-Tacformer paper (test accuracy on the released Ev splits; selection protocol not stated).
+XTAC_PAPER = {"sgnet": (0.8944, 0.6417), "convlstm": (0.8611, 0.7333), "cnn_lstm": (0.8472, 0.7167),
+              "tacformer": (0.9027, 0.7500), "x_tacformer": (0.9167, 0.7833)}
+#: TactileSGNet (Gu et al., IROS 2020): mean over runs of each run's best test epoch.
+SGNET_SOURCE = {"ev_objects": 0.8944, "ev_containers": 0.6417}
+SGNET_TARGET = {"ev_objects": 0.02, "ev_containers": 0.03}
+CONVLSTM_SOURCE = 0.8256  # Zapata-Impata, Gil and Torres, Sensors 2019: unseen objects with familiar properties
+DCNN_SOURCE = (871, 1200)  # 0.7258: the mean of the ten released models, the X-Tacformer paper's D-CNN figure
+
+
+def _current(record: dict[str, Any]) -> bool:
+    cfg = record.get("config") or {}
+    try:
+        model = registry.revision_of(registry.get_model_entry(record["model"]))
+        data = registry.revision_of(registry.get_dataset_entry(record["dataset"]))
+    except registry.UnknownNameError:
+        return False
+    return cfg.get("model_revision", 1) >= model and cfg.get("dataset_revision", 1) >= data
+
+
+def cells(folder: Path, evaluation: str = "validation") -> list[dict[str, Any]]:
+    """The ok, current, ``source``-recipe cells of ``folder`` under ``evaluation``."""
+    out = []
+    for path in sorted((folder / "cells").glob("*.json")):
+        rec = json.loads(path.read_text())
+        cfg = rec.get("config") or {}
+        if rec.get("status") == "ok" and _current(rec) and recipe_name_of(cfg) == "source" \
+                and cfg.get("evaluation", "validation") == evaluation:
+            out.append(rec)
+    return out
+
+
+def _pick(records: Iterable[dict[str, Any]], model: str, dataset: str) -> list[dict[str, Any]]:
+    return sorted((r for r in records if r["model"] == model and r["dataset"] == dataset), key=lambda r: r["seed"])
+
+
+def _split(rec: dict[str, Any], split: str) -> tuple[list[int], list[int]]:
+    pred = rec["predictions"][split]
+    return pred["targets"], pred["predictions"]
+
+
+def figure(records: list[dict[str, Any]], split: str = "test", key: str | None = None) -> str:
+    """``mean +- std [95 % interval] (n seeds)`` of the test accuracy (or of ``reference[key]``, without interval)."""
+    if not records:
+        return "not run yet"
+    if key is not None:
+        values = [r["reference"][key] for r in records]
+        interval = ""
+    else:
+        values = [r["metrics"][split]["accuracy"] for r in records]
+        low_high = bootstrap_accuracy([_split(r, split) for r in records])
+        interval = f" [{low_high[0]:.3f}, {low_high[1]:.3f}]" if low_high else ""
+    std = f" ± {statistics.stdev(values):.3f}" if len(values) > 1 else ""
+    return f"{statistics.fmean(values):.3f}{std}{interval} ({len(values)} seed{'s' if len(values) > 1 else ''})"
+
+
+def _dcnn_released() -> tuple[int, int] | None:
+    path = RESULTS / "dcnn_released.csv"
+    if not path.is_file():
+        return None
+    total = [r for r in csv.DictReader(path.open()) if r["case"] == "total"]
+    return (int(total[0]["correct"]), int(total[0]["n"])) if total else None
+
+
+def tables() -> str:
+    honest = cells(RESULTS / "paper-table1")
+    reference = cells(RESULTS / "reference-protocol", "reference")
+    biotac = cells(RESULTS / "convlstm-biotac")
+    lines = ["### The sources' own protocols", "",
+             "| model | source's figure (its protocol) | ours, same protocol | target | met |", "|---|---|---|---|---|"]
+    for dataset in EV:
+        recs = _pick(reference, "sgnet", dataset)
+        best = [r["reference"]["best_test_epoch_accuracy"] for r in recs]
+        met = "-" if len(best) < 3 else ("yes" if abs(statistics.fmean(best) - SGNET_SOURCE[dataset])
+                                         <= SGNET_TARGET[dataset] else "no")
+        lines.append(f"| SGnet, {dataset} | {SGNET_SOURCE[dataset]:.4f} (mean best test epoch; batch 1, 100 epochs, "
+                     f"all training recordings) | best test epoch {figure(recs, key='best_test_epoch_accuracy')}; "
+                     f"final epoch, honest: {figure(recs)} | within {SGNET_TARGET[dataset]} | {met} |")
+    released = _dcnn_released()
+    if released is not None:
+        correct, n = released
+        lines.append(f"| D-CNN, Augment8000 real-life | {DCNN_SOURCE[0]}/{DCNN_SOURCE[1]} = "
+                     f"{DCNN_SOURCE[0] / DCNN_SOURCE[1]:.4f} (ten released models, 120 samples each) | {correct}/{n} = "
+                     f"{correct / n:.4f} (released weights, evaluation only) | ±5 of 871 | "
+                     f"{'yes' if abs(correct - DCNN_SOURCE[0]) <= 5 else 'no'} |")
+    sets = ("test_solids", "test_small", "test_textures")
+    recs = _pick(biotac, "convlstm", "biotac_dos")
+    per_set = "; ".join(f"{s[5:]} {figure(recs, s)}" for s in sets) if recs else "not run yet"
+    lines.append(f"| ConvLSTM, BioTac-DoS unseen objects | {CONVLSTM_SOURCE:.4f} (unseen objects with familiar "
+                 f"properties) | {per_set} | within 0.05 | see the ConvLSTM section |")
+    lines += ["", "### The zoo's honest protocol (epoch selected on validation, test read once)", "",
+              "| model | X-Tacformer paper, Ev-Objects | ours, Ev-Objects | X-Tacformer paper, Ev-Containers | "
+              "ours, Ev-Containers |", "|---|---|---|---|---|"]
+    for model, name in NAMES.items():
+        paper = XTAC_PAPER.get(model, (None, None))
+        row = [name]
+        for dataset, value in zip(EV, paper):
+            row += ["-" if value is None else f"{value:.4f}", figure(_pick(honest, model, dataset))]
+        lines.append("| " + " | ".join(row) + " |")
+    lines += ["", "Figures: mean ± sample std over seeds [95 % bootstrap interval over seeds and test samples] "
+                  "(seeds). \"not run yet\": no current cell (a cell of an older code revision does not count)."]
+    return "\n".join(lines)
+
+
+def render(text: str) -> str:
+    if BEGIN not in text or END not in text:
+        raise SystemExit(f"{LEDGER} lacks the markers {BEGIN!r} ... {END!r}")
+    head, rest = text.split(BEGIN, 1)
+    return f"{head}{BEGIN}\n{tables()}\n{END}{rest.split(END, 1)[1]}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.fidelity", description=__doc__.split("\n")[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if docs/fidelity.md is out of date")
+    args = parser.parse_args(argv)
+    current = LEDGER.read_text()
+    new = render(current)
+    if args.check:
+        if new != current:
+            print(f"{LEDGER} is out of date: run python -m benchmarks.fidelity", file=sys.stderr)
+            return 1
+        return 0
+    LEDGER.write_text(new)
+    print(f"wrote {LEDGER}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,22 @@
+"""docs/fidelity.md's tables are what the committed results give (``python -m benchmarks.fidelity`` rewrites them)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO))
+
+from benchmarks import fidelity  # noqa: E402
+
+
+def test_the_ledger_is_regenerated_from_the_committed_results() -> None:
+    assert fidelity.main(["--check"]) == 0, "run python -m benchmarks.fidelity and commit docs/fidelity.md"
+
+
+def test_the_ledger_has_a_row_for_every_builtin_model() -> None:
+    tables = fidelity.tables()
+    for name in fidelity.NAMES.values():
+        assert f"| {name} |" in tables
+    assert "released weights, evaluation only" in tables and "best test epoch" in tables
