@@ -14,4 +14,5 @@ BENCHMARKS = {
     "streaming_latency": "streaming_latency",
     "scaling": "scaling",
     "bench_wall": "bench_wall",
+    "progress_overhead": "progress_overhead",
 }

@@ -21,6 +21,7 @@ import torch
 from .. import registry
 from ..engine.cell import CellConfig, CellResult, ModelCannotConsume, train_cell
 from ..engine.runtime import cpu_model, flush_denormals, resolve_device, set_threads, versions
+from .progress import ProgressWriter
 
 __all__ = ["CellTask", "run_cell", "setup_worker", "RECORD_FORMAT"]
 
@@ -46,6 +47,8 @@ class CellTask:
     threads: int | None = None
     plugin_modules: tuple[str, ...] = ()
     sys_path: tuple[str, ...] = field(default=(), compare=False)
+    #: the run's progress folder (``--out/progress``): the worker writes the cell's epochs there (see .progress)
+    progress_dir: str | None = field(default=None, compare=False)
 
 
 # ----------------------------------------------------------------------------------------------- worker set-up
@@ -116,10 +119,13 @@ def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
         setup_worker(task.plugin_modules, task.threads, task.sys_path)
         record["device"] = str(resolve_device(task.device))
         record["threads"] = torch.get_num_threads()
+        config = CellConfig.from_dict(task.config)
+        # the writer only reads each finished epoch's curve row: no RNG, no model state, so numbers are unchanged
+        callback = ProgressWriter(task.progress_dir, record, config.recipe.max_epochs) if task.progress_dir else None
         try:
-            result = train_cell(CellConfig.from_dict(task.config), fold=task.fold, seed=task.seed, root=task.root,
-                                download=task.download, device=task.device, extra_splits=task.extra_splits,
-                                progress=progress)
+            result = train_cell(config, fold=task.fold, seed=task.seed, root=task.root, download=task.download,
+                                device=task.device, extra_splits=task.extra_splits, progress=progress,
+                                callback=callback)
         except ModelCannotConsume as exc:  # the model declares it cannot consume this dataset
             record.update(status="skipped", error=f"model cannot consume this dataset: {exc.__cause__ or exc}")
             return record

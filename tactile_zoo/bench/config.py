@@ -15,6 +15,9 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     executor: process               # local | process | dask
     workers: 2
     scheduler: null                 # tcp://HOST:PORT for dask (default: a local cluster of `workers` processes)
+    retries: null                   # dask: reschedule a cell whose worker died up to N times (default: the
+                                    #   scheduler's allowed-failures, Dask's default 3)
+    dashboard: null                 # dask local cluster: dashboard address such as :8787 (default: off)
     threads: 1                      # torch threads per cell, the same under every executor (default 1)
     plugin_modules: [my_models]
     root: null                      # data home
@@ -74,6 +77,8 @@ class BenchConfig:
     executor: str = "local"
     workers: int | None = None
     scheduler: str | None = None
+    retries: int | None = None
+    dashboard: str | None = None
     threads: int | None = None
     plugin_modules: list[str] = field(default_factory=list)
     prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))
@@ -102,6 +107,17 @@ class BenchConfig:
             self.threads = parse_positive_int("--threads", self.threads)
         if self.scheduler is not None and self.executor != "dask":
             raise ConfigError("--scheduler only applies to --executor dask")
+        if self.retries is not None:
+            self.retries = parse_positive_int("--retries", self.retries, minimum=0)
+            if self.executor != "dask":
+                raise ConfigError("--retries only applies to --executor dask (a process pool cannot reschedule a "
+                                  "cell whose worker died; rerun the command to retry it)")
+        if self.dashboard is not None:
+            if self.executor != "dask" or self.scheduler is not None:
+                raise ConfigError("--dashboard only applies to --executor dask without --scheduler (a scheduler "
+                                  "you started serves its own dashboard)")
+            if not isinstance(self.dashboard, str) or not self.dashboard.strip():
+                raise ConfigError(f"--dashboard must be an address such as :8787, got {self.dashboard!r}")
         self.prefixes = parse_prefixes(self.prefixes)
         if isinstance(self.recipe, str):  # ``recipe: source`` in a YAML file names a recipe
             self.recipe_name, self.recipe = self.recipe, {}

@@ -11,19 +11,34 @@ convolution or matrix product depends on how many threads split it, so a thread 
 (all cores in-process, cores / workers in a pool) would make the same cell differ between a local and a distributed
 run. With one thread per cell, local, process and dask runs give identical numbers for the same seeds; parallelism
 comes from running cells side by side (``--executor process --workers N``, or a Dask cluster).
+
+Under Dask, a cell whose worker dies (killed for memory, a lost node) is rescheduled by the scheduler up to its
+``allowed-failures`` times (Dask's default 3; ``--retries N`` sets it for this run); the scheduler's count of lost
+workers gives the record's ``attempts``. Dask's per-task ``retries=`` is not used: it re-runs tasks that *raise*, and
+a cell never raises for a problem of its own (that is a recorded failure, which a rerun would only repeat).
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
+import importlib
+import logging
 import multiprocessing
 import os
 import sys
+import tempfile
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from ..engine.runtime import cpu_count
 from ..errors import ConfigError
 from .cell import CellTask, run_cell, setup_worker
+from .progress import listening
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["Executor", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor", "DEFAULT_THREADS"]
 
@@ -41,13 +56,18 @@ class Executor:
     def submit(self, task: CellTask) -> Any:
         raise NotImplementedError
 
-    def wait(self, futures: list[Any]) -> list[Any]:
-        """Block until at least one of ``futures`` is done; return the done ones."""
-        done, _ = cf.wait(futures, return_when=cf.FIRST_COMPLETED)
+    def wait(self, futures: list[Any], timeout: float | None = None) -> list[Any]:
+        """Block until at least one of ``futures`` is done, or ``timeout`` seconds; return the done ones."""
+        done, _ = cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)
         return list(done)
 
     def result(self, future: Any) -> dict[str, Any]:
         return future.result()
+
+    def attempts(self, future: Any) -> int | None:
+        """How many times the cell of a done ``future`` was started (more than 1: its worker died and it was
+        rescheduled); ``None`` when unknown."""
+        return 1
 
     def shutdown(self, cancel: bool = False) -> None:
         pass
@@ -57,7 +77,8 @@ class Executor:
 
 
 class LocalExecutor(Executor):
-    """One cell at a time in this process (epoch progress bars are shown here only)."""
+    """One cell at a time in this process. ``listener`` (the runner's display) is called after each epoch, since
+    the runner itself is blocked in :meth:`submit` while the cell runs."""
 
     name = "local"
 
@@ -65,11 +86,13 @@ class LocalExecutor(Executor):
         import torch
 
         self.threads, self.progress = threads or DEFAULT_THREADS, progress
+        self.listener: Callable[[dict[str, Any]], None] | None = None
         self._caller_threads = torch.get_num_threads()  # restored afterwards: this is the caller's process
 
     def submit(self, task: CellTask) -> cf.Future:
         future: cf.Future = cf.Future()
-        future.set_result(run_cell(task, progress=self.progress))  # KeyboardInterrupt propagates from here
+        with listening(self.listener):
+            future.set_result(run_cell(task, progress=self.progress))  # KeyboardInterrupt propagates from here
         return future
 
     def shutdown(self, cancel: bool = False) -> None:
@@ -145,15 +168,42 @@ def _dask_task(task: CellTask) -> dict[str, Any]:
     return run_cell(task)
 
 
+def _shipped_file(module_name: str, folder: Path) -> Path | None:
+    """The file that carries plugin module ``module_name`` to remote workers: its top-level module's ``.py``, or its
+    package zipped; ``None`` for an installed distribution (site-packages), which workers must install themselves."""
+    top = module_name.partition(".")[0]
+    module = sys.modules.get(top) or importlib.import_module(top)
+    source = getattr(module, "__file__", None)
+    if not source or any(part in ("site-packages", "dist-packages") for part in Path(source).parts):
+        return None
+    source_path = Path(source)
+    if source_path.name != "__init__.py":
+        return source_path if source_path.suffix == ".py" else None
+    archive = folder / f"{top}.zip"
+    with zipfile.ZipFile(archive, "w") as zf:  # a zip on a worker's sys.path imports like the package folder
+        for path in sorted(source_path.parent.rglob("*.py")):
+            zf.write(path, Path(top) / path.relative_to(source_path.parent))
+    return archive
+
+
 class DaskExecutor(Executor):
     """Cells as tasks on a Dask distributed cluster: ``scheduler`` (``tcp://HOST:PORT``), or without one a
     ``LocalCluster`` of ``workers`` processes with one thread each (dask-jobqueue's SLURM/PBS clusters expose a
-    scheduler address the same way)."""
+    scheduler address the same way).
+
+    - ``retries``: how often a cell whose worker died is rescheduled (the scheduler's ``allowed-failures``; ``None``
+      keeps the scheduler's own setting). It is restored when the run ends.
+    - ``device`` ``cuda``/``cuda:N``: each cell asks for the resource ``GPU=1``, so a worker started with
+      ``--resources GPU=1`` runs one GPU cell at a time.
+    - plugin modules are uploaded to every worker (also ones that join later) and imported there.
+    - ``dashboard``: the local cluster's dashboard address (off by default).
+    """
 
     name = "dask"
 
     def __init__(self, scheduler: str | None, workers: int | None, threads: int | None,
-                 plugin_modules: tuple[str, ...]) -> None:
+                 plugin_modules: tuple[str, ...], *, retries: int | None = None, device: str = "auto",
+                 dashboard: str | None = None) -> None:
         try:
             import distributed
         except ImportError:
@@ -161,16 +211,16 @@ class DaskExecutor(Executor):
                 from None
         self._distributed = distributed
         self._cluster = None
+        self.gpu = str(device).startswith("cuda")
         try:
             if scheduler:
                 _check_reachable(scheduler)
                 self._client = distributed.Client(scheduler, timeout="30s")
             else:
-                import logging
-
                 n = workers or max(1, min(cpu_count(), 4))
-                self._cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                                         dashboard_address=None, silence_logs=logging.ERROR)
+                self._cluster = distributed.LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
+                    silence_logs=logging.ERROR, resources={"GPU": 1} if self.gpu else None)
                 self._client = distributed.Client(self._cluster)
         except OSError as exc:
             raise ConfigError(f"--scheduler {scheduler}: cannot connect to the Dask scheduler: {exc}") from None
@@ -179,34 +229,123 @@ class DaskExecutor(Executor):
         self.threads = threads or DEFAULT_THREADS
         self._plugins = tuple(plugin_modules)
         self.address = self._client.scheduler.address
+        self.dashboard = self._client.dashboard_link if dashboard else None
+        self._restore_failures: int | None = None
+        self.retries = self._set_retries(retries)
+        self._ship_plugins()
+        if self.gpu:
+            self._check_gpu_workers()
 
+    # -------------------------------------------------------------------------------------------- set-up
+    def _set_retries(self, retries: int | None) -> int | None:
+        """Set (or read) the scheduler's ``allowed_failures``; functions defined here travel by value, so the
+        scheduler needs neither tactile-zoo nor torch."""
+
+        def swap(value: int | None, dask_scheduler: Any = None) -> int:
+            old = dask_scheduler.allowed_failures
+            if value is not None:
+                dask_scheduler.allowed_failures = value
+            return old
+
+        try:
+            old = self._client.run_on_scheduler(swap, retries)
+        except Exception as exc:  # noqa: BLE001 - a scheduler refusing pickled functions: keep its setting
+            if retries is not None:
+                logger.warning("cannot set the Dask scheduler's allowed-failures to %s (%s); it keeps its own",
+                               retries, exc)
+            return None
+        if retries is None:
+            return int(old)
+        self._restore_failures = int(old)
+        return retries
+
+    def _ship_plugins(self) -> None:
+        if not self._plugins:
+            return
+        from distributed.diagnostics.plugin import UploadFile
+
+        with tempfile.TemporaryDirectory(prefix="tactile-zoo-plugins-") as folder:
+            for name in dict.fromkeys(m.partition(".")[0] for m in self._plugins):
+                path = _shipped_file(name, Path(folder))
+                if path is None:
+                    logger.debug("plugin module %s is installed; the workers must have it too", name)
+                    continue
+                try:  # a worker plugin (not client.upload_file): the scheduler never imports torch or the module
+                    self._client.register_plugin(UploadFile(str(path), load=True), name=f"tactile-zoo-{name}")
+                except Exception as exc:  # noqa: BLE001 - the worker's own import error, reported as bad input
+                    raise ConfigError(f"--plugin-module {name}: cannot be imported on the Dask workers: "
+                                      f"{type(exc).__name__}: {exc}") from None
+                logger.debug("shipped plugin module %s (%s) to the Dask workers", name, path.name)
+
+    def _check_gpu_workers(self) -> None:
+        workers = self._client.scheduler_info().get("workers", {})
+        if not any((w.get("resources") or {}).get("GPU") for w in workers.values()):
+            logger.warning("--device cuda: no Dask worker declares a GPU resource, so GPU cells wait until one "
+                           "joins; start workers with `dask worker ... --resources GPU=1` (one per GPU)")
+
+    # -------------------------------------------------------------------------------------------- cells
     def submit(self, task: CellTask) -> Any:
-        return self._client.submit(_dask_task, task, key=f"cell-{task.cell_id}-{os.getpid()}", pure=False)
+        return self._client.submit(_dask_task, task, key=f"cell-{task.cell_id}-{os.getpid()}", pure=False,
+                                   resources={"GPU": 1} if self.gpu else None)
 
-    def wait(self, futures: list[Any]) -> list[Any]:
-        done, _ = self._distributed.wait(futures, return_when="FIRST_COMPLETED")
+    def wait(self, futures: list[Any], timeout: float | None = None) -> list[Any]:
+        try:
+            done, _ = self._distributed.wait(futures, timeout=timeout, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            return []
         return list(done)
 
     def result(self, future: Any) -> dict[str, Any]:
-        return future.result()
+        try:
+            return future.result()
+        finally:
+            # the record is here now: release the task at once, or the loss of the worker that still holds the
+            # result would make the scheduler recompute the whole cell for nothing
+            future.release()
+
+    def attempts(self, future: Any) -> int | None:
+        """From the scheduler: the task's count of workers lost while running it (its ``suspicious`` count)."""
+
+        def count(key: Any, dask_scheduler: Any = None) -> tuple[str, int] | None:
+            ts = dask_scheduler.tasks.get(key)
+            return None if ts is None else (ts.state, ts.suspicious)
+
+        try:
+            found = self._client.run_on_scheduler(count, future.key)
+        except Exception as exc:  # noqa: BLE001 - unknown is better than a failed run
+            logger.debug("cannot read the attempts of %s: %s", future.key, exc)
+            return None
+        if found is None:
+            return None
+        state, lost = found
+        return max(1, lost) if state == "erred" else lost + 1  # erred after a death: every run was lost
 
     def shutdown(self, cancel: bool = False) -> None:
         try:
+            if self._restore_failures is not None:
+                with contextlib.suppress(Exception):
+                    self._client.run_on_scheduler(
+                        lambda value, dask_scheduler=None: setattr(dask_scheduler, "allowed_failures", value),
+                        self._restore_failures)
             self._client.close()
         finally:
             if self._cluster is not None:
                 self._cluster.close()
 
     def describe(self) -> str:
-        return f"dask ({self.address}, {self.slots} worker threads)"
+        retries = "" if self.retries is None else f", retries {self.retries}"
+        dashboard = f", dashboard {self.dashboard}" if self.dashboard else ""
+        return f"dask ({self.address}, {self.slots} worker threads{retries}{dashboard})"
 
 
 def make_executor(kind: str, *, workers: int | None = None, threads: int | None = None, scheduler: str | None = None,
-                  plugin_modules: tuple[str, ...] = (), progress: bool = False) -> Executor:
+                  plugin_modules: tuple[str, ...] = (), progress: bool = False, retries: int | None = None,
+                  device: str = "auto", dashboard: str | None = None) -> Executor:
     if kind == "local":
         return LocalExecutor(threads, progress)
     if kind == "process":
         return ProcessExecutor(workers, threads, plugin_modules)
     if kind == "dask":
-        return DaskExecutor(scheduler, workers, threads, plugin_modules)
+        return DaskExecutor(scheduler, workers, threads, plugin_modules, retries=retries, device=device,
+                            dashboard=dashboard)
     raise ConfigError(f"unknown executor {kind!r}")

@@ -4,6 +4,7 @@ Layout of ``--out``::
 
     cells/<model>__<dataset>__f<fold>__s<seed>__<config hash>.json   one per finished cell (ok, failed, skipped)
     claims/<cell id>.lock                                             held (flock) while a process runs that cell
+    progress/<cell id>.json                                           a running cell's last epoch (see .progress)
     run.json, leaderboard.csv, summary.csv, report.md, plots/*.png
 
 Every file is written to a temporary file in the same folder and renamed over the target (``os.replace``), so a
@@ -109,12 +110,13 @@ class RunDir:
         self.cells_dir = self.path / "cells"
         self.claims_dir = self.path / "claims"
         self.plots_dir = self.path / "plots"
+        self.progress_dir = self.path / "progress"
 
     # ------------------------------------------------------------------------------------------- set-up
     def prepare(self) -> RunDir:
         """Create the folders and prove the location is writable; an unwritable ``--out`` is a ConfigError."""
         try:
-            for folder in (self.path, self.cells_dir, self.claims_dir):
+            for folder in (self.path, self.cells_dir, self.claims_dir, self.progress_dir):
                 folder.mkdir(parents=True, exist_ok=True)
             fd, probe = tempfile.mkstemp(dir=self.cells_dir, prefix=".probe.")
             os.close(fd)

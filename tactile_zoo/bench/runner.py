@@ -6,10 +6,15 @@ run killed at any point (SIGKILL included) loses at most the cells that were run
 
 Exit codes: 0 every cell ok (or skipped), 1 a cell or a dataset failed or a file could not be written, 130
 interrupted (Ctrl-C: running cells are abandoned, finished ones kept, the tables written for them).
+
+Progress: every running cell writes its epochs to ``--out/progress/<cell id>.json`` (:mod:`.progress`); the runner
+polls those files (every :data:`POLL_SECONDS`, and after each epoch of a cell it runs itself) and shows a live bar per
+running cell on a terminal, else one ``logging`` line per epoch, with an ETA weighted by each cell's expected cost.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import time
@@ -22,13 +27,18 @@ from .. import registry
 from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
-from .executors import Executor, make_executor
+from .executors import Executor, LocalExecutor, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
+from .progress import CostModel, ProgressDisplay, format_seconds, remove_progress
 from .results import CellWriteError, Claim, RunDir, atomic_write_json
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["run_bench", "BenchOutcome", "FINISHED"]
 
 FINISHED = ("ok", "skipped")  # statuses a rerun keeps; "failed" cells are retried
+#: how often the runner reads the progress files of cells running in other processes
+POLL_SECONDS = 1.0
 
 
 @dataclass
@@ -50,7 +60,9 @@ class _Console:
         if not quiet and total and getattr(err, "isatty", lambda: False)():
             from tqdm.auto import tqdm
 
-            self.bar = tqdm(total=total, desc="cells", unit="cell", file=err, dynamic_ncols=True)
+            # tqdm's own ETA assumes equally costly cells; the cost-weighted one goes in the postfix (set_eta)
+            self.bar = tqdm(total=total, desc="cells", unit="cell", file=err, dynamic_ncols=True,
+                            bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
 
     def line(self, text: str, always: bool = False) -> None:
         if self.quiet and not always:
@@ -70,6 +82,12 @@ class _Console:
         if self.bar is not None:
             self.bar.update(1)
 
+    def set_eta(self, seconds: float, done: int, total: int) -> None:
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"eta {format_seconds(seconds)}", refresh=True)
+        elif not self.quiet and done < total:
+            logger.info("%d/%d cells done, eta %s", done, total, format_seconds(seconds))
+
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
@@ -85,12 +103,13 @@ def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
     return f"{head}: {record.get('error')}"
 
 
-def _task(cell: Cell, config: BenchConfig, executor: Executor) -> CellTask:
+def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Path | None = None) -> CellTask:
     return CellTask(model=cell.model, dataset=cell.dataset, fold=cell.fold, seed=cell.seed,
                     config_hash=cell.config_hash, cell_id=cell.cell_id, config=cell.config, protocol=cell.protocol,
                     extra_splits=cell.extra_splits, root=config.root, download=config.download, device=config.device,
                     threads=executor.threads if executor.threads is not None else config.threads,
-                    plugin_modules=tuple(config.plugin_modules), sys_path=tuple(sys.path))
+                    plugin_modules=tuple(config.plugin_modules), sys_path=tuple(sys.path),
+                    progress_dir=str(progress_dir.resolve()) if progress_dir is not None else None)
 
 
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
@@ -128,7 +147,8 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
     started_text = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     executor = make_executor(config.executor, workers=config.workers, threads=config.threads,
                              scheduler=config.scheduler, plugin_modules=tuple(config.plugin_modules),
-                             progress=not quiet)
+                             progress=False, retries=config.retries, device=config.device,
+                             dashboard=config.dashboard)  # epochs are shown by the ProgressDisplay
     outcome = BenchOutcome(out_dir, 0, grid)
     status = "running"
     try:
@@ -138,6 +158,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
                 if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
         outcome.reused = [c.cell_id for c in grid.cells if c not in todo]
         console = _Console(len(todo), quiet, out, err)
+        display = ProgressDisplay(run.path, err, enabled=not quiet, live=console.bar is not None)
         console.line(f"tactile-zoo bench: {len(grid.cells)} cells, {len(outcome.reused)} already finished, "
                      f"{len(todo)} to run on {executor.describe()} -> {out_dir}")
         broken = {s.dataset for s in grid.skipped if s.status == "failed"}
@@ -148,13 +169,14 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
                 console.line(f"skipped dataset {name}: {note}", always=True)
         status = "finished"
         try:
-            write_error = _loop(todo, run, config, executor, console, outcome, started)
+            write_error = _loop(todo, run, config, executor, console, outcome, started, display, existing)
         except KeyboardInterrupt:
             status = "interrupted"
             write_error = None
             console.error(f"tactile-zoo: interrupted; {len(outcome.ran)} cell(s) finished in this run are saved in "
                           f"{out_dir}; rerun the same command to resume")
         finally:
+            display.close()
             console.close()
         records = run.cells()
         counts = {"ok": 0, "failed": 0, "skipped": 0, "pending": 0}
@@ -191,13 +213,32 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
 
 
 def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor, console: _Console,
-          outcome: BenchOutcome, started: float) -> str | None:
+          outcome: BenchOutcome, started: float, display: ProgressDisplay | None = None,
+          existing: dict[str, dict[str, Any]] | None = None) -> str | None:
     """Claim, submit, collect and write cells until none is left. Returns a write error, if one stopped the run."""
     pending = deque(todo)
     inflight: dict[Any, tuple[Cell, Claim]] = {}
     deferred: deque[Cell] = deque()
     total, done = len(todo), 0
     waited_note = False
+    display = display or ProgressDisplay(run.path, console.err, enabled=False, live=False)
+    costs = CostModel((existing or {}).values())
+
+    def running() -> list[str]:
+        return [cell.cell_id for cell, _ in inflight.values()]
+
+    def eta() -> None:
+        left = [costs.remaining(c.model, c.dataset, c.config, display.states.get(c.cell_id))
+                for c in [*(cell for cell, _ in inflight.values()), *pending, *deferred]]
+        console.set_eta(costs.eta(left, executor.slots), done, total)
+
+    def epoch(state: dict[str, Any]) -> None:  # a cell running in this process finished an epoch
+        display.show(state)
+        if console.bar is not None:
+            eta()
+
+    if isinstance(executor, LocalExecutor):
+        executor.listener = epoch
 
     def fresh(cell: Cell) -> dict[str, Any] | None:
         """A finished record of ``cell`` that this run may keep (written by another process since we started)."""
@@ -213,8 +254,10 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
         done += 1
         (outcome.ran if by_us else outcome.reused).append(cell.cell_id)
         suffix = "" if by_us else "  (finished by another process)"
+        costs.learn(record)
         console.line(_cell_line(record, done, total) + suffix)
         console.step()
+        eta()
 
     try:
         while pending or inflight or deferred:
@@ -230,24 +273,36 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                     finish(cell, record, by_us=False)
                     continue
                 run.remove_torn(run.cells_dir, f"{cell.cell_id}.json")  # a killed writer's half file
-                _submit(executor, cell, claim, config, inflight)
+                _submit(executor, cell, claim, config, inflight, run)
+                if console.bar is not None and len(inflight) == 1 and not done:
+                    eta()
             if inflight:
-                for future in executor.wait(list(inflight)):
+                polling = display.enabled and not isinstance(executor, LocalExecutor)
+                finished = executor.wait(list(inflight), timeout=POLL_SECONDS if polling else None)
+                if polling:
+                    display.poll(running())
+                    if not finished and console.bar is not None:
+                        eta()
+                for future in finished:
                     cell, claim = inflight.pop(future)
+                    attempts = executor.attempts(future)  # before result(), which lets the executor forget the task
                     try:
                         record = executor.result(future)
                     except KeyboardInterrupt:
                         raise
                     except BaseException as exc:  # noqa: BLE001 - a worker died: this cell failed, the grid goes on
                         record = _worker_failure(cell, exc)
+                    record["attempts"] = attempts
                     try:
                         run.write_cell(record)
                     except CellWriteError as exc:
+                        display.done(cell.cell_id)
                         claim.release()
                         console.error(f"tactile-zoo: error: {exc.strerror}")
                         pending.clear()
                         deferred.clear()
                         return str(exc.strerror)
+                    display.done(cell.cell_id)  # before the claim goes: the next holder may write a new one
                     claim.release()
                     finish(cell, record, by_us=True)
                 continue
@@ -266,17 +321,23 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                 claim.release()
                 finish(cell, record, by_us=False)
             else:  # its holder stopped without finishing it
-                _submit(executor, cell, claim, config, inflight)
+                _submit(executor, cell, claim, config, inflight, run)
     finally:
-        for _, claim in inflight.values():
+        for cell, claim in inflight.values():
+            display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): not running any more
             claim.release()
+        if isinstance(executor, LocalExecutor):
+            executor.listener = None
     return None
 
 
-def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, inflight: dict[Any, Any]) -> None:
+def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, inflight: dict[Any, Any],
+            run: RunDir) -> None:
+    remove_progress(run.path, cell.cell_id)  # a killed run's leftover: we hold the claim, nobody else runs it
     try:
-        future = executor.submit(_task(cell, config, executor))
-    except BaseException:  # Ctrl-C inside a local cell: its claim must not outlive it
+        future = executor.submit(_task(cell, config, executor, run.progress_dir))
+    except BaseException:  # Ctrl-C inside a local cell: its claim and progress must not outlive it
+        remove_progress(run.path, cell.cell_id)
         claim.release()
         raise
     inflight[future] = (cell, claim)

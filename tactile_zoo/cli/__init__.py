@@ -3,11 +3,18 @@
 ``main(argv=None) -> int`` so tests call it in-process. Each command is an ``add_*`` function that declares its
 arguments and sets its handler; errors tactile-zoo raises on purpose print one line and exit 2 (``--debug`` shows the
 traceback).
+
+Everything the package says goes through :mod:`logging` under the ``tactile_zoo`` logger; library code never
+configures it, :func:`main` installs one handler for the command's duration: INFO and up by default (progress lines,
+warnings, errors), ``-v`` adds DEBUG, ``-q`` keeps warnings and errors only. Warnings users must see (a skipped
+plugin, a missing file) are ``warnings.warn`` in the library and shown here as ``tactile-zoo: warning: ...`` at every
+verbosity.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -36,6 +43,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     parser.add_argument("--strict-plugins", action="store_true", help="a plugin that fails to load is an error")
     parser.add_argument("--no-plugins", action="store_true", help="do not discover entry-point plugins")
+    loud = parser.add_mutually_exclusive_group()
+    loud.add_argument("-v", "--verbose", dest="log_verbose", action="count", default=0,
+                      help="more diagnostics (debug log lines)")
+    loud.add_argument("-q", "--quiet", dest="log_quiet", action="store_true",
+                      help="only warnings and errors on stderr (before the command; `bench -q` also hides progress)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for add in SUBCOMMANDS:
@@ -43,8 +55,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+logger = logging.getLogger("tactile_zoo")
+
+
+class _StderrHandler(logging.Handler):
+    """Lines on the *current* ``sys.stderr`` (tests swap it), through ``tqdm.write`` so that live bars survive."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = self.format(record)
+            from tqdm import tqdm
+
+            tqdm.write(text, file=sys.stderr)
+        except Exception:  # noqa: BLE001 - logging must never break the command
+            self.handleError(record)
+
+
+class _Formatter(logging.Formatter):
+    def format(self, record: logging.LogRecord) -> str:
+        text = record.getMessage()
+        if record.exc_info and record.levelno >= logging.ERROR:
+            text += "\n" + self.formatException(record.exc_info)
+        if record.levelno == logging.INFO:
+            return text
+        return f"tactile-zoo: {text}" if getattr(record, "bare", False) else \
+            f"tactile-zoo: {record.levelname.lower()}: {text}"
+
+
+def _install_logging(verbose: int, quiet: bool) -> tuple[logging.Handler, int, bool]:
+    handler = _StderrHandler()
+    handler.setFormatter(_Formatter())
+    previous = (logger.level, logger.propagate)
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    logger.propagate = False  # the command owns stderr: no second copy through a root handler
+    return handler, *previous
+
+
 def _show_warning(message: Warning | str, category: type[Warning], *args: Any, **kwargs: Any) -> None:
-    print(f"tactile-zoo: warning: {message}", file=sys.stderr)
+    logging.getLogger("tactile_zoo.warnings").warning("%s", message)
 
 
 class _ArgumentError(Exception):
@@ -72,6 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except SystemExit as exc:  # --help and --version: main() returns its code instead of exiting the caller
         return exc.code if isinstance(exc.code, int) else 0
+    handler, level, propagate = _install_logging(args.log_verbose, args.log_quiet)
     registry.set_plugin_policy(strict=True if args.strict_plugins else None,
                                enabled=False if args.no_plugins else None)
     from ..engine.runtime import flush_denormals
@@ -85,13 +135,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TactileZooError as exc:
         if args.debug:
             raise
-        print(f"tactile-zoo: error: {exc}", file=sys.stderr)
+        logger.error("%s", exc)
         return 2
     except KeyboardInterrupt:
-        print("tactile-zoo: interrupted", file=sys.stderr)
+        logger.error("interrupted", extra={"bare": True})
         return 130
     finally:
         registry.set_plugin_policy()
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+        logger.propagate = propagate
 
 
 def entry() -> None:  # console script

@@ -32,6 +32,11 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
                    help="local (default), process (local worker processes), dask (a Dask cluster)")
     p.add_argument("--workers", default=None, help="worker processes (process executor; dask without --scheduler)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler, e.g. tcp://HOST:8786")
+    p.add_argument("--retries", default=None, metavar="N",
+                   help="dask: reschedule a cell whose worker died up to N times (the scheduler's allowed-failures; "
+                        "default: its own setting, Dask's default 3); the record's `attempts` says how many ran")
+    p.add_argument("--dashboard", default=None, metavar="ADDRESS",
+                   help="dask without --scheduler: serve the local cluster's dashboard there, e.g. :8787 (default off)")
     p.add_argument("--threads", default=None, help="torch threads per cell, under every executor (default 1, so "
                                                    "local and distributed runs give identical numbers; run cells "
                                                    "side by side with --executor process --workers N)")
@@ -54,7 +59,7 @@ def _bench_config(args: argparse.Namespace) -> Any:
     flags = {key: getattr(args, key) for key in (
         "models", "datasets", "root", "download", "seeds", "folds", "epochs", "refit", "quick", "device", "out",
         "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes", "recipe_name",
-        "evaluation")}
+        "evaluation", "retries", "dashboard")}
     return merge_config(load_yaml_config(args.config) if args.config else None, flags, args.sets, args.hparams,
                         args.dataset_args)
 
@@ -73,13 +78,24 @@ def add_report(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--all-cells", action="store_true",
                    help="every cell file in the folder, not only the grid of the last bench command (for a table "
                         "built by several commands into one folder)")
+    p.add_argument("--running", action="store_true",
+                   help="only list the cells running now (from DIR/progress/, written after every epoch) and exit; "
+                        "`watch tactile-zoo report DIR --running` follows a run from a second terminal")
     p.set_defaults(handler=_cmd_report)
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from ..bench import write_outputs
+    from ..bench.progress import describe_running
 
+    running = describe_running(args.dir)
+    if args.running:
+        for line in running or [f"no cell is running in {args.dir}"]:
+            echo(line)
+        return 0
     written = write_outputs(args.dir, plots=not args.no_plots, all_cells=args.all_cells)
     for path in written.values():
         echo(f"wrote {path}")
+    for line in running:
+        echo(line)
     return 0
