@@ -34,12 +34,14 @@ from typing import Any
 from tactile_zoo.bench import BenchConfig, build_grid
 from tactile_zoo.bench.grid import HASH_FORMAT, cell_id, config_hash
 from tactile_zoo.bench.results import atomic_write_json
+from tactile_zoo.engine.cell import recipe_name_of
 
 REVISION_KEYS = ("model_revision", "dataset_revision")
 
 
 def _without(config: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
-    return {k: v for k, v in config.items() if k not in keys}
+    """``config`` without ``keys``, its recipe name made explicit (records from before named recipes have none)."""
+    return {**{k: v for k, v in config.items() if k not in keys}, "recipe_name": recipe_name_of(config)}
 
 
 def _rebuilt(record: dict[str, Any], root: str | None) -> dict[str, Any]:

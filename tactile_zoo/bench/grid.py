@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
-from ..engine.cell import CellConfig, load_splits, resolve_cell
+from ..engine.cell import UNHASHED_KEYS, CellConfig, load_splits, resolve_cell
 from ..errors import ConfigError, DatasetError, UnknownNameError
 from .config import BenchConfig
 
@@ -132,8 +132,9 @@ def _canonical(value: Any) -> str:
 
 
 def config_hash(config: dict[str, Any] | CellConfig, hash_format: int = HASH_FORMAT) -> str:
-    """16 hex digits of the SHA-256 of the canonical JSON of a cell's configuration (``causal`` aside)."""
-    values = config.hashed() if isinstance(config, CellConfig) else {k: v for k, v in config.items() if k != "causal"}
+    """16 hex digits of the SHA-256 of the canonical JSON of a cell's configuration (its labels aside)."""
+    values = config.hashed() if isinstance(config, CellConfig) else \
+        {k: v for k, v in config.items() if k not in UNHASHED_KEYS}
     return hashlib.sha256(_canonical({"hash_format": hash_format, **values}).encode()).hexdigest()[:16]
 
 

@@ -31,10 +31,12 @@ from .runtime import PeakMemory, flush_denormals, resolve_device, seed_everythin
 from .tensors import concat, take
 from .train import FitResult, fit
 
-__all__ = ["CellConfig", "CellResult", "EVALUATIONS", "ModelCannotConsume", "resolve_cell", "train_cell", "load_splits",
-           "build_model", "recipe_name_of"]
+__all__ = ["CellConfig", "CellResult", "EVALUATIONS", "UNHASHED_KEYS", "ModelCannotConsume", "resolve_cell",
+           "train_cell", "load_splits", "build_model", "recipe_name_of"]
 
 SPLITS = ("train", "val", "test")
+#: Keys of a stored cell configuration that are labels, not settings: the cell hash leaves them out.
+UNHASHED_KEYS = ("causal", "recipe_name")
 #: How a cell reaches its test figure.
 #: ``validation`` (the zoo's honest protocol): the epoch is selected on the validation split, then the test split is
 #: read once. ``reference`` (the protocol of the sources that publish their best test epoch): train on train + val
