@@ -34,8 +34,6 @@ __all__ = ["ConvLSTMNet", "FRAME_NORMS"]
 FRAME_NORMS = (None, "minmax")
 
 
-
-
 @register_model(
     "convlstm",
     paper="Learning Spatio Temporal Tactile Features with a ConvLSTM for the Direction Of Slip Detection",
