@@ -15,12 +15,18 @@ hash-format-1 cells). A cell whose model or dataset has since been bumped to a n
 revisions in its ``config``, and ``migrated_from`` naming the old hash, so a resumed bench command reuses the cell
 instead of recomputing it.
 
+``--add-groups`` (needs the data, ``--root``) writes into records from before cells kept them the recording of every
+test window (``predictions[split]["groups"]``), so their intervals resample recordings rather than windows. The
+recordings are read from the dataset split the cell was evaluated on, and written only when that split's targets equal
+the record's, in order; the numbers are not touched.
+
 ``--compare OTHER`` checks that the cells of another folder (a rerun of some of the same cells) computed the same
 numbers, bit for bit: metrics, predictions and probabilities of every split, the training curve (timings aside), the
 selected epoch and the early-classification prefixes.
 
     python -m benchmarks.check_cells benchmarks/results/paper-table1 --root ../shared/data [--migrate]
     python -m benchmarks.check_cells benchmarks/results/paper-table1 --compare /tmp/rerun
+    python -m benchmarks.check_cells benchmarks/results/convlstm-biotac/e2-source --root ../shared/data --add-groups
 """
 
 from __future__ import annotations
@@ -126,6 +132,31 @@ def compare(folder: Path, other: Path) -> int:
     return 1 if differing else 0
 
 
+def add_groups(path: Path, record: dict[str, Any], root: str | None) -> str:
+    """Write the recording of every stored test sample into ``record`` (see the module docstring)."""
+    from tactile_zoo.engine.cell import load_splits
+    from tactile_zoo.engine.tensors import as_split
+
+    if record.get("status") != "ok":
+        return "not ok: left alone"
+    cfg = record["config"]
+    stored = record.get("predictions") or {}
+    splits = load_splits(record["dataset"], root, record["fold"], False, cfg.get("dataset_kwargs") or {},
+                         tuple(stored))
+    added = []
+    for name, pred in stored.items():
+        split = as_split(splits[name])
+        if split.y.tolist() != pred["targets"]:
+            raise SystemExit(f"{path}: the {name} split's targets differ from the record's; not the same split")
+        units = split.unit_ids()
+        if len(set(units)) < len(units) and pred.get("groups") != units:
+            pred["groups"] = units
+            added.append(name)
+    if added:
+        atomic_write_json(path, record)
+    return f"groups added to {', '.join(added)}" if added else "nothing to add (each sample its own unit)"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, help="a bench output folder (its cells/ holds the records)")
@@ -133,6 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--migrate", action="store_true", help="re-key format-1 cells that map to the current format")
     parser.add_argument("--compare", type=Path, default=None, metavar="OTHER",
                         help="compare the numbers of OTHER's cells with this folder's instead")
+    parser.add_argument("--add-groups", action="store_true",
+                        help="write each stored test sample's recording into older records (needs --root)")
     args = parser.parse_args(argv)
     if args.compare is not None:
         return compare(args.folder, args.compare)
@@ -140,6 +173,10 @@ def main(argv: list[str] | None = None) -> int:
     if not paths:
         print(f"no cell records under {args.folder / 'cells'}", file=sys.stderr)
         return 2
+    if args.add_groups:
+        for path in paths:
+            print(f"{path.name}: {add_groups(path, json.loads(path.read_text()), args.root)}")
+        return 0
     counts = {"maps": 0, "stale": 0, "differs": 0}
     for path in paths:
         record = json.loads(path.read_text())

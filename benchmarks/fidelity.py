@@ -13,8 +13,8 @@ Sources read (nothing is trained here):
 - ``benchmarks/results/dcnn_released.csv``: the ten released D-CNN models on the 120 Augment8000 real-life samples.
 
 A cell computed by an older revision of its model's or dataset's code is left out (``report.md`` flags it), as is a
-cell of another recipe than ``source``. Intervals are 95 % bootstraps over seeds and test samples
-(:func:`tactile_zoo.bench.intervals.bootstrap_accuracy`).
+cell of another recipe than ``source``. Intervals are 95 % bootstraps over seeds and test units: samples, or
+recordings for BioTac-DoS (:func:`tactile_zoo.bench.intervals.records_interval`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from tactile_zoo import registry
-from tactile_zoo.bench.intervals import bootstrap_accuracy
+from tactile_zoo.bench.intervals import records_interval
 from tactile_zoo.engine.cell import recipe_name_of
 
 REPO = Path(__file__).resolve().parents[1]
@@ -75,11 +75,6 @@ def _pick(records: Iterable[dict[str, Any]], model: str, dataset: str) -> list[d
     return sorted((r for r in records if r["model"] == model and r["dataset"] == dataset), key=lambda r: r["seed"])
 
 
-def _split(rec: dict[str, Any], split: str) -> tuple[list[int], list[int]]:
-    pred = rec["predictions"][split]
-    return pred["targets"], pred["predictions"]
-
-
 def figure(records: list[dict[str, Any]], split: str = "test", key: str | None = None) -> str:
     """``mean +- std [95 % interval] (n seeds)`` of the test accuracy (or of ``reference[key]``, without interval)."""
     if not records:
@@ -89,7 +84,7 @@ def figure(records: list[dict[str, Any]], split: str = "test", key: str | None =
         interval = ""
     else:
         values = [r["metrics"][split]["accuracy"] for r in records]
-        low_high = bootstrap_accuracy([_split(r, split) for r in records])
+        low_high = records_interval(records, split)
         interval = f" [{low_high[0]:.3f}, {low_high[1]:.3f}]" if low_high else ""
     std = f" ± {statistics.stdev(values):.3f}" if len(values) > 1 else ""
     return f"{statistics.fmean(values):.3f}{std}{interval} ({len(values)} seed{'s' if len(values) > 1 else ''})"
@@ -142,8 +137,7 @@ def tables() -> str:
         lines.append("| " + " | ".join(row) + " |")
     lines += ["", "Figures: mean ± sample std over seeds [95 % bootstrap interval over seeds and test samples] "
                   "(seeds). \"not run yet\": no current cell (a cell of an older code revision does not count). "
-                  "BioTac-DoS intervals resample windows, which share recordings: read them as too narrow until the "
-                  "cells record each window's recording."]
+                  "BioTac-DoS intervals resample recordings (about 27 windows each), not windows."]
     return "\n".join(lines)
 
 

@@ -6,7 +6,7 @@ as one line (exit code 2) and shows a traceback only with ``--debug``.
 
 from __future__ import annotations
 
-__all__ = ["TactileZooError", "UnknownNameError", "DatasetError", "PluginError", "ConfigError"]
+__all__ = ["TactileZooError", "UnknownNameError", "DatasetError", "PluginError", "ConfigError", "TestSplitForbidden"]
 
 
 class TactileZooError(Exception):
@@ -30,3 +30,10 @@ class PluginError(TactileZooError):
 
 class ConfigError(TactileZooError, ValueError):
     """A bad argument, hyper-parameter, recipe or configuration file."""
+
+
+class TestSplitForbidden(ConfigError):
+    """A test split was requested in tuning mode (:func:`tactile_zoo.data.guard.tuning`), where only training and
+    validation data may be read."""
+
+    __test__ = False  # not a pytest test class, despite the name

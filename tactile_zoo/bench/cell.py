@@ -49,6 +49,9 @@ class CellTask:
     sys_path: tuple[str, ...] = field(default=(), compare=False)
     #: the run's progress folder (``--out/progress``): the worker writes the cell's epochs there (see .progress)
     progress_dir: str | None = field(default=None, compare=False)
+    #: the tactile-zoo commit of the bench command that scheduled the cell (``+dirty``: uncommitted changes;
+    #: ``None``: not a git checkout); an audit compares it with the commit that froze a recipe
+    commit: str | None = field(default=None, compare=False)
 
 
 # ----------------------------------------------------------------------------------------------- worker set-up
@@ -86,11 +89,20 @@ def _base_record(task: CellTask) -> dict[str, Any]:
     return {"format": RECORD_FORMAT, "cell_id": task.cell_id, "model": task.model, "dataset": task.dataset,
             "fold": task.fold, "seed": task.seed, "config_hash": task.config_hash, "protocol": task.protocol,
             "status": "failed", "error": None, "config": task.config, "host": socket.gethostname(), "cpu": cpu_model(),
-            "versions": versions(), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+            "versions": versions(), "commit": task.commit, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
-def _eval_dict(result: Any) -> dict[str, Any]:
-    return {"targets": result.targets, "predictions": result.predictions, "probabilities": result.probabilities}
+#: decimals kept of each stored class probability: enough to average seeds into an ensemble, a third of the bytes
+PROBABILITY_DECIMALS = 6
+
+
+def _eval_dict(result: Any, groups: list[int] | None, probabilities: bool) -> dict[str, Any]:
+    out: dict[str, Any] = {"targets": result.targets, "predictions": result.predictions}
+    if groups is not None and len(set(groups)) < len(groups):
+        out["groups"] = groups  # samples share recordings: intervals resample recordings, not samples
+    if probabilities:
+        out["probabilities"] = [[round(p, PROBABILITY_DECIMALS) for p in row] for row in result.probabilities]
+    return out
 
 
 def _ok_record(result: CellResult) -> dict[str, Any]:
@@ -100,11 +112,14 @@ def _ok_record(result: CellResult) -> dict[str, Any]:
         class_names=list(result.spec.class_names),
         metrics={"val": fit.val.metrics if fit.val is not None else None,
                  **{name: ev.metrics for name, ev in result.tests.items()}},
-        predictions={name: _eval_dict(ev) for name, ev in result.tests.items()},
+        # probabilities of the main test split only: an extra split (a subset such as test_textures) would repeat
+        # them, which made a BioTac-DoS cell 4.5 MB
+        predictions={name: _eval_dict(ev, result.test_groups.get(name), name == "test")
+                     for name, ev in result.tests.items()},
         curve=fit.curve, refit_curve=fit.refit_curve, best_epoch=fit.best_epoch, epochs_run=fit.epochs_run,
         train_seconds=round(fit.train_seconds, 3), prefix=result.prefix, infer_ms_per_sample=result.infer_ms_per_sample,
         params=fit.params, peak_memory_mb=result.peak_memory_mb, peak_memory_source=result.peak_memory_source,
-        peak_gpu_memory_mb=result.peak_gpu_memory_mb, recipe=fit.recipe.to_dict(),
+        peak_gpu_memory_mb=result.peak_gpu_memory_mb, recipe=fit.recipe.to_dict(), test_reads=result.test_reads,
         **({"reference": result.reference} if result.reference is not None else {}))
 
 

@@ -26,11 +26,13 @@ from __future__ import annotations
 import json
 import math
 import os
+import statistics
 import time
 from pathlib import Path
 from typing import Any
 
 from .. import registry
+from ..engine.cell import recipe_name_of
 from ..errors import TactileZooError
 from .grid import safe_name
 from .results import RunDir, atomic_write_text
@@ -189,15 +191,23 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
                 "registered now, so their numbers may differ from what the current code computes, and the tables "
                 "below include them. Rerun them: the same `tactile-zoo bench` command with `--force`, or with a "
                 "fresh `--out`.", "", *outdated, ""]
-    out += ["## Summary", ""]
+    out += ["## Summary", "",
+            "The 95 % interval is a bootstrap over seeds (folds) and test units: samples, or recordings where a "
+            "dataset cuts recordings into windows (`tactile_zoo.bench.intervals`). Fresh seeds and a fresh test set "
+            "of the same size would put the mean inside it 95 times in 100; models whose intervals overlap widely "
+            "are not told apart by these cells.", ""]
+    intervals = _intervals(records)
     rows = [[s["model"], s["recipe"], s["dataset"], str(s["n_cells"]),
-             f"{_f(s['accuracy_mean'])} ± {_f(s['accuracy_std'])}", _f(s["balanced_accuracy_mean"]),
-             _f(s["macro_f1_mean"]), _f(s["train_seconds_mean"], 1), _f(s["rank"]), _f(s["mean_rank"], 2)]
+             f"{_f(s['accuracy_mean'])} ± {_f(s['accuracy_std'])}",
+             _interval(intervals.get((s["model"], s["dataset"]))),
+             _f(s["balanced_accuracy_mean"]), _f(s["macro_f1_mean"]), _f(s["train_seconds_mean"], 1), _f(s["rank"]),
+             _f(s["mean_rank"], 2)]
             for s in sorted(summary, key=lambda s: (s["dataset"], s["rank"] or 1e9, s["model"]))]
-    out.append(_table(["model", "recipe", "dataset", "cells", "accuracy", "balanced acc.", "macro-F1", "train s",
-                       "rank", "mean rank"], rows) if rows else "No finished cell yet.")
+    out.append(_table(["model", "recipe", "dataset", "cells", "accuracy", "95 % interval", "balanced acc.",
+                       "macro-F1", "train s", "rank", "mean rank"], rows) if rows else "No finished cell yet.")
     out.append("")
     out += _reference_section(records)
+    out += _tuning_section(records)
     if "heatmap" in figures:
         out += ["## Accuracy by model and dataset", "", f"![heat map]({figures['heatmap']})", ""]
     datasets = sorted({r["dataset"] for r in _ok(records)})
@@ -237,6 +247,21 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
     return "\n".join(out)
 
 
+def _intervals(records: list[dict[str, Any]]) -> dict[tuple[str, str], tuple[float, float] | None]:
+    """(model, dataset) -> the 95 % interval of the mean test accuracy of its ok cells selected on validation."""
+    from .intervals import records_interval
+
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for rec in _ok(records):
+        if (rec.get("config") or {}).get("evaluation", "validation") == "validation" and rec.get("predictions"):
+            groups.setdefault((rec["model"], rec["dataset"]), []).append(rec)
+    return {key: records_interval(recs) for key, recs in groups.items()}
+
+
+def _interval(low_high: tuple[float, float] | None) -> str:
+    return "-" if low_high is None else f"[{_f(low_high[0])}, {_f(low_high[1])}]"
+
+
 def _early_table(records: list[dict[str, Any]], dataset: str) -> str:
     per_model: dict[str, list[dict[str, Any]]] = {}
     for rec in records:
@@ -257,6 +282,32 @@ def _early_table(records: list[dict[str, Any]], dataset: str) -> str:
     return _table(["model", "causal", *[f"{prefix_label(f)} %" for f in fractions], "earliness"], rows)
 
 
+def _settings(config: dict[str, Any]) -> str:
+    """What a tuning trial set: its hyper-parameters and dataset arguments, and the recipe's name."""
+    parts = [f"{k}={v}" for k, v in sorted((config.get("hparams") or {}).items())]
+    parts += [f"{k}={v}" for k, v in sorted((config.get("dataset_kwargs") or {}).items())]
+    return f"{recipe_name_of(config)}" + (f": {', '.join(parts)}" if parts else "")
+
+
+def _tuning_section(records: list[dict[str, Any]]) -> list[str]:
+    trials: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for rec in _ok(records):
+        if (rec.get("config") or {}).get("evaluation") == "tuning":
+            trials.setdefault((rec["model"], rec["dataset"], rec["config_hash"]), []).append(rec)
+    if not trials:
+        return []
+    rows = []
+    for (model, dataset, digest), recs in sorted(trials.items()):
+        val = [r["metrics"]["val"]["accuracy"] for r in recs]
+        std = f" ± {_f(statistics.stdev(val))}" if len(val) > 1 else ""
+        rows.append([model, dataset, f"`{digest}`", _settings(recs[0]["config"]), str(len(recs)),
+                     f"{_f(statistics.fmean(val))}{std}", ",".join(str(r["best_epoch"]) for r in recs)])
+    return ["## Tuning trials (--evaluation tuning)", "",
+            "Validation accuracy of the selected epoch, mean over the trial's cells (folds, seeds). The test split "
+            "was never read: in tuning mode loading it raises. Each cell's full configuration is in its file.", "",
+            _table(["model", "dataset", "config", "settings", "cells", "val accuracy", "best epochs"], rows), ""]
+
+
 # ----------------------------------------------------------------------------------------------- plots
 def _reference_section(records: list[dict[str, Any]]) -> list[str]:
     rows = reference_rows(records)
@@ -264,7 +315,7 @@ def _reference_section(records: list[dict[str, Any]]) -> list[str]:
         return []
     table = [[r["model"], r["dataset"], ",".join(map(str, r["seeds"])),
               f"{_f(r['final_mean'])} ± {_f(r['final_std'])}",
-              "-" if r["final_interval"] is None else f"[{_f(r['final_interval'][0])}, {_f(r['final_interval'][1])}]",
+              _interval(r["final_interval"]),
               f"{_f(r['best_test_epoch_mean'])} ± {_f(r['best_test_epoch_std'])}",
               ",".join(map(str, r["best_test_epochs"]))] for r in rows]
     return ["## Reference protocol (--evaluation reference)", "",
@@ -402,7 +453,7 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
         for (model, ds), rec in sorted(best.items()):
             if ds != dataset:
                 continue
-            cm = rec["metrics"]["test"].get("confusion")
+            cm = (rec["metrics"].get("test") or {}).get("confusion")  # a tuning cell has no test figures
             names = rec.get("class_names") or [str(i) for i in range(len(cm or []))]
             if not cm:
                 continue

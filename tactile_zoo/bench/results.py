@@ -82,7 +82,16 @@ def _json_default(value: Any) -> Any:
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any) -> None:
-    atomic_write_text(path, json.dumps(obj, indent=1, default=_json_default, allow_nan=True) + "\n")
+    """``obj`` as JSON, one top-level key per line with its value written compactly: a cell's per-sample lists
+    (predictions, probabilities, recordings) take a line each instead of a line per number, a fifth of the bytes."""
+    def dump(value: Any, **kwargs: Any) -> str:
+        return json.dumps(value, default=_json_default, allow_nan=True, **kwargs)
+
+    if isinstance(obj, dict) and obj:
+        body = ",\n".join(f" {dump(str(k))}: {dump(v, separators=(',', ':'))}" for k, v in obj.items())
+        atomic_write_text(path, "{\n" + body + "\n}\n")
+    else:
+        atomic_write_text(path, dump(obj, indent=1) + "\n")
 
 
 class Claim:

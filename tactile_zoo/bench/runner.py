@@ -97,9 +97,11 @@ def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
     head = f"[{index}/{total}] {record['status']:<7} {record['model']} x {record['dataset']} fold {record['fold']} " \
            f"seed {record['seed']}"
     if record["status"] == "ok":
-        test = record["metrics"]["test"]
-        return (f"{head}: acc {test['accuracy']:.3f} bal {test['balanced_accuracy']:.3f} f1 {test['macro_f1']:.3f}"
-                f"  {record['epochs_run']} ep (best {record['best_epoch']})  {record['train_seconds']:.1f}s")
+        tail = f"  {record['epochs_run']} ep (best {record['best_epoch']})  {record['train_seconds']:.1f}s"
+        test = record["metrics"].get("test")
+        if test is None:  # a tuning cell: the validation score is all there is
+            return f"{head}: val acc {record['metrics']['val']['accuracy']:.3f} (test not read){tail}"
+        return f"{head}: acc {test['accuracy']:.3f} bal {test['balanced_accuracy']:.3f} f1 {test['macro_f1']:.3f}{tail}"
     return f"{head}: {record.get('error')}"
 
 
@@ -109,7 +111,8 @@ def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Pat
                     extra_splits=cell.extra_splits, root=config.root, download=config.download, device=config.device,
                     threads=executor.threads if executor.threads is not None else config.threads,
                     plugin_modules=tuple(config.plugin_modules), sys_path=tuple(sys.path),
-                    progress_dir=str(progress_dir.resolve()) if progress_dir is not None else None)
+                    progress_dir=str(progress_dir.resolve()) if progress_dir is not None else None,
+                    commit=environment()["git_commit"])
 
 
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:

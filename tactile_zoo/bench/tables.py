@@ -91,6 +91,7 @@ def _cell_row(rec: dict[str, Any], extra_splits: set[str], prefixes: set[float])
         row["earliness"] = prefix.get("earliness")
     row["evaluation"] = (rec.get("config") or {}).get("evaluation", "validation")
     row["best_test_epoch_accuracy"] = (rec.get("reference") or {}).get("best_test_epoch_accuracy")
+    row["val_accuracy"] = (metrics.get("val") or {}).get("accuracy")
     return {k: _num(v) for k, v in row.items()}
 
 
@@ -129,6 +130,10 @@ def leaderboard_rows(records: Iterable[dict[str, Any]], skipped: Iterable[dict[s
         # --evaluation reference: ``accuracy`` is the final epoch's (nothing selected); the best test epoch's
         # accuracy, chosen on the test set, is the sources' optimistic figure and gets a column of its own
         columns += ["evaluation", "best_test_epoch_accuracy"]
+    if any(row.get("evaluation") == "tuning" for row in rows):
+        # --evaluation tuning: no test figure exists (``accuracy`` is empty); the selected epoch's validation accuracy
+        # is what a trial is judged by
+        columns += [c for c in ("evaluation", "val_accuracy") if c not in columns]
     return (_sorted(rows) if rows else []), columns
 
 
@@ -195,7 +200,7 @@ def reference_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (model, dataset) over ok ``--evaluation reference`` cells: the final epoch's test accuracy (honest: nothing
     was selected) with its 95 % bootstrap interval over seeds and test samples, and the best test epoch's accuracy
     (chosen on the test set: the sources' optimistic figure, without an interval)."""
-    from .intervals import bootstrap_accuracy
+    from .intervals import records_interval
 
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for rec in records:
@@ -205,9 +210,8 @@ def reference_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     for (model, dataset), recs in sorted(groups.items()):
         final = [r["metrics"]["test"]["accuracy"] for r in recs]
         best = [r["reference"]["best_test_epoch_accuracy"] for r in recs]
-        tests = [(r["predictions"]["test"]["targets"], r["predictions"]["test"]["predictions"]) for r in recs]
         rows.append({"model": model, "dataset": dataset, "seeds": sorted(r["seed"] for r in recs),
-                     "final_mean": _mean(final), "final_std": _std(final), "final_interval": bootstrap_accuracy(tests),
+                     "final_mean": _mean(final), "final_std": _std(final), "final_interval": records_interval(recs),
                      "best_test_epoch_mean": _mean(best), "best_test_epoch_std": _std(best),
                      "best_test_epochs": [r["reference"]["best_test_epoch"] for r in recs]})
     return rows

@@ -40,11 +40,13 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", default=None, help="torch threads per cell, under every executor (default 1, so "
                                                    "local and distributed runs give identical numbers; run cells "
                                                    "side by side with --executor process --workers N)")
-    p.add_argument("--evaluation", choices=["validation", "reference"], default=None,
+    p.add_argument("--evaluation", choices=["validation", "reference", "tuning"], default=None,
                    help="validation (default): the epoch is selected on the validation split and the test split is "
                         "read once. reference: the sources' protocol: train on train+val for the recipe's fixed "
                         "epochs, test after every epoch, keep the final epoch's accuracy (honest) and the best "
-                        "epoch's (chosen on test: optimistic, labelled so)")
+                        "epoch's (chosen on test: optimistic, labelled so). tuning: as validation, but the test "
+                        "split is never read (loading it raises); the cells record the validation score, for "
+                        "choosing recipes")
     p.add_argument("--config", default=None, metavar="FILE.yaml", help="settings file (flags given here win)")
     p.add_argument("--dry-run", action="store_true", help="print the grid of cells and exit")
     p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "

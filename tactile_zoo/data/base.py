@@ -30,6 +30,7 @@ import torch
 
 from ..errors import ConfigError, DatasetError
 from .augment import apply_augmentation, resolve_augmentations
+from .guard import check_readable
 from .sensors import Sensor
 from .spec import DatasetSpec, TactileSample
 from .splits import carve_holdout, stratified_group_kfold
@@ -132,6 +133,7 @@ class TactileDataset(torch.utils.data.Dataset):
         allowed = ("train", "val", "test", *self.extra_splits)
         if split is not None and split not in allowed:
             raise ConfigError(f"{self.name}: unknown split {split!r}; choose one of {', '.join(allowed)} or None")
+        check_readable(self.name, split)
         if download and not self.raw_present():
             self.download()
         if not self.raw_present():

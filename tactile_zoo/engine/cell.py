@@ -24,6 +24,7 @@ from typing import Any
 import torch
 
 from .. import registry
+from ..data.guard import tuning
 from ..errors import ConfigError
 from ..recipe import Recipe, cap_epochs, resolve_recipe
 from .evaluate import DEFAULT_PREFIXES, EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
@@ -43,8 +44,10 @@ UNHASHED_KEYS = ("causal", "recipe_name")
 #: for the recipe's fixed epoch budget (no early stopping, nothing selected), evaluate the test split after every
 #: epoch and keep only two numbers: the final epoch's accuracy (honest: nothing was chosen) and the best epoch's
 #: (optimistic: chosen on the test set itself, reported only as the sources' figure). No per-epoch test curve is
-#: stored, so it can never steer a later choice.
-EVALUATIONS = ("validation", "reference")
+#: stored, so it can never steer a later choice. ``tuning`` (for choosing a recipe): train and select on validation
+#: exactly as ``validation`` does, but never read a test split: the cell runs in tuning mode
+#: (:mod:`tactile_zoo.data.guard`), where loading one raises, and records the validation score only.
+EVALUATIONS = ("validation", "reference", "tuning")
 
 
 class ModelCannotConsume(ConfigError):
@@ -72,7 +75,7 @@ class CellConfig:
     causal: bool = False
     model_revision: int = registry.DEFAULT_REVISION
     dataset_revision: int = registry.DEFAULT_REVISION
-    evaluation: str = "validation"  # or "reference": see EVALUATIONS
+    evaluation: str = "validation"  # or "reference", "tuning": see EVALUATIONS
 
     def hashed(self) -> dict[str, Any]:
         """The part of :meth:`to_dict` a cell hash covers."""
@@ -131,7 +134,7 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
         refit: retrain on train + val for the selected epoch count.
         subset: at most this many (class-balanced) samples per split, keyed ``train``/``val``/``test``.
         prefixes: early-classification prefix fractions evaluated on the test split.
-        evaluation: ``"validation"`` or ``"reference"`` (:data:`EVALUATIONS`).
+        evaluation: ``"validation"``, ``"reference"`` or ``"tuning"`` (:data:`EVALUATIONS`).
     """
     if evaluation not in EVALUATIONS:
         raise ConfigError(f"--evaluation must be one of {', '.join(EVALUATIONS)}, got {evaluation!r}")
@@ -221,6 +224,11 @@ class CellResult:
     peak_memory_source: str | None = None
     peak_gpu_memory_mb: float | None = None
     reference: dict[str, Any] | None = None  # evaluation="reference": final and best-test-epoch accuracy
+    #: how many trained states of the model were evaluated on the test split: 1 (validation), one per epoch
+    #: (reference), 0 (tuning, where reading it raises)
+    test_reads: int = 1
+    #: per test split, the independent unit (recording) of each sample, in prediction order: what an interval resamples
+    test_groups: dict[str, list[int]] = field(default_factory=dict)
 
 
 @flush_denormals()
@@ -241,6 +249,9 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
     Raises:
         ModelCannotConsume: the model's constructor refused the dataset.
     """
+    if config.evaluation == "tuning":
+        with tuning():
+            return _tune_cell(config, fold, seed, root, download, resolve_device(device), progress, callback)
     dev = resolve_device(device)
     splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs,
                          (*SPLITS, *extra_splits))
@@ -271,7 +282,24 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
                       n_train=len(train) + (len(val) if merged else 0), n_val=0 if merged else len(val),
                       n_test=len(tests["test"]), device=str(dev), prefix=prefix,
                       infer_ms_per_sample=infer_ms, peak_memory_mb=peak.mb, peak_memory_source=peak.source,
-                      peak_gpu_memory_mb=peak.gpu_mb, reference=reference)
+                      peak_gpu_memory_mb=peak.gpu_mb, reference=reference,
+                      test_groups={name: split.unit_ids() for name, split in tests.items()},
+                      test_reads=result.epochs_run if merged else 1)
+
+
+def _tune_cell(config: CellConfig, fold: int, seed: int, root: Any, download: bool, dev: torch.device,
+               progress: bool, callback: Callable[[dict[str, Any]], None] | None) -> CellResult:
+    """The ``tuning`` evaluation: :func:`train_cell` without the test split (called inside the tuning guard)."""
+    splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs, ("train", "val"))
+    subset = config.subset or {}
+    train, val = take(splits["train"], subset.get("train")), take(splits["val"], subset.get("val"))
+    with PeakMemory(dev) as peak:
+        model = build_model(config.model, train.spec, config.hparams, seed)
+        result = fit(model, train, recipe=config.recipe, seed=seed, val_dataset=val, device=dev, refit=config.refit,
+                     progress=progress, callback=callback)
+    return CellResult(config=config, fold=fold, seed=seed, fit=result, tests={}, spec=train.spec, n_train=len(train),
+                      n_val=len(val), n_test=0, device=str(dev), peak_memory_mb=peak.mb, peak_memory_source=peak.source,
+                      peak_gpu_memory_mb=peak.gpu_mb, test_reads=0)
 
 
 def _fit_reference(model: torch.nn.Module, train: Any, val: Any, test: Any, recipe: Recipe, seed: int,

@@ -20,13 +20,22 @@ __all__ = ["TensorSplit", "as_split", "take", "concat"]
 
 @dataclass
 class TensorSplit:
-    """One split held as tensors ``x [S, T, N, C]``, ``g [S, T, G]``, ``y [S]`` with its spec."""
+    """One split held as tensors ``x [S, T, N, C]``, ``g [S, T, G]``, ``y [S]`` with its spec.
+
+    ``groups [S]`` (optional) names each sample's independent unit, such as the recording a window was cut from;
+    ``None`` means every sample is its own.
+    """
 
     x: torch.Tensor
     g: torch.Tensor
     y: torch.Tensor
     spec: DatasetSpec
     name: str = ""
+    groups: torch.Tensor | None = None
+
+    def unit_ids(self) -> list[int]:
+        """The independent unit of every sample, in order (what a bootstrap resamples)."""
+        return list(range(len(self))) if self.groups is None else self.groups.tolist()
 
     def tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self.x, self.g, self.y
@@ -71,7 +80,9 @@ def as_split(dataset: Any) -> TensorSplit:
     if y.numel() and (int(y.min()) < 0 or int(y.max()) >= spec.num_classes):
         raise DatasetError(f"{where}: labels must lie in 0..{spec.num_classes - 1}, found {int(y.min())}.."
                            f"{int(y.max())}")
-    return TensorSplit(x.float(), g.float(), y.long(), spec, str(getattr(dataset, "split", "") or ""))
+    groups = getattr(dataset, "groups", None)
+    groups = groups.long() if isinstance(groups, torch.Tensor) and groups.shape == y.shape else None
+    return TensorSplit(x.float(), g.float(), y.long(), spec, str(getattr(dataset, "split", "") or ""), groups)
 
 
 def take(dataset: Any, limit: int | None, seed: int = 0) -> TensorSplit:
@@ -89,7 +100,8 @@ def take(dataset: Any, limit: int | None, seed: int = 0) -> TensorSplit:
         rank[where] = torch.arange(len(where))
     chosen = order[torch.sort(rank * (split.spec.num_classes + 1) + labels, stable=True).indices[:limit]]
     chosen = chosen.sort().values  # keep the dataset's own order
-    return TensorSplit(split.x[chosen], split.g[chosen], split.y[chosen], split.spec, split.name)
+    return TensorSplit(split.x[chosen], split.g[chosen], split.y[chosen], split.spec, split.name,
+                       None if split.groups is None else split.groups[chosen])
 
 
 def concat(a: Any, b: Any) -> TensorSplit:
@@ -97,5 +109,6 @@ def concat(a: Any, b: Any) -> TensorSplit:
     a, b = as_split(a), as_split(b)
     if a.x.shape[1:] != b.x.shape[1:] or a.g.shape[1:] != b.g.shape[1:]:
         raise DatasetError(f"cannot join splits of shapes {tuple(a.x.shape[1:])} and {tuple(b.x.shape[1:])}")
+    groups = None if a.groups is None or b.groups is None else torch.cat([a.groups, b.groups])
     return TensorSplit(torch.cat([a.x, b.x]), torch.cat([a.g, b.g]), torch.cat([a.y, b.y]), a.spec,
-                       f"{a.name}+{b.name}")
+                       f"{a.name}+{b.name}", groups)

@@ -29,9 +29,10 @@ from ..registry import register_model
 from ._binned import BinnedStreamer, bins_for
 from ._inputs import sensor_grid
 
-__all__ = ["ConvLSTMNet", "FRAME_NORMS"]
+__all__ = ["ConvLSTMNet", "FRAME_NORMS", "READOUTS"]
 
 FRAME_NORMS = (None, "minmax")
+READOUTS = ("gap", "taxels")
 
 
 @register_model(
@@ -77,6 +78,10 @@ class ConvLSTMNet(BinnedStreamer):
             (PyTorch's ``nn.Conv2d`` default, the source's); see :mod:`tactile_zoo.nn.convlstm`.
         dropout: dropout after the hidden FC layer's ReLU (default 0.0; the source's read-out has the layer, its
             released run sets 0.0).
+        readout: what the FC layers read of the top layer's last hidden state: ``"gap"`` (default, the source's)
+            averages it over the whole image, which keeps what was felt but not where; ``"taxels"`` keeps its
+            channels at each taxel's own cell (``hidden_channels * N`` features), so where on the sensor the activity
+            was survives, and the always-empty cells of a sparse layout (78 of NeuTouch's 117) do not dilute it.
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming:
@@ -86,18 +91,21 @@ class ConvLSTMNet(BinnedStreamer):
     def __init__(self, spec: DatasetSpec, hidden_channels: int = 16, num_layers: int = 2, kernel_size: int = 3,
                  fc_units: int = 16, fill_passes: int | None = None, backend: str = "fused",
                  max_frames: int | None = 50, frame_norm: str | None = None, init: str = "keras",
-                 dropout: float = 0.0) -> None:
+                 dropout: float = 0.0, readout: str = "gap") -> None:
         super().__init__()
         if frame_norm not in FRAME_NORMS:
             raise ConfigError(f"convlstm: frame_norm must be one of {FRAME_NORMS}, got {frame_norm!r}")
+        if readout not in READOUTS:
+            raise ConfigError(f"convlstm: readout must be one of {READOUTS}, got {readout!r}")
         if not 0.0 <= dropout < 1.0:
             raise ConfigError(f"convlstm: dropout must be in [0, 1), got {dropout!r}")
-        self.frame_norm = frame_norm
+        self.frame_norm, self.readout = frame_norm, readout
         self.name, self.spec, self.bin_size = "convlstm", spec, bins_for("convlstm", spec.num_steps, max_frames)
         self.grid = sensor_grid(spec, fill_passes)
         self.convlstm = ConvLSTM(ConvLSTMConfig(spec.num_channels, hidden_channels, num_layers, kernel_size,
                                                 backend=backend, init=init))
-        self.fc = nn.Linear(hidden_channels + spec.num_globals, fc_units)
+        pooled = hidden_channels * (spec.num_nodes if readout == "taxels" else 1)
+        self.fc = nn.Linear(pooled + spec.num_globals, fc_units)
         self.drop = nn.Dropout(dropout)
         self.head = nn.Linear(fc_units, spec.num_classes)
 
@@ -108,7 +116,11 @@ class ConvLSTMNet(BinnedStreamer):
             low = frames.amin(dim=(-2, -1), keepdim=True)
             frames = (frames - low) / (frames.amax(dim=(-2, -1), keepdim=True) - low).clamp_min(1e-12)
         _, states = self.convlstm(frames, core)
-        feats = states[-1][0].mean(dim=(-2, -1))  # (B, hidden): global average pooling of the top layer's h_T
+        top = states[-1][0]  # (B, hidden, H, W): the top layer's h_T
+        if self.readout == "taxels":
+            feats = top.flatten(2).index_select(2, self.grid.taxel_cells).flatten(1)  # (B, hidden * N)
+        else:
+            feats = top.mean(dim=(-2, -1))  # (B, hidden): global average pooling
         if gb is not None:  # globals join after pooling: the last bin's mean (the last step's values when unbinned)
             feats = torch.cat([feats, gb[-1]], dim=-1)  # (B, hidden + G)
         hidden = torch.relu(self.fc(feats))

@@ -90,6 +90,9 @@ class SensorGrid(nn.Module):
         rows, cols = weights.nonzero(as_tuple=True)
         source[rows] = cols
         self.register_buffer("source", source, persistent=False)
+        # the flat cell of every taxel, in taxel order: a read-out that keeps where on the sensor a feature is
+        self.register_buffer("taxel_cells", torch.tensor([r * w + c for r, c in cells], dtype=torch.long),
+                             persistent=False)
 
     def forward(self, x: Tensor) -> Tensor:
         if x.dim() < 2 or x.shape[-2] != self.num_nodes:

@@ -38,6 +38,19 @@ def test_report_regenerates_everything_from_the_cell_files(reference_run: Path, 
         assert text in report, text
 
 
+def test_the_summary_quotes_the_shared_bootstrap_interval(reference_run: Path) -> None:
+    from tactile_zoo.bench.intervals import records_interval
+
+    cells = [json.loads(p.read_text()) for p in sorted((reference_run / "cells").glob("tiny_rate__tiny_kfold*.json"))]
+    assert len(cells) == 2  # two folds: the interval resamples both and their test samples
+    low, high = records_interval(cells)
+    row = next(line for line in (reference_run / "report.md").read_text().splitlines()
+               if line.startswith("| tiny_rate | default | tiny_kfold |"))
+    assert f"[{low:.3f}, {high:.3f}]" in row
+    mean = sum(c["metrics"]["test"]["accuracy"] for c in cells) / 2
+    assert low <= mean <= high and low < high
+
+
 def test_report_uses_the_cells_of_the_run_grid(reference_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     shutil.copytree(reference_run, out)

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 import subprocess
 import sys
@@ -142,3 +143,17 @@ def test_table_names_stay_importable_from_results() -> None:
     for name in ("LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows",
                  "rows_to_csv", "prefix_label"):
         assert getattr(results, name) is getattr(tables, name), name
+
+
+def test_cell_json_is_one_line_per_key_and_round_trips(tmp_path: Path) -> None:
+    from tactile_zoo.bench.results import atomic_write_json
+
+    record = {"cell_id": "m__d__f0__s0__abc", "metrics": {"test": {"accuracy": 0.5, "loss": float("nan")}},
+              "predictions": {"test": {"targets": list(range(1000)), "probabilities": [[0.25, 0.75]] * 1000}}}
+    path = tmp_path / "cell.json"
+    atomic_write_json(path, record)
+    text = path.read_text()
+    assert len(text.splitlines()) == len(record) + 2  # braces + one line per key, however long the lists
+    back = json.loads(text)
+    assert back["predictions"] == record["predictions"] and math.isnan(back["metrics"]["test"]["loss"])
+    assert '"cell_id": "m__d__f0__s0__abc"' in text

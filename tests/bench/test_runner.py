@@ -37,6 +37,9 @@ def test_a_run_writes_every_output_and_cell_records_hold_everything(reference_ru
     assert set(cell["predictions"]) == {"test", "test_shifted"}
     probs = cell["predictions"]["test"]["probabilities"]
     assert len(probs) == cell["n_test"] and all(abs(sum(p) - 1) < 1e-5 for p in probs)
+    assert all(v == round(v, 6) for row in probs for v in row)  # stored to 6 decimals
+    # an extra test split keeps what a per-set accuracy needs, not a second copy of the probabilities
+    assert set(cell["predictions"]["test_shifted"]) == {"targets", "predictions"}
     assert cell["metrics"]["test"]["accuracy"] == pytest.approx(
         sum(p == t for p, t in zip(cell["predictions"]["test"]["predictions"], cell["predictions"]["test"]["targets"]))
         / cell["n_test"])
@@ -47,6 +50,10 @@ def test_a_run_writes_every_output_and_cell_records_hold_everything(reference_ru
     assert len(cell["curve"]) == cell["epochs_run"] and 1 <= cell["best_epoch"] <= cell["epochs_run"]
     assert cell["infer_ms_per_sample"] > 0 and cell["params"] > 0 and cell["peak_memory_mb"] > 0
     assert cell["versions"]["torch"] and cell["device"] == "cpu"
+    from tactile_zoo.bench.environment import git_commit
+
+    assert cell["commit"] == git_commit()  # the checkout's commit (with +dirty for uncommitted changes)
+    assert cell["test_reads"] == 1
     run = json.loads((out / "run.json").read_text())
     assert run["status"] == "finished" and run["environment"]["cpu_cores"] >= 1
     assert len(run["grid"]["cells"]) == 6 and run["environment"]["versions"]["tactile_zoo"]
@@ -164,3 +171,14 @@ def test_quick_and_refit(tmp_path: Path) -> None:
     assert cell["n_train"] == 64 and cell["n_val"] <= 32 and cell["n_test"] <= 64
     assert cell["epochs_run"] <= 2 and cell["config"]["refit"] is True
     assert len(cell["refit_curve"]) == cell["best_epoch"]
+
+
+def test_a_cell_record_keeps_the_recording_of_each_window_when_windows_share_one() -> None:
+    from tactile_zoo.bench.cell import _eval_dict
+    from tactile_zoo.engine.evaluate import EvalResult
+
+    result = EvalResult({"accuracy": 0.5}, [0, 1], [[0.1234567, 0.8765433], [0.5, 0.5]], [0, 0])
+    windows = _eval_dict(result, [7, 7], probabilities=True)
+    assert windows["groups"] == [7, 7] and windows["probabilities"][0] == [0.123457, 0.876543]
+    assert "groups" not in _eval_dict(result, [3, 9], probabilities=False)  # each sample its own unit: implicit
+    assert "probabilities" not in _eval_dict(result, None, probabilities=False)

@@ -1,40 +1,84 @@
-"""The README's Table I generator: paper figures next to mean +- std over the current, finished seeds."""
+"""The README's Table I generator: per dataset, paper figures next to mean ± std and a 95 % interval over the current,
+finished runs."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import pytest
+
 from benchmarks.paper_table1 import main, table
 from tactile_zoo import registry
+from tactile_zoo.bench.intervals import records_interval
 
 
-def _cell(folder: Path, model: str, dataset: str, seed: int, status: str = "ok", accuracy: float | None = None,
-          seconds: float | None = None, revision: int | None = None) -> None:
+def _predictions(accuracy: float, n: int, groups: list[int] | None = None) -> dict:
+    right = round(accuracy * n)
+    out = {"targets": [0] * n, "predictions": [0] * right + [1] * (n - right)}
+    return out if groups is None else {**out, "groups": groups}
+
+
+def _cell(folder: Path, model: str, dataset: str, seed: int, status: str = "ok", accuracy: float = 0.5,
+          seconds: float = 60.0, revision: int | None = None, fold: int = 0, config_hash: str = "h",
+          extra: dict | None = None) -> dict:
     current = registry.revision_of(registry.get_model_entry(model))
-    record = {"model": model, "dataset": dataset, "seed": seed, "status": status, "train_seconds": seconds,
-              "metrics": {"test": {"accuracy": accuracy}},
+    record = {"model": model, "dataset": dataset, "fold": fold, "seed": seed, "status": status,
+              "config_hash": config_hash, "train_seconds": seconds, "metrics": {"test": {"accuracy": accuracy}},
+              "predictions": {"test": _predictions(accuracy, 20)},
               "config": {"model_revision": current if revision is None else revision, "dataset_revision": 1,
                          "recipe_name": "source"}}
+    for split, (acc, groups) in (extra or {}).items():
+        record["metrics"][split] = {"accuracy": acc}
+        record["predictions"][split] = _predictions(acc, len(groups), groups)
     (folder / "cells").mkdir(parents=True, exist_ok=True)
-    (folder / "cells" / f"{model}__{dataset}__s{seed}__{status}__{revision}.json").write_text(json.dumps(record))
+    name = f"{model}__{dataset}__f{fold}__s{seed}__{status}__{revision}__{config_hash}.json"
+    (folder / "cells" / name).write_text(json.dumps(record))
+    return record
 
 
-def test_table_averages_current_ok_seeds_and_marks_missing_models(tmp_path: Path) -> None:
-    _cell(tmp_path, "x_tacformer", "ev_objects", 0, accuracy=0.90, seconds=360)
-    _cell(tmp_path, "x_tacformer", "ev_objects", 1, accuracy=0.92, seconds=480)
+def _rows(text: str, title: str) -> dict[str, str]:
+    block = text.split(f"**{title}**")[1].split("\n\n**")[0]
+    return {line.split(" | ")[0].lstrip("| "): line for line in block.splitlines() if line.startswith("| ")}
+
+
+def test_ev_tables_average_current_ok_seeds_with_the_shared_interval(tmp_path: Path) -> None:
+    a = _cell(tmp_path, "x_tacformer", "ev_objects", 0, accuracy=0.90, seconds=360)
+    b = _cell(tmp_path, "x_tacformer", "ev_objects", 1, accuracy=0.95, seconds=480)
     _cell(tmp_path, "x_tacformer", "ev_objects", 2, status="failed")
     _cell(tmp_path, "sgnet", "ev_containers", 0, accuracy=0.65, seconds=600)
     _cell(tmp_path, "sgnet", "ev_objects", 0, accuracy=0.99, seconds=600, revision=1)  # older code: left out
     text = table(tmp_path)
-    rows = {line.split(" | ")[0].lstrip("| "): line for line in text.splitlines() if line.startswith("| ")}
-    # mean 0.91, sample std 0.0141 over the two ok seeds; the failed and the stale cells are left out and counted
-    assert "| 0.9167 | 0.9100 +- 0.0141 (2 seeds, 7 min) | 0.7833 | not run yet |" in rows["X-Tacformer"]
-    assert "| 0.8944 | not run yet | 0.6417 | 0.6500 (1 seed, 10 min) |" in rows["SGnet"]
-    assert rows["D-CNN"].startswith("| D-CNN | - | not run yet | - |")
+    low, high = records_interval([a, b])
+    # mean 0.925, sample std 0.0354 over the two ok seeds; the failed and the stale cells are left out and counted
+    objects = _rows(text, "Ev-Objects")
+    interval = f"[{low:.3f}, {high:.3f}]"
+    assert objects["X-Tacformer"] == f"| X-Tacformer | 0.9167 | 0.9250 ± 0.0354 | {interval} | 2 seeds | 7 |"
+    assert objects["SGnet"] == "| SGnet | 0.8944 | not run yet | - | 0 | - |"
+    assert _rows(text, "Ev-Containers")["SGnet"].startswith("| SGnet | 0.6417 | 0.6500 | [")
     assert "2 cell file(s) are left out" in text
+    assert "D-CNN | 0.7258 |" in _rows(text, "Augment8000")["D-CNN"]  # the released-weights figure, from its CSV
+    assert _rows(text, "Augment8000")["SGnet"].endswith("| needs the training file (not released) |")
 
 
-def test_a_missing_cells_folder_is_one_clear_error(tmp_path: Path, capsys) -> None:
+def test_biotac_declares_textures_and_resamples_recordings(tmp_path: Path) -> None:
+    windows = [g for g in range(4) for _ in range(5)]  # 4 recordings of 5 windows
+    recs = [_cell(tmp_path, "cnn_lstm", "biotac_dos", 0, fold=fold,
+                  extra={"test_textures": (acc, windows), "test_solids": (0.6, windows), "test_small": (0.4, windows)})
+            for fold, acc in enumerate((0.8, 0.6))]
+    row = _rows(table(tmp_path), "BioTac-DoS")["CNN-LSTM"]
+    low, high = records_interval(recs, "test_textures")
+    assert row.startswith(f"| CNN-LSTM | 0.8182 | 0.7000 ± 0.1414 | [{low:.3f}, {high:.3f}] | 0.6000 ± 0.0000 [")
+    assert "| 0.5667 ± 0.0471 | 2 (2 folds x 1 seed) |" in row  # mean of the three sets per run: 0.6 and 0.533
+
+
+def test_two_configurations_in_one_row_is_an_error(tmp_path: Path) -> None:
+    _cell(tmp_path, "tacformer", "ev_objects", 0, config_hash="aaa")
+    _cell(tmp_path, "tacformer", "ev_objects", 1, config_hash="bbb")
+    with pytest.raises(SystemExit, match="tacformer on ev_objects: cells of 2 configurations"):
+        table(tmp_path)
+
+
+def test_a_missing_cells_folder_is_one_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert main([str(tmp_path)]) == 2
     assert "cells not found" in capsys.readouterr().err

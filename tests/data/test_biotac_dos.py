@@ -101,6 +101,25 @@ def test_objects_protocol(home: Path) -> None:
     assert len(splits["train"]) + len(splits["val"]) == 3 * 7 * 8
 
 
+def test_leave_one_object_out_validation(home: Path) -> None:
+    objects = [BioTacDoS.object_of(p) for p in _recording_files(home)]
+    test_default = BioTacDoS(root=home, split="test")
+    for fold, held_out in enumerate(OBJECT_SETS["basic"]):
+        parts = {s: BioTacDoS(root=home, split=s, fold=fold, validation="object") for s in ("train", "val", "test")}
+        assert parts["val"].num_folds == 4 and parts["val"].validation_object() == held_out
+        assert {objects[g] for g in parts["val"].groups.tolist()} == {held_out}  # every window of that object
+        assert {objects[g] for g in parts["train"].groups.tolist()} == set(OBJECT_SETS["basic"]) - {held_out}
+        assert len(parts["val"]) == 3 * 7 * 2 and len(parts["train"]) == 3 * 7 * 6  # nothing basic is lost
+        assert sorted(parts["val"].y.unique().tolist()) == list(range(7))
+        assert parts["test"].groups.tolist() == test_default.groups.tolist()  # the unseen objects, unchanged
+    with pytest.raises(ConfigError, match="fold=4 is out of range"):
+        BioTacDoS(root=home, split="val", fold=4, validation="object")
+    with pytest.raises(ConfigError, match="validation must be one of"):
+        BioTacDoS(root=home, validation="objects")
+    with pytest.raises(ConfigError, match="belongs to the 'objects' protocol"):
+        BioTacDoS(root=home, protocol="kfold", validation="object")
+
+
 def test_kfold_protocol_keeps_recordings_together(home: Path) -> None:
     seen = []
     for fold in range(4):

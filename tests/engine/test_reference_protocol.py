@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tactile_zoo.bench.grid import config_hash
-from tactile_zoo.bench.intervals import bootstrap_accuracy
+from tactile_zoo.bench.intervals import bootstrap_accuracy, records_interval
 from tactile_zoo.cli import main
 from tactile_zoo.engine.cell import resolve_cell, train_cell
 from tactile_zoo.errors import ConfigError
@@ -85,3 +85,12 @@ def test_bootstrap_interval_covers_the_mean_and_widens_with_dependent_units() ->
     narrow, wide = bootstrap_accuracy(grouped), bootstrap_accuracy(grouped, groups=groups)
     assert (wide[1] - wide[0]) > 2 * (narrow[1] - narrow[0])
     assert bootstrap_accuracy([([0, 1], [0, 1])]) == (1.0, 1.0) and bootstrap_accuracy([]) is None
+    # records_interval reads the same from cell records, by recording where the record lists them
+    records = [{"predictions": {"test": {"targets": t, "predictions": p, "groups": g}}}
+               for (t, p), g in zip(grouped, groups)]
+    assert records_interval(records) == wide
+    for rec in records:
+        del rec["predictions"]["test"]["groups"]
+    assert records_interval(records) == narrow
+    with pytest.raises(ValueError, match="no stored predictions for split 'test_textures'"):
+        records_interval(records, "test_textures")

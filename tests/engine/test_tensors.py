@@ -30,3 +30,16 @@ def test_concat_and_validation() -> None:
         as_split(flat)
     with pytest.raises(DatasetError, match="no .spec"):
         as_split([1, 2, 3])
+
+
+def test_groups_travel_with_take_and_concat() -> None:
+    tr, va = (tz.load_dataset("tiny_blobs", split=s) for s in ("train", "val"))
+    split = as_split(tr)
+    assert split.groups is not None and torch.equal(split.groups, tr.groups.long())
+    sub = take(tr, 9, seed=0)
+    chosen = [int(torch.nonzero((tr.x == x).flatten(1).all(1))[0]) for x in sub.x]  # rows of tr that were taken
+    assert sub.groups.tolist() == tr.groups[chosen].tolist()
+    both = concat(tr, va)
+    assert both.groups.tolist() == tr.groups.tolist() + va.groups.tolist()
+    no_groups = type("Plain", (), {"spec": tr.spec, "tensors": lambda self: (tr.x, tr.g, tr.y)})()
+    assert as_split(no_groups).groups is None and as_split(no_groups).unit_ids() == list(range(len(tr)))

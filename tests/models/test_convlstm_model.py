@@ -202,3 +202,29 @@ def test_readout_dropout_acts_in_training_only() -> None:
         assert torch.equal(default(x), first)
     with pytest.raises(ConfigError, match="dropout"):
         tz.create_model("convlstm", spec, dropout=1.0)
+
+
+def test_taxel_readout_keeps_each_taxels_cell() -> None:
+    torch.manual_seed(2)
+    spec = spec_for("neutouch", 2)
+    model = tz.create_model("convlstm", spec, readout="taxels").eval()
+    assert model.fc.in_features == 16 * 39
+    x = torch.rand(3, 10, 39, 2)
+    rows_cols = tz.get_sensor("neutouch").grid
+    with torch.no_grad():
+        seq, _ = model.convlstm(model.grid(x))  # (B, T, 16, 9, 13)
+        top = seq[:, -1]
+        # taxel-major per channel: channel c of taxel n is feature c * N + n
+        feats = torch.stack([top[:, :, r, c] for r, c in rows_cols], dim=-1).flatten(1)  # (B, 16 * 39)
+        want = model.head(torch.relu(model.fc(feats)))
+        assert torch.allclose(model(x), want, atol=1e-6)
+        # the read-out depends on which taxel saw what
+        assert not torch.allclose(model(x.flip(2)), model(x), atol=1e-3)
+    for t in range(1, 4):  # the streaming step reads out the same way
+        state = model.init_state(3)
+        for i in range(t):
+            out, state = model.step(x[:, i], None, state)
+        with torch.no_grad():
+            assert torch.allclose(out, model(x[:, :t]), atol=1e-5)
+    with pytest.raises(ConfigError, match="readout must be one of"):
+        tz.create_model("convlstm", spec, readout="flat")

@@ -116,3 +116,37 @@ def test_running_statistics_start_from_the_first_batch() -> None:
     mean2 = a2.mean((0, 2, 3))  # afterwards an ordinary moving average with the configured momentum
     assert torch.allclose(bn.running_mean, 0.9 * mean1 + 0.1 * mean2, atol=1e-6)
     assert bn.momentum == 0.1
+
+
+@pytest.mark.parametrize("spec", [AUGMENT8000, spec_for("neutouch", 41, 2, 0, 5)])  # odd sizes: partial windows
+def test_pooling_that_keeps_only_indices_trains_exactly_like_maxpool2d(spec: DatasetSpec) -> None:
+    """The blocks' pools keep only their argmax indices for the backward pass (memory, see ``_IndexOnlyMaxPool``);
+    outputs, gradients, batch-norm statistics and the weights after Adam steps equal ``nn.MaxPool2d``'s bit for bit."""
+    import copy
+
+    torch.manual_seed(2)
+    ours = tz.create_model("dcnn", spec).train()
+    ref = copy.deepcopy(ours)
+    for block in ref.features:
+        block[-1] = nn.MaxPool2d(2, ceil_mode=True)
+    assert all(type(block[-1]) is not nn.MaxPool2d for block in ours.features)
+    opts = [torch.optim.Adam(m.parameters(), lr=1e-2) for m in (ours, ref)]
+    gen = torch.Generator().manual_seed(3)
+    for _ in range(3):
+        x = torch.relu(torch.randn(6, spec.num_steps, spec.num_nodes, spec.num_channels, generator=gen))  # ties: 0s
+        g = torch.randn(6, spec.num_steps, spec.num_globals, generator=gen) if spec.num_globals else None
+        y = torch.randint(spec.num_classes, (6,), generator=gen)
+        outs = []
+        for model, opt in zip((ours, ref), opts):
+            opt.zero_grad(set_to_none=True)
+            out = model(x, g)
+            nn.functional.cross_entropy(out, y).backward()
+            opt.step()
+            outs.append(out.detach())
+        assert torch.equal(outs[0], outs[1])
+        for (name, a), b in zip(ours.named_parameters(), ref.parameters()):
+            assert torch.equal(a.grad, b.grad) and torch.equal(a, b), name
+    for a, b in zip(ours.buffers(), ref.buffers()):
+        assert torch.equal(a, b)
+    with torch.no_grad():
+        assert torch.equal(ours.eval()(x, g), ref.eval()(x, g))

@@ -22,10 +22,15 @@ recordings, so no split leaks into another. ``normalize="none"`` keeps the raw v
 
 Protocols:
 
-``objects`` (default; the source's generalisation protocol, ``num_folds == 1``)
-    ``train`` and ``val`` come from the basic set, ``val`` carved by whole recordings (stratified, seeded);
-    ``test`` holds every window of the seven unseen objects, also available per set as ``test_solids``,
-    ``test_small``, ``test_textures``.
+``objects`` (default; the source's generalisation protocol)
+    ``train`` and ``val`` come from the basic set; ``test`` holds every window of the seven unseen objects, also
+    available per set as ``test_solids``, ``test_small``, ``test_textures``. How ``val`` is carved:
+
+    - ``validation="recordings"`` (default, one fold): 20 % of the basic recordings, whole recordings, stratified,
+      seeded. It measures how well the model knows recordings of objects it has seen, not how it generalises.
+    - ``validation="object"`` (four folds): fold ``f`` holds out every recording of the ``f``-th basic object
+      (pen, case, sponge, hd) and trains on the other three, so validation asks the question the test asks: an
+      object never touched in training. Epochs and window lengths chosen on it are chosen for generalisation.
 ``kfold`` (``num_folds`` folds, default 5)
     stratified k-fold over the recordings of all objects (a recording's windows never split across folds); fold
     ``f`` is ``test``, ``val`` is carved from the rest; ``test_<set>`` are the test windows of that set.
@@ -59,6 +64,7 @@ _ALIASES = {"strippes": "striped"}  # the release's spelling
 _HEADER = tuple(f"ff_e{i}" for i in range(1, 25))
 _FILE = re.compile(r"^([A-Za-z]+?)[_-]?(\d+)\.csv$")
 _UNSEEN = ("solids", "small", "textures")
+VALIDATIONS = ("recordings", "object")
 
 
 @register_dataset(
@@ -80,6 +86,8 @@ class BioTacDoS(TactileDataset):
 
     Args:
         protocol: ``"objects"`` (default) or ``"kfold"``.
+        validation: how the ``objects`` protocol carves ``val``: ``"recordings"`` (default) or ``"object"`` (leave
+            one basic object out; four folds).
         num_folds: folds of the ``kfold`` protocol (default 5).
         window: readings per sample (W, default 10).
         stride: readings between window starts (default ``window``: non-overlapping).
@@ -97,11 +105,18 @@ class BioTacDoS(TactileDataset):
     obtain = f"Copy the csvs/ folder of {REPOSITORY} to <root>/biotac_dos/raw/csvs/."
 
     def __init__(self, root: str | os.PathLike | None = None, split: str | None = None, fold: int = 0,
-                 download: bool = False, *, protocol: str = "objects", num_folds: int = 5, window: int = 10,
+                 download: bool = False, *, protocol: str = "objects", validation: str = "recordings",
+                 num_folds: int = 5, window: int = 10,
                  stride: int | None = None, normalize: str = "baseline", baseline: int = 10, scale: float = 1000.0,
                  **kwargs: Any) -> None:
         if protocol not in ("objects", "kfold"):
             raise ConfigError(f"biotac_dos: protocol must be 'objects' or 'kfold', got {protocol!r}")
+        if validation not in VALIDATIONS:
+            raise ConfigError(f"biotac_dos: validation must be one of {', '.join(map(repr, VALIDATIONS))}, "
+                              f"got {validation!r}")
+        if validation == "object" and protocol != "objects":
+            raise ConfigError("biotac_dos: validation='object' belongs to the 'objects' protocol (the kfold "
+                              "protocol mixes every object into every fold)")
         if normalize not in ("baseline", "none"):
             raise ConfigError(f"biotac_dos: normalize must be 'baseline' or 'none', got {normalize!r}")
         stride = window if stride is None else stride
@@ -112,7 +127,7 @@ class BioTacDoS(TactileDataset):
             raise ConfigError(f"biotac_dos: the kfold protocol needs num_folds >= 2, got {num_folds}")
         if not scale > 0:
             raise ConfigError(f"biotac_dos: scale must be positive, got {scale}")
-        self.protocol = protocol
+        self.protocol, self.validation = protocol, validation
         self.k = int(num_folds)
         self.window, self.stride, self.normalize = int(window), int(stride), normalize
         self.baseline, self.scale = int(baseline), float(scale)
@@ -172,10 +187,8 @@ class BioTacDoS(TactileDataset):
         for c in CLASSES:
             if not (csvs / c).is_dir() or not any(p.suffix == ".csv" for p in (csvs / c).iterdir()):
                 raise DatasetError(f"{csvs / c}: class folder missing or without .csv recordings")
-        files = [(label, path) for label, c in enumerate(CLASSES) for path in sorted((csvs / c).iterdir())
-                 if not path.name.startswith(".")]
         xs, ys, groups, parts = [], [], [], []
-        for rec, (label, path) in enumerate(files):
+        for rec, (label, path) in enumerate(self._recordings()):
             if path.suffix != ".csv" or not path.is_file():
                 raise DatasetError(f"{path}: unexpected entry in a class folder (expected <object><id>.csv files)")
             obj = self.object_of(path)
@@ -188,6 +201,13 @@ class BioTacDoS(TactileDataset):
         x = torch.from_numpy(np.concatenate(xs)).unsqueeze(-1)  # (S, W, 24, 1)
         return TensorData(x, torch.zeros(x.shape[0], self.window, 0), torch.tensor(ys, dtype=torch.long),
                           torch.tensor(groups, dtype=torch.long), tuple(parts))
+
+    def _recordings(self) -> list[tuple[int, Path]]:
+        """``(label, path)`` of every recording, in the order that numbers the groups (a sample's ``groups`` value is
+        its recording's index here)."""
+        csvs = self.csv_dir(self.root)
+        return [(label, path) for label, c in enumerate(CLASSES) for path in sorted((csvs / c).iterdir())
+                if not path.name.startswith(".")]
 
     def _windows(self, readings: np.ndarray, path: Path) -> np.ndarray:
         """``(K, W, 24)`` float32 windows of one recording ``(R, 24)``, normalised."""
@@ -203,7 +223,13 @@ class BioTacDoS(TactileDataset):
 
     # ------------------------------------------------------------------------------------------- protocols
     def count_folds(self, data: TensorData) -> int:
-        return self.k if self.protocol == "kfold" else 1
+        if self.protocol == "kfold":
+            return self.k
+        return len(OBJECT_SETS["basic"]) if self.validation == "object" else 1
+
+    def validation_object(self) -> str | None:
+        """The basic object this fold validates on (``validation="object"``), else ``None``."""
+        return OBJECT_SETS["basic"][self.fold] if self.validation == "object" else None
 
     def split_indices(self, data: TensorData, fold: int) -> dict[str, np.ndarray]:
         part = np.asarray(data.partition)
@@ -213,7 +239,15 @@ class BioTacDoS(TactileDataset):
             out.update({f"test_{s}": test[part[test] == f"test_{s}"] for s in _UNSEEN})
             return out
         y, groups = data.y.numpy(), data.groups.numpy()
-        train, val = carve_holdout(np.flatnonzero(part == "train"), y, groups, self.val_fraction, seed=fold)
+        basic = np.flatnonzero(part == "train")
+        if self.validation == "object":
+            objects = np.array([self.object_of(path) for _, path in self._recordings()])  # per recording
+            if objects.size != int(data.groups.max()) + 1:
+                raise DatasetError(f"{self.csv_dir(self.root)}: the recordings changed since they were read")
+            held_out = objects[groups[basic]] == OBJECT_SETS["basic"][fold]
+            train, val = basic[~held_out], basic[held_out]
+        else:
+            train, val = carve_holdout(basic, y, groups, self.val_fraction, seed=fold)
         extra = {f"test_{s}": np.flatnonzero(part == f"test_{s}") for s in _UNSEEN}
         test = np.sort(np.concatenate(list(extra.values())))
         return {"train": train, "val": val, "test": test, **extra}

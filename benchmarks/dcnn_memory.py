@@ -1,0 +1,137 @@
+"""Peak memory of D-CNN training on Ev-Containers: its pools keeping only their argmax indices vs ``nn.MaxPool2d``.
+
+The Table I cells of ``dcnn`` on Ev-Containers (325 x 78 images, batch 128) peaked at 3.4-3.5 GB, above the 3 GB
+target. What a training step keeps for its backward pass dominates (measured: 2.3 GB of activations at batch 128),
+and ``nn.MaxPool2d`` kept its input, the batch norm's output, which its CPU backward never reads: 870 MB over the
+three blocks. The model's pools now keep only their indices (``tactile_zoo.models.dcnn._IndexOnlyMaxPool``: the same
+ATen kernels, bit-identical outputs and gradients).
+
+Side by side, each in a fresh child process (so neither inherits the other's heap), 1 thread as the bench cells run:
+``index_only`` is the model as registered, ``maxpool2d`` the same model with the three pools swapped back to
+``nn.MaxPool2d(2, ceil_mode=True)``. Each builds ``dcnn`` with seed 0, trains one epoch over Ev-Containers' 200
+training samples at the recipe's batch size (128, then 72) through ``fit``, then scores the 60 test samples
+(batch 256: one batch). ``peak_rss_mb`` is the resident-set high-water mark of the epoch (``VmHWM`` reset through
+``/proc/self/clear_refs`` at its start, so it includes the interpreter, torch, the model and the dataset),
+``eval_peak_rss_mb`` that of the test scoring, ``process_peak_rss_mb`` the child's peak over its whole life (the
+largest of the three windows: loading, training, scoring);
+``max_logit_diff`` compares the two trained models' test logits (0: the same computation). Synthetic events of the
+same shape stand in where Ev-Containers is absent (``data`` says so; memory depends on the shapes only).
+
+Run it alone: ``python -m benchmarks.dcnn_memory [--root DIR] [--quick]``; it writes ``results/dcnn_memory.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .common import REPO, Context, data_root, model_recipe, synthetic_events, write_csv
+
+NAME = "dcnn_memory"
+TITLE = "D-CNN training peak RSS on Ev-Containers: index-only pools vs nn.MaxPool2d"
+COLUMNS = ("pool", "batch_size", "samples", "data", "peak_rss_mb", "eval_peak_rss_mb", "process_peak_rss_mb",
+           "rss_source", "epoch_s", "max_logit_diff", "target")
+VARIANTS = {"index_only": "_IndexOnlyMaxPool (keeps the argmax indices)",
+            "maxpool2d": "nn.MaxPool2d(2, ceil_mode=True) (keeps its input too)"}
+
+
+def _splits(root: Path | None) -> tuple[Any, Any, str]:
+    """Ev-Containers' train and test splits, else synthetic events of their shapes."""
+    from tactile_zoo.engine.cell import load_splits
+    from tactile_zoo.errors import TactileZooError
+
+    try:
+        splits = load_splits("ev_containers", root)
+        return splits["train"], splits["test"], "ev_containers"
+    except TactileZooError:
+        from tactile_zoo.data.datasets.ev import EV_CONTAINERS_CLASSES
+        from tactile_zoo.data.sensors import NEUTOUCH
+        from tactile_zoo.data.spec import DatasetSpec
+
+        spec = DatasetSpec("ev_containers", len(EV_CONTAINERS_CLASSES), EV_CONTAINERS_CLASSES, 325,
+                           NEUTOUCH.num_nodes, 2, 0, NEUTOUCH)
+        return synthetic_events(spec, 200, seed=0), synthetic_events(spec, 60, seed=1), "synthetic"
+
+
+def measure(variant: str, root: Path | None, samples: int | None) -> dict[str, Any]:
+    """Train ``dcnn`` one epoch with the ``variant``'s pools in this process; one CSV row plus its test logits."""
+    import resource
+
+    from torch import nn
+
+    from tactile_zoo.engine import PeakMemory, fit, predict_scores, seed_everything, take
+    from tactile_zoo.engine.runtime import flush_denormals
+    from tactile_zoo.registry import create_model
+
+    train, test, source = _splits(root)
+    if samples is not None and samples < len(train):
+        train = take(train, samples, seed=0)
+    recipe = model_recipe("dcnn")
+    seed_everything(0)
+    model = create_model("dcnn", train.spec)
+    if variant == "maxpool2d":
+        for block in model.features:
+            block[-1] = nn.MaxPool2d(2, ceil_mode=True)
+    before_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the reset below clears ru_maxrss too
+    with PeakMemory() as peak:
+        result = fit(model, train, recipe=recipe, epochs=1)
+    with PeakMemory() as eval_peak, flush_denormals():
+        logits = predict_scores(model, test.x, test.g, recipe.eval_batch_size)
+    return {"case": variant, "pool": VARIANTS[variant], "batch_size": recipe.batch_size, "samples": len(train),
+            "data": source, "peak_rss_mb": peak.mb, "eval_peak_rss_mb": eval_peak.mb,
+            "process_peak_rss_mb": round(max(before_mb, peak.mb or 0.0, eval_peak.mb or 0.0), 1),
+            "rss_source": peak.source, "epoch_s": float(result.curve[0]["seconds"]), "logits": logits.tolist()}
+
+
+def run(ctx: Context, samples: int | None = None) -> Path:
+    root = data_root(ctx)
+    job = {"root": None if root is None else str(root), "threads": ctx.threads,
+           "samples": samples if samples is not None else (32 if ctx.quick else None)}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    rows = []
+    for variant in VARIANTS:
+        proc = subprocess.run([sys.executable, "-m", "benchmarks.dcnn_memory", "--child",
+                               json.dumps({**job, "variant": variant})],
+                              cwd=REPO, env=env, capture_output=True, text=True, check=False)
+        if proc.returncode != 0:
+            raise RuntimeError(f"measuring {variant} failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+        rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    ref = torch.tensor(rows[-1]["logits"])
+    for row in rows:
+        row["max_logit_diff"] = float((torch.tensor(row.pop("logits")) - ref).abs().max())
+        row["target"] = "peak < 3 GB (issue 18), the same outputs"
+        row["note"] = "one training epoch, then the test split in one batch; fresh child process, 1 thread" \
+            if row["samples"] == 200 else f"{row['samples']} training samples (--quick)"
+        ctx.log(f"  {row['case']}: training peak {row['peak_rss_mb']} MB, eval peak {row['eval_peak_rss_mb']} MB, "
+                f"process peak {row['process_peak_rss_mb']} MB, logits differ by {row['max_logit_diff']:g}")
+    return write_csv(ctx, NAME, COLUMNS, rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=TITLE)
+    parser.add_argument("--quick", action="store_true", help="32 training samples: checks that it runs")
+    parser.add_argument("--root", type=Path, default=None, help="data home with ev_containers/raw/Ev-Containers.zip")
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)  # one variant, in a fresh process
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)  # as the bench cells run
+    if args.child is not None:
+        job = json.loads(args.child)
+        torch.set_num_threads(job["threads"])
+        print(json.dumps(measure(job["variant"], None if job["root"] is None else Path(job["root"]), job["samples"])))
+        return 0
+    ctx = Context(quick=args.quick, threads=1, root=args.root, **({"out": args.out} if args.out else {}))
+    path = run(ctx)
+    print(path.read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
