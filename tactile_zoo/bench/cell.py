@@ -9,11 +9,13 @@ out-of-memory error become a record with ``status="failed"``, the error and its 
 from __future__ import annotations
 
 import gc
+import os
 import socket
 import sys
 import time
 import traceback
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -23,7 +25,7 @@ from ..engine.cell import CellConfig, CellResult, ModelCannotConsume, train_cell
 from ..engine.runtime import cpu_model, flush_denormals, resolve_device, set_threads, versions
 from .progress import ProgressWriter
 
-__all__ = ["CellTask", "run_cell", "setup_worker", "RECORD_FORMAT"]
+__all__ = ["CellTask", "run_cell", "setup_worker", "save_weights", "RECORD_FORMAT"]
 
 RECORD_FORMAT = 1
 
@@ -52,6 +54,8 @@ class CellTask:
     #: the tactile-zoo commit of the bench command that scheduled the cell (``+dirty``: uncommitted changes;
     #: ``None``: not a git checkout); an audit compares it with the commit that froze a recipe
     commit: str | None = field(default=None, compare=False)
+    #: ``--save-weights``: the folder the worker writes the trained weights to (``<cell id>.safetensors``)
+    weights_dir: str | None = field(default=None, compare=False)
 
 
 # ----------------------------------------------------------------------------------------------- worker set-up
@@ -123,6 +127,24 @@ def _ok_record(result: CellResult) -> dict[str, Any]:
         **({"reference": result.reference} if result.reference is not None else {}))
 
 
+def save_weights(model: torch.nn.Module, path: Path, metadata: dict[str, str]) -> dict[str, Any]:
+    """Write ``model``'s state dict as safetensors (atomically) and return ``{file, sha256, bytes}`` for the record.
+
+    The file is the cell's own trained model, written by the run that computed the cell, so the accuracy in the
+    record is the accuracy of exactly these weights.
+    """
+    from safetensors.torch import save_file
+
+    from ..data.base import file_sha256
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    tmp = path.with_suffix(f".tmp{os.getpid()}")
+    save_file(tensors, str(tmp), metadata=metadata)
+    os.replace(tmp, path)
+    return {"file": f"weights/{path.name}", "sha256": file_sha256(path), "bytes": path.stat().st_size}
+
+
 @flush_denormals()
 def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
     """Train and evaluate one cell (:func:`tactile_zoo.engine.cell.train_cell`); returns its record (``status`` ok,
@@ -145,6 +167,10 @@ def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
             record.update(status="skipped", error=f"model cannot consume this dataset: {exc.__cause__ or exc}")
             return record
         record.update(_ok_record(result))
+        if task.weights_dir is not None:
+            record["weights"] = save_weights(result.fit.model, Path(task.weights_dir) / f"{task.cell_id}.safetensors",
+                                             {"cell_id": task.cell_id, "config_hash": task.config_hash,
+                                              "model": task.model, "dataset": task.dataset})
     except (KeyboardInterrupt, SystemExit):
         raise
     except BaseException as exc:  # noqa: BLE001 - a cell's failure must never stop the grid

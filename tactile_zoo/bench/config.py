@@ -23,6 +23,7 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     root: null                      # data home
     download: false
     force: false
+    save_weights: false             # write each computed cell's trained weights to OUT/weights/<cell id>.safetensors
     prefixes: [0.1, 0.25, 0.5, 0.75, 1.0]
     recipe_name: source             # which named recipe every model starts from (default: each model's default)
     evaluation: validation          # or reference: the sources' protocol (tactile_zoo.engine.cell.EVALUATIONS)
@@ -79,6 +80,7 @@ class BenchConfig:
     scheduler: str | None = None
     retries: int | None = None
     dashboard: str | None = None
+    save_weights: bool = False
     threads: int | None = None
     plugin_modules: list[str] = field(default_factory=list)
     prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))

@@ -105,14 +105,16 @@ def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
     return f"{head}: {record.get('error')}"
 
 
-def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Path | None = None) -> CellTask:
+def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Path | None = None,
+          weights_dir: Path | None = None) -> CellTask:
     return CellTask(model=cell.model, dataset=cell.dataset, fold=cell.fold, seed=cell.seed,
                     config_hash=cell.config_hash, cell_id=cell.cell_id, config=cell.config, protocol=cell.protocol,
                     extra_splits=cell.extra_splits, root=config.root, download=config.download, device=config.device,
                     threads=executor.threads if executor.threads is not None else config.threads,
                     plugin_modules=tuple(config.plugin_modules), sys_path=tuple(sys.path),
                     progress_dir=str(progress_dir.resolve()) if progress_dir is not None else None,
-                    commit=environment()["git_commit"])
+                    commit=environment()["git_commit"],
+                    weights_dir=str(weights_dir.resolve()) if weights_dir is not None else None)
 
 
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
@@ -338,7 +340,8 @@ def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, i
             run: RunDir) -> None:
     remove_progress(run.path, cell.cell_id)  # a killed run's leftover: we hold the claim, nobody else runs it
     try:
-        future = executor.submit(_task(cell, config, executor, run.progress_dir))
+        future = executor.submit(_task(cell, config, executor, run.progress_dir,
+                                       run.path / "weights" if config.save_weights else None))
     except BaseException:  # Ctrl-C inside a local cell: its claim and progress must not outlive it
         remove_progress(run.path, cell.cell_id)
         claim.release()

@@ -47,6 +47,9 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
                         "epoch's (chosen on test: optimistic, labelled so). tuning: as validation, but the test "
                         "split is never read (loading it raises); the cells record the validation score, for "
                         "choosing recipes")
+    p.add_argument("--save-weights", action="store_true", default=None,
+                   help="write the trained weights of every cell this run computes to OUT/weights/<cell id>."
+                        "safetensors (its sha256 in the cell record); finished cells are not recomputed for it")
     p.add_argument("--config", default=None, metavar="FILE.yaml", help="settings file (flags given here win)")
     p.add_argument("--dry-run", action="store_true", help="print the grid of cells and exit")
     p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "
@@ -61,7 +64,7 @@ def _bench_config(args: argparse.Namespace) -> Any:
     flags = {key: getattr(args, key) for key in (
         "models", "datasets", "root", "download", "seeds", "folds", "epochs", "refit", "quick", "device", "out",
         "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes", "recipe_name",
-        "evaluation", "retries", "dashboard")}
+        "evaluation", "retries", "dashboard", "save_weights")}
     return merge_config(load_yaml_config(args.config) if args.config else None, flags, args.sets, args.hparams,
                         args.dataset_args)
 

@@ -1,0 +1,149 @@
+"""The recipe audit: were the zoo recipes chosen on validation only, frozen before the final cells, and was every
+final cell's test split read exactly once? A script checks it from committed files and the git history.
+
+    python -m benchmarks.audit                     # tuning trials, the frozen recipes, the final zoo cells
+    python -m benchmarks.audit --final DIR --recipe zoo --tuning DIR
+
+What it reads:
+
+- **Trials**: every cell record under ``--tuning`` (default ``benchmarks/results/tuning``, searched recursively for
+  ``cells/*.json``). A trial is one configuration (one config hash) of a model on a dataset; its cells are its folds
+  and seeds. Each must have run under ``--evaluation tuning`` (the test split unreadable, ``test_reads == 0``).
+- **The freeze**: ``--tuning``/``freeze.json``, ``{"recipe": "zoo", "models": {model: recipe, ...}}``, committed in
+  the commit that froze the recipes. That commit is found in the git history (the last one that changed the file).
+- **Final cells**: the ok cells of ``--recipe`` under ``--final`` (default ``benchmarks/results/paper-table1-zoo``).
+
+What it checks (each failure is one line; the exit status is 1 if there is any):
+
+1. every trial cell ran in tuning mode and read no test split;
+2. at most ``--max-trials`` (8) trials per model and dataset, all on seed 0;
+3. the registered recipe of every frozen model equals its frozen recipe (nothing changed after the freeze);
+4. every final cell: its recipe name is ``--recipe``, its resolved recipe is the frozen one, it read its test split
+   exactly once (``test_reads == 1``), and its recorded ``commit`` is clean and is the freeze commit or a descendant
+   (``git merge-base --is-ancestor``): it was computed after the recipes were frozen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+from tactile_zoo import registry
+from tactile_zoo.engine.cell import recipe_name_of, resolve_cell
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results"
+
+
+def _git(repo: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, check=False)
+
+
+def _records(folder: Path) -> list[dict[str, Any]]:
+    return [json.loads(p.read_text()) for p in sorted(folder.rglob("cells/*.json"))]
+
+
+def trials(tuning: Path) -> dict[tuple[str, str], dict[str, list[dict[str, Any]]]]:
+    """(model, dataset) -> config hash -> the trial's cells."""
+    out: dict[tuple[str, str], dict[str, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
+    for rec in _records(tuning):
+        out[(rec["model"], rec["dataset"])][rec["config_hash"]].append(rec)
+    return out
+
+
+def freeze_commit(path: Path, repo: Path = REPO) -> str | None:
+    """The commit that last changed the freeze file, or ``None`` if it is not committed."""
+    rel = path.resolve().relative_to(repo.resolve())
+    done = _git(repo, "log", "-1", "--format=%H", "--", str(rel))
+    return done.stdout.strip() or None
+
+
+def descends(commit: str, ancestor: str, repo: Path = REPO) -> bool:
+    return _git(repo, "merge-base", "--is-ancestor", ancestor, commit).returncode == 0
+
+
+def audit(tuning: Path, final: Path, recipe: str, max_trials: int = 8, repo: Path = REPO
+          ) -> tuple[list[str], list[str]]:
+    """``(report lines, failures)``."""
+    lines, failures = ["## Trials (validation only)", ""], []
+    for (model, dataset), configs in sorted(trials(tuning).items()):
+        best = max(configs.items(), key=lambda kv: sum(r["metrics"]["val"]["accuracy"] for r in kv[1]) / len(kv[1]))
+        lines.append(f"- {model} on {dataset}: {len(configs)} trial(s); best validation accuracy "
+                     f"{sum(r['metrics']['val']['accuracy'] for r in best[1]) / len(best[1]):.4f} (`{best[0]}`)")
+        if len(configs) > max_trials:
+            failures.append(f"{model} on {dataset}: {len(configs)} trials, more than the budget of {max_trials}")
+        for recs in configs.values():
+            for rec in recs:
+                where = f"trial {rec['cell_id']}"
+                if (rec.get("config") or {}).get("evaluation") != "tuning" or rec.get("test_reads", 0) != 0:
+                    failures.append(f"{where}: not a tuning-mode cell (evaluation "
+                                    f"{(rec.get('config') or {}).get('evaluation', 'validation')}, test_reads "
+                                    f"{rec.get('test_reads')})")
+                if rec["seed"] != 0:
+                    failures.append(f"{where}: seed {rec['seed']}; trials tune on seed 0 only")
+    freeze_file = tuning / "freeze.json"
+    lines += ["", "## The freeze", ""]
+    if not freeze_file.is_file():
+        failures.append(f"{freeze_file}: missing; the recipes were never frozen")
+        return lines, failures
+    frozen = json.loads(freeze_file.read_text())
+    commit = freeze_commit(freeze_file, repo)
+    lines.append(f"`{frozen.get('recipe')}` recipes frozen in commit {commit or '(not committed)'} for "
+                 f"{', '.join(sorted(frozen.get('models', {})))}")
+    if commit is None:
+        failures.append(f"{freeze_file}: not committed; a freeze is a commit")
+    if frozen.get("recipe") != recipe:
+        failures.append(f"{freeze_file}: freezes recipe {frozen.get('recipe')!r}, the audit checks {recipe!r}")
+    for model, frozen_recipe in sorted(frozen.get("models", {}).items()):
+        registered = registry.get_model_entry(model).meta.get("recipes", {}).get(recipe)
+        if registered != frozen_recipe:
+            failures.append(f"{model}: the registered {recipe!r} recipe differs from the frozen one")
+    lines += ["", f"## Final `{recipe}` cells", "", "| cell | test reads | commit | after the freeze |",
+              "|---|---|---|---|"]
+    for rec in _records(final):
+        if rec.get("status") != "ok" or recipe_name_of(rec.get("config") or {}) != recipe:
+            continue
+        cell_commit = str(rec.get("commit") or "")
+        after = bool(commit) and bool(cell_commit) and not cell_commit.endswith("+dirty") \
+            and descends(cell_commit, commit, repo)
+        lines.append(f"| {rec['cell_id']} | {rec.get('test_reads')} | {cell_commit[:12] or '-'} | "
+                     f"{'yes' if after else 'NO'} |")
+        if rec.get("test_reads") != 1:
+            failures.append(f"{rec['cell_id']}: test split read {rec.get('test_reads')} time(s), not once")
+        if not after:
+            failures.append(f"{rec['cell_id']}: commit {cell_commit or 'unrecorded'} is not a clean descendant of "
+                            f"the freeze commit {commit}")
+        if rec["model"] not in frozen.get("models", {}):
+            failures.append(f"{rec['cell_id']}: model {rec['model']} has no frozen recipe")
+            continue
+        cfg = rec["config"]
+        # the frozen recipe resolved as the harness resolves it (the dataset's epoch budget included): a final cell
+        # must have trained with exactly that, no --set override on top
+        want = resolve_cell(rec["model"], rec["dataset"], recipe_name=recipe, hparams=cfg.get("hparams"),
+                            dataset_kwargs=cfg.get("dataset_kwargs")).recipe.to_dict()
+        if cfg["recipe"] != want:
+            failures.append(f"{rec['cell_id']}: trained with another recipe than the frozen one")
+    return lines, failures
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.audit", description=__doc__.split("\n")[0])
+    p.add_argument("--tuning", type=Path, default=RESULTS / "tuning")
+    p.add_argument("--final", type=Path, default=RESULTS / "paper-table1-zoo")
+    p.add_argument("--recipe", default="zoo")
+    p.add_argument("--max-trials", type=int, default=8)
+    args = p.parse_args(argv)
+    lines, failures = audit(args.tuning, args.final, args.recipe, args.max_trials)
+    print("\n".join(lines))
+    print("\n## Verdict\n")
+    print("\n".join(f"- FAIL {f}" for f in failures) if failures else "every check holds")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,93 @@
+"""The recipe audit on a throw-away git repository: trials, the freeze commit, and the final cells' test reads."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import tiny_zoo
+
+from benchmarks.audit import audit
+from tactile_zoo import registry
+from tactile_zoo.engine.cell import resolve_cell
+
+ZOO = {**tiny_zoo.TINY_RECIPE, "lr": 0.02, "label_smoothing": 0.1}
+
+
+@pytest.fixture(autouse=True)
+def audited_model() -> Iterator[None]:
+    registry.register_model("audit_mlp", recipes={"source": tiny_zoo.TINY_RECIPE, "zoo": ZOO})(tiny_zoo.TinyMLP)
+    tiny_zoo.register()
+    yield
+    registry._TABLES["model"].builtin.pop("audit_mlp", None)
+    tiny_zoo.unregister()
+
+
+def _git(repo: Path, *args: str) -> str:
+    return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, check=True).stdout.strip()
+
+
+def _commit(repo: Path, message: str) -> str:
+    _git(repo, "add", "-A")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message)
+    return _git(repo, "rev-parse", "HEAD")
+
+
+def _cell(folder: Path, name: str, **fields: object) -> None:
+    config = resolve_cell("audit_mlp", "tiny_blobs", recipe_name="zoo").to_dict()
+    record = {"cell_id": name, "model": "audit_mlp", "dataset": "tiny_blobs", "fold": 0, "seed": 0, "status": "ok",
+              "config_hash": name, "config": config, "metrics": {"val": {"accuracy": 0.5}}, "test_reads": 1}
+    for key, value in fields.items():
+        if key == "evaluation":
+            config["evaluation"] = value
+        else:
+            record[key] = value
+    (folder / "cells").mkdir(parents=True, exist_ok=True)
+    (folder / "cells" / f"{name}.json").write_text(json.dumps(record))
+
+
+@pytest.fixture
+def repo(tmp_path: Path) -> Path:
+    _git(tmp_path, "init", "-q")
+    tuning = tmp_path / "tuning"
+    for i in range(2):  # two trials on seed 0, in tuning mode
+        _cell(tuning / "lr", f"trial{i}", evaluation="tuning", test_reads=0)
+    before = _commit(tmp_path, "trials")
+    (tuning / "freeze.json").write_text(json.dumps({"recipe": "zoo", "models": {"audit_mlp": ZOO}}))
+    freeze = _commit(tmp_path, "freeze the zoo recipes")
+    _cell(tmp_path / "final", "final_ok", commit=freeze)
+    _cell(tmp_path / "final", "final_early", commit=before)  # computed before the freeze
+    _cell(tmp_path / "final", "final_twice", commit=freeze, test_reads=2)
+    _cell(tmp_path / "final", "final_dirty", commit=freeze + "+dirty")
+    return tmp_path
+
+
+def test_the_audit_passes_a_clean_history_and_names_each_breach(repo: Path) -> None:
+    lines, failures = audit(repo / "tuning", repo / "final", "zoo", repo=repo)
+    text = "\n".join(lines)
+    assert "audit_mlp on tiny_blobs: 2 trial(s); best validation accuracy 0.5000" in text
+    assert "| final_ok | 1 |" in text and "| yes |" in text.split("final_ok")[1].splitlines()[0]
+    assert sorted(f.split(":")[0] for f in failures) == ["final_dirty", "final_early", "final_twice"]
+    assert any("read 2 time(s), not once" in f for f in failures)
+
+
+def test_trials_outside_tuning_mode_over_budget_or_off_seed_fail(repo: Path) -> None:
+    _cell(repo / "tuning" / "lr", "peeked")  # a validation cell: it read the test split
+    _cell(repo / "tuning" / "lr", "seed3", evaluation="tuning", test_reads=0, seed=3)
+    _, failures = audit(repo / "tuning", repo / "empty", "zoo", max_trials=3, repo=repo)
+    assert any(f.startswith("trial peeked: not a tuning-mode cell") for f in failures)
+    assert any(f.startswith("trial seed3: seed 3") for f in failures)
+    assert any("4 trials, more than the budget of 3" in f for f in failures)
+
+
+def test_a_recipe_changed_after_the_freeze_or_a_missing_freeze_fails(repo: Path) -> None:
+    changed = {"source": tiny_zoo.TINY_RECIPE, "zoo": {**ZOO, "lr": 0.05}}
+    registry.register_model("audit_mlp", recipes=changed)(tiny_zoo.TinyMLP)
+    _, failures = audit(repo / "tuning", repo / "empty", "zoo", repo=repo)
+    assert "audit_mlp: the registered 'zoo' recipe differs from the frozen one" in failures
+    (repo / "tuning" / "freeze.json").unlink()
+    _, failures = audit(repo / "tuning", repo / "empty", "zoo", repo=repo)
+    assert failures == [f"{repo / 'tuning' / 'freeze.json'}: missing; the recipes were never frozen"]
