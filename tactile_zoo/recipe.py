@@ -24,6 +24,17 @@ selected epoch is the one with the highest validation accuracy, ties going to th
 since that key last improved. Accuracy is what the leaderboard ranks, and the loss tie-break keeps small validation
 sets (where accuracy saturates early) from freezing on the first perfect epoch.
 
+A *named* recipe (a model's ``recipes={"source": {...}, "zoo": {...}}``) is a recipe dict that may also carry the
+model's settings beside the training keys, because a recipe tuned for a dataset is more than an optimiser:
+
+    hparams: the model's constructor keywords (``{"dropout": 0.1}``);
+    dataset_kwargs: the dataset's keyword arguments (``{"augment": ["time_warp"], "augment_factor": 2}``);
+    datasets: per-dataset sections, ``{"biotac_dos": {"max_epochs": 30, "dataset_kwargs": {"window": 5}}}``, each
+        holding training keys, ``hparams`` and ``dataset_kwargs`` that apply on that dataset only, on top of the rest.
+
+:func:`named_recipe_for` resolves a named recipe on one dataset into its three parts; settings given by the user
+(``--set``, ``--hparam``, ``--dataset-arg``) still win over the recipe's.
+
 This module is the one place the schema is written. It imports nothing but the errors (no torch), so the registry
 validates a model's ``recipe`` metadata with it at registration time and the engine trains with the same object.
 """
@@ -37,7 +48,8 @@ from typing import Any
 
 from .errors import ConfigError
 
-__all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "resolve_recipe", "lr_factor", "cap_epochs"]
+__all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "RECIPE_SECTIONS", "resolve_recipe", "named_recipe_for",
+           "check_named_recipe", "lr_factor", "cap_epochs"]
 
 LOSSES = ("ce", "mse_rate")
 OPTIMIZERS = ("adam", "adamw", "sgd")
@@ -251,6 +263,46 @@ def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Ma
 
 RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 DEFAULT_RECIPE = Recipe()
+#: the non-training sections a named recipe may carry (see the module docstring)
+RECIPE_SECTIONS = ("hparams", "dataset_kwargs", "datasets")
+
+
+def _mapping(where: str, key: str, value: Any) -> dict[str, Any]:
+    if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
+        raise ConfigError(f"{where}: {key} must be a dict of keyword arguments, got {value!r}")
+    return dict(value)
+
+
+def check_named_recipe(recipe: Mapping[str, Any], where: str = "recipe") -> None:
+    """Validate a named recipe: its training keys against the schema, its sections' shapes (at registration)."""
+    named_recipe_for(recipe, None, where)
+    for dataset, section in _mapping(where, "datasets", recipe.get("datasets") or {}).items():
+        if not isinstance(section, Mapping):
+            raise ConfigError(f"{where}: datasets.{dataset} must be a dict, got {section!r}")
+        if "datasets" in section:
+            raise ConfigError(f"{where}: datasets.{dataset} cannot nest another 'datasets' section")
+        named_recipe_for(recipe, dataset, where)
+
+
+def named_recipe_for(recipe: Mapping[str, Any] | None, dataset: str | None, where: str = "recipe"
+                     ) -> tuple[dict[str, Any] | None, dict[str, Any], dict[str, Any]]:
+    """``(training keys, hparams, dataset kwargs)`` of a named recipe on ``dataset`` (``None``: no dataset section).
+
+    The dataset's section (``datasets[dataset]``) overrides the recipe's own training keys, ``hparams`` and
+    ``dataset_kwargs`` key by key. A ``None`` recipe (a model without one) gives ``(None, {}, {})``.
+    """
+    if recipe is None:
+        return None, {}, {}
+    training = {k: v for k, v in recipe.items() if k not in RECIPE_SECTIONS}
+    hparams = _mapping(where, "hparams", recipe.get("hparams") or {})
+    kwargs = _mapping(where, "dataset_kwargs", recipe.get("dataset_kwargs") or {})
+    section = _mapping(where, "datasets", recipe.get("datasets") or {}).get(dataset) if dataset else None
+    if section:
+        training.update({k: v for k, v in section.items() if k not in RECIPE_SECTIONS})
+        hparams.update(_mapping(f"{where}: datasets.{dataset}", "hparams", section.get("hparams") or {}))
+        kwargs.update(_mapping(f"{where}: datasets.{dataset}", "dataset_kwargs", section.get("dataset_kwargs") or {}))
+    resolve_recipe(training, where=where if not section else f"{where} on {dataset}")  # the schema's check
+    return training, hparams, kwargs
 
 
 def cap_epochs(recipe: Recipe, budget: int | None) -> Recipe:

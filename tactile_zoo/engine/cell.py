@@ -26,7 +26,7 @@ import torch
 from .. import registry
 from ..data.guard import tuning
 from ..errors import ConfigError
-from ..recipe import Recipe, cap_epochs, resolve_recipe
+from ..recipe import Recipe, cap_epochs, named_recipe_for, resolve_recipe
 from .evaluate import DEFAULT_PREFIXES, EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
 from .runtime import PeakMemory, flush_denormals, resolve_device, seed_everything
 from .tensors import concat, take
@@ -148,6 +148,10 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
         name, base = registry.model_recipe(entry.meta, recipe_name)
     except ConfigError as exc:
         raise ConfigError(f"model {model!r}: {exc}") from None
+    # a named recipe may carry the model's and the dataset's settings; the user's own (hparams, dataset_kwargs) win
+    base, recipe_hparams, recipe_kwargs = named_recipe_for(base, dataset, where=f"recipe {name!r} of model {model!r}")
+    hparams = {**recipe_hparams, **dict(hparams or {})}
+    dataset_kwargs = {**recipe_kwargs, **dict(dataset_kwargs or {})}
     if isinstance(recipe, Recipe):
         name, resolved = "custom", resolve_recipe(recipe, None, epochs)
     else:

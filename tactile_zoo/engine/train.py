@@ -32,7 +32,7 @@ import torch.nn.functional as F
 
 from ..errors import ConfigError, TactileZooError
 from .evaluate import EvalResult, evaluate, predict_scores
-from .recipe import Recipe, lr_factor, resolve_recipe
+from .recipe import Recipe, lr_factor, named_recipe_for, resolve_recipe
 from .runtime import count_parameters, flush_denormals, resolve_device, seed_everything
 from .tensors import TensorSplit, as_split, concat
 
@@ -256,6 +256,9 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
         from ..registry import model_recipe
 
         name, base_recipe = model_recipe(meta, recipe if isinstance(recipe, str) else None)
+        # a model built by the caller: the recipe's model and dataset settings cannot apply any more, only its
+        # training keys (the by-name fit above applies all three)
+        base_recipe = named_recipe_for(base_recipe, getattr(train.spec, "name", None), f"recipe {name!r}")[0]
         rec = resolve_recipe(base_recipe, None if isinstance(recipe, str) else recipe, epochs,
                              where=f"recipe {name!r}")
     seed_everything(seed)  # dropout and any other randomness during training

@@ -15,7 +15,7 @@ from types import MappingProxyType
 from typing import Any, TypeVar
 
 from ..errors import ConfigError, PluginError, TactileZooError
-from ..recipe import resolve_recipe
+from ..recipe import check_named_recipe
 
 T = TypeVar("T")
 
@@ -182,7 +182,7 @@ def _check_recipes(name: str, meta: Mapping[str, Any]) -> None:
     for recipe_name, recipe in recipes.items():
         if not isinstance(recipe, Mapping):
             raise ConfigError(f"model {name!r}: metadata 'recipe' {recipe_name!r} must be a dict, got {recipe!r}")
-        resolve_recipe(recipe, where=f"model {name!r}: recipe {recipe_name!r}")
+        check_named_recipe(recipe, where=f"model {name!r}: recipe {recipe_name!r}")
     default = meta.get("default_recipe", "source" if "source" in recipes else next(iter(recipes)))
     if default not in recipes:
         raise ConfigError(f"model {name!r}: default_recipe {default!r} is not one of its recipes {sorted(recipes)}")

@@ -70,6 +70,50 @@ def test_resolve_cell_starts_from_the_named_recipe(two_recipes: str) -> None:
         resolve_cell(two_recipes, "tiny_blobs", recipe_name="slow")
 
 
+TUNED = {**tiny_zoo.TINY_RECIPE, "hparams": {"hidden": 8, "dropout": 0.0},
+         "dataset_kwargs": {"augment": ["jitter"], "augment_factor": 2},
+         "datasets": {"tiny_kfold": {"lr": 0.01, "hparams": {"hidden": 4}, "dataset_kwargs": {"augment_factor": 3}}}}
+
+
+@pytest.fixture()
+def tuned():
+    registry.register_model("tiny_tuned", recipes={"source": tiny_zoo.TINY_RECIPE, "zoo": TUNED})(tiny_zoo.TinyMLP)
+    yield "tiny_tuned"
+    registry._unregister("model", "tiny_tuned")
+
+
+def test_a_named_recipe_carries_model_and_dataset_settings_per_dataset(tuned: str) -> None:
+    blobs = resolve_cell(tuned, "tiny_blobs", recipe_name="zoo")
+    assert blobs.hparams == {"hidden": 8, "dropout": 0.0} and blobs.recipe.lr == tiny_zoo.TINY_RECIPE["lr"]
+    assert blobs.dataset_kwargs == {"augment": ["jitter"], "augment_factor": 2}
+    kfold = resolve_cell(tuned, "tiny_kfold", recipe_name="zoo")  # its own section on top
+    assert kfold.hparams == {"hidden": 4, "dropout": 0.0} and kfold.recipe.lr == 0.01
+    assert kfold.dataset_kwargs == {"augment": ["jitter"], "augment_factor": 3}
+    # the user's settings win over the recipe's, and the source recipe carries none
+    mine = resolve_cell(tuned, "tiny_blobs", recipe_name="zoo", hparams={"hidden": 32},
+                        dataset_kwargs={"augment_factor": 1})
+    assert mine.hparams["hidden"] == 32 and mine.dataset_kwargs["augment_factor"] == 1
+    assert resolve_cell(tuned, "tiny_blobs").hparams == {}
+    # the settings reach the model: a cell trained with the recipe has the recipe's width
+    from tactile_zoo.engine.cell import train_cell
+
+    result = train_cell(resolve_cell(tuned, "tiny_kfold", recipe_name="zoo", epochs=1), measure=False)
+    assert result.fit.model.net[0].out_features == 4
+
+
+@pytest.mark.parametrize(("recipe", "culprit"), [
+    ({"hparams": [1]}, "hparams must be a dict"),
+    ({"datasets": {"tiny_blobs": {"lr": "fast"}}}, "recipe 'zoo' on tiny_blobs: lr"),
+    ({"datasets": {"tiny_blobs": {"speed": 2}}}, "unknown recipe key"),
+    ({"datasets": {"tiny_blobs": {"datasets": {}}}}, "cannot nest"),
+    ({"datasets": {"tiny_blobs": 3}}, "datasets.tiny_blobs must be a dict"),
+])
+def test_bad_recipe_sections_fail_at_registration(recipe: dict, culprit: str) -> None:
+    with pytest.raises(ConfigError, match=culprit):
+        registry.register_model("tiny_bad_sections", recipes={"zoo": {**tiny_zoo.TINY_RECIPE, **recipe}}
+                                )(tiny_zoo.TinyMLP)
+
+
 def test_fit_takes_a_recipe_name(two_recipes: str) -> None:
     result = tz.fit(two_recipes, "tiny_blobs", recipe="fast", seed=0)
     assert result.recipe.lr == 0.1 and result.epochs_run == 2
