@@ -45,9 +45,15 @@ READOUTS = ("gap", "taxels")
                 "peepholes), global average pooling of the last hidden state, FC 16 + ReLU, FC classes.",
     tags=["recurrent", "convolutional"],
     inputs=["grid", "globals"],
-    # the source gives Adam 1e-3, batch 32, cross-entropy; epochs and patience are ours (docs/models.md)
+    # the source gives Adam 1e-3, batch 32, cross-entropy; epochs and patience are ours (docs/models.md). On its own
+    # data, BioTac-DoS, the source's whole setup: windows of 5 raw readings, every image min-max scaled, PyTorch
+    # initialisation, 30 epochs without clipping or early stopping (benchmarks/results/convlstm-biotac/EXPERIMENTS.md)
     recipes={"source": {"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False,
-                        "schedule": None, "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0}},
+                        "schedule": None, "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0,
+                        "datasets": {"biotac_dos": {
+                            "max_epochs": 30, "patience": None, "grad_clip": None,
+                            "hparams": {"frame_norm": "minmax", "init": "torch"},
+                            "dataset_kwargs": {"window": 5, "stride": 5, "normalize": "none"}}}}},
     causal=True,
     streaming=True,
     revision=1,
@@ -87,6 +93,9 @@ class ConvLSTMNet(BinnedStreamer):
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming:
         ``x_t (B, N, C)``, ``g_t (B, G)`` or None -> ``(B, num_classes)``.
     """
+
+    #: the final classifier layer, which ``create_model(..., pretrained=..., new_head=True)`` starts afresh
+    zoo_head = "head"
 
     def __init__(self, spec: DatasetSpec, hidden_channels: int = 16, num_layers: int = 2, kernel_size: int = 3,
                  fc_units: int = 16, fill_passes: int | None = None, backend: str = "fused",

@@ -228,3 +228,15 @@ def test_taxel_readout_keeps_each_taxels_cell() -> None:
             assert torch.allclose(out, model(x[:, :t]), atol=1e-5)
     with pytest.raises(ConfigError, match="readout must be one of"):
         tz.create_model("convlstm", spec, readout="flat")
+
+
+def test_the_source_recipe_carries_the_source_setup_on_biotac_dos_only() -> None:
+    from tactile_zoo.engine.cell import resolve_cell
+
+    own = resolve_cell("convlstm", "biotac_dos")
+    assert own.hparams == {"frame_norm": "minmax", "init": "torch"}
+    assert own.dataset_kwargs == {"window": 5, "stride": 5, "normalize": "none"}
+    assert (own.recipe.max_epochs, own.recipe.patience, own.recipe.grad_clip, own.recipe.batch_size) == (30, None,
+                                                                                                         None, 32)
+    ev = resolve_cell("convlstm", "ev_objects")
+    assert ev.hparams == {} and ev.dataset_kwargs == {} and ev.recipe.patience == 20 and ev.recipe.grad_clip == 1.0
