@@ -1,6 +1,8 @@
 """The README's Table I: one table per dataset, the X-Tacformer paper's figure next to ours with a 95 % interval.
 
-    python -m benchmarks.paper_table1 [DIR]      # default benchmarks/results/paper-table1
+    python -m benchmarks.paper_table1 [DIR]      # print it (default DIR: benchmarks/results/paper-table1)
+    python -m benchmarks.paper_table1 --readme   # rewrite the README's Table I block between its markers
+    python -m benchmarks.paper_table1 --check    # exit 1 if the README's block is not what the cells give
 
 Reads the cell files of ``DIR/cells`` (nothing is trained) and prints Markdown: for Ev-Objects, Ev-Containers and
 BioTac-DoS, per model the paper's figure, our mean ± sample std of test accuracy over the finished runs (seeds, or
@@ -149,14 +151,40 @@ def table(folder: Path) -> str:
     return "\n".join(lines)
 
 
+README = RESULTS.parents[1] / "README.md"
+BEGIN, END = "<!-- table1: begin (python -m benchmarks.paper_table1 --readme) -->", "<!-- table1: end -->"
+
+
+def render(text: str, folder: Path) -> str:
+    """``text`` (the README) with the block between the markers replaced by the current tables."""
+    if BEGIN not in text or END not in text:
+        raise SystemExit(f"{README} lacks the markers {BEGIN!r} ... {END!r}")
+    head, rest = text.split(BEGIN, 1)
+    return f"{head}{BEGIN}\n{table(folder)}\n{END}{rest.split(END, 1)[1]}"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.paper_table1", description=__doc__.split("\n")[0])
     p.add_argument("folder", nargs="?", type=Path, default=RESULTS / "paper-table1")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--readme", action="store_true", help="rewrite the README's Table I block")
+    mode.add_argument("--check", action="store_true", help="exit 1 if the README's Table I block is out of date")
     args = p.parse_args(argv)
     if not (args.folder / "cells").is_dir():
         print(f"error: {args.folder / 'cells'} not found", file=sys.stderr)
         return 2
-    print(table(args.folder))
+    if not (args.readme or args.check):
+        print(table(args.folder))
+        return 0
+    current = README.read_text()
+    new = render(current, args.folder)
+    if args.check:
+        if new != current:
+            print(f"{README}'s Table I is out of date: run python -m benchmarks.paper_table1 --readme", file=sys.stderr)
+            return 1
+        return 0
+    README.write_text(new)
+    print(f"wrote the Table I block of {README}")
     return 0
 
 

@@ -82,3 +82,19 @@ def test_two_configurations_in_one_row_is_an_error(tmp_path: Path) -> None:
 def test_a_missing_cells_folder_is_one_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert main([str(tmp_path)]) == 2
     assert "cells not found" in capsys.readouterr().err
+
+
+def test_the_readme_table_is_regenerated_from_the_committed_cells() -> None:
+    assert main(["--check"]) == 0, "run python -m benchmarks.paper_table1 --readme and commit README.md"
+
+
+def test_render_replaces_only_the_marked_block(tmp_path: Path) -> None:
+    from benchmarks.paper_table1 import BEGIN, END, render
+
+    _cell(tmp_path, "sgnet", "ev_objects", 0, accuracy=0.9)
+    text = f"intro\n{BEGIN}\nold table\n{END}\noutro\n"
+    out = render(text, tmp_path)
+    assert out.startswith(f"intro\n{BEGIN}\n**Ev-Objects**") and out.endswith(f"{END}\noutro\n")
+    assert "old table" not in out and render(out, tmp_path) == out
+    with pytest.raises(SystemExit, match="lacks the markers"):
+        render("no markers", tmp_path)
