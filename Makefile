@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 TORCH ?= torch==2.13.0
 TGT ?= torch-geometric-temporal==0.56.2
 
-.PHONY: install bench test lint benchmarks clean
+.PHONY: install bench test lint benchmarks tables clean
 
 $(BIN)/tactile-zoo: setup.cfg pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,11 @@ lint: install
 
 benchmarks: install
 	$(BIN)/python -m benchmarks.run $(BENCHMARK_ARGS)
+
+# after committing new cells: the fidelity ledger and the README's Table I, both checked by the suite
+tables: install
+	$(BIN)/python -m benchmarks.fidelity
+	$(BIN)/python -m benchmarks.paper_table1 --readme
 
 clean:
 	rm -rf $(VENV) build *.egg-info
