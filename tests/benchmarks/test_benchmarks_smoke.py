@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
     sys.path.insert(0, str(REPO))
 
-from benchmarks import BENCHMARKS, common, graph_conv, lif, run, sgnet_epoch  # noqa: E402
+from benchmarks import BENCHMARKS, common, graph_conv, lif, run, scaling, sgnet_epoch  # noqa: E402
 
 
 def _ctx(tmp_path: Path) -> common.Context:
@@ -61,6 +61,38 @@ def test_stepwise_sgnet_is_the_zoo_model() -> None:
     assert rate_diff == 0.0 and grad_diff < 1e-4
     with torch.no_grad():
         assert float(model.eval()(split.x).sum()) > 0  # the comparison saw output spikes, not two silent nets
+
+
+def test_scaling_batch_and_breakdown_parts_keep_the_other_rows(tmp_path: Path) -> None:
+    """The batch curve and the attention breakdown run small; rows of parts not measured stay as committed."""
+    old = {"case": "sgnet_T50", "model": "sgnet", "axis": "T", "T": 50, "N": 39, "epoch_median_s": 2.25,
+           "date": "2026-01-01T00:00:00+00:00", "git_commit": "abc"}
+    common.write_csv(_ctx(tmp_path), "scaling", ("model", "axis", "T", "N", "epoch_median_s"), [old])
+    path = scaling.run(_ctx(tmp_path), parts=("batch", "breakdown"), batch_models=("sgnet",), batch_sizes=(1, 2),
+                       batch_samples=2, breakdown_copies=(1, 2), num_steps=10)
+    rows = _read(path)
+    assert list(rows[0]) == ["benchmark", "case", *scaling.COLUMNS, "note", *common.ENV_COLUMNS]
+    kept = [r for r in rows if r["axis"] == "T"]
+    assert len(kept) == 1 and kept[0]["git_commit"] == "abc" and kept[0]["epoch_median_s"] == "2.25"
+    batch = {int(r["batch_size"]): r for r in rows if r["axis"] == "batch"}
+    assert sorted(batch) == [1, 2, 8]  # the recipe's batch 8 is always measured
+    assert float(batch[8]["ratio_to_recipe"]) == 1.0 and float(batch[1]["per_sample_s"]) > 0
+    parts = {(r["part"], int(r["N"])) for r in rows if r["axis"] == "breakdown"}
+    assert parts == {(p, n) for p in ("total", "attention", "rest", "graph_conv") for n in (39, 78)}
+    assert all(r["crossover_N"] and r["quick"] == "True" for r in rows if r["axis"] == "breakdown")
+    assert all(0 < float(r["profiled_share"]) < 1 for r in rows if r["part"] == "attention")
+
+
+def test_scaling_fits_recover_known_curves() -> None:
+    ns = [39, 78, 156, 312]
+    att = scaling._fit(ns, [2e-4 * n * n + 0.1 for n in ns], 2)
+    rest = scaling._fit(ns, [0.05 * n + 1.0 for n in ns], 1)
+    assert att == pytest.approx((2e-4, 0.1)) and rest == pytest.approx((0.05, 1.0))
+    cross = scaling._crossover(att, rest)
+    assert 2e-4 * cross ** 2 + 0.1 == pytest.approx(0.05 * cross + 1.0)
+    c, p = scaling._power_law(ns, [3.0 * n ** 1.5 for n in ns])
+    assert (c, p) == pytest.approx((3.0, 1.5))
+    assert scaling._power_crossover((1.0, 2.0), (4.0, 1.0)) == pytest.approx(4.0)
 
 
 def test_runner_rejects_unknown_names_and_lists(capsys: pytest.CaptureFixture[str]) -> None:
