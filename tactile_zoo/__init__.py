@@ -1,7 +1,10 @@
 """tactile-zoo: a model zoo and benchmark harness for tactile object recognition.
 
-Importing the package registers the built-in sensors, datasets and models; third-party plugins are discovered
-lazily through entry points on the first list/create/load call.
+Importing the package registers the built-in sensors, datasets and models; third-party plugins (and installed
+pretrained weights) are discovered lazily through entry points on the first list/create/load call.
+
+``create_model`` is the weights layer's (:func:`tactile_zoo.weights.create_model`): the registry's
+``Model(spec, **hparams)``, plus ``pretrained=`` weights and ``new_head=``.
 """
 
 from __future__ import annotations
@@ -13,7 +16,6 @@ from ._version import __version__  # noqa: E402
 from .data import DatasetSpec, Sensor, TactileSample, collate  # noqa: E402
 from .errors import ConfigError, DatasetError, PluginError, TactileZooError, UnknownNameError  # noqa: E402
 from .registry import (  # noqa: E402
-    create_model,
     get_sensor,
     list_datasets,
     list_models,
@@ -24,12 +26,13 @@ from .registry import (  # noqa: E402
     register_model,
     register_sensor,
 )
+from .weights import create_model, list_weights, predict  # noqa: E402
 
 __all__ = [
     "__version__", "DatasetSpec", "Sensor", "TactileSample", "collate", "TactileZooError", "UnknownNameError",
     "DatasetError", "PluginError", "ConfigError", "create_model", "get_sensor", "list_datasets", "list_models",
     "list_sensors", "load_dataset", "plugins", "register_dataset", "register_model", "register_sensor", "fit",
-    "evaluate",
+    "evaluate", "predict", "list_weights",
 ]
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from tactile_zoo import registry
+from tactile_zoo.weights import reset_weights
 
 #: Prefix of every name the tests register, so a fixture can remove their local registrations afterwards.
 PREFIX = "zt_"
@@ -39,24 +40,28 @@ class FakeSite:
         monkeypatch.syspath_prepend(str(root))
         registry.set_plugin_policy()
         registry.reset_plugins()
+        reset_weights()
 
     def add(self, dist: str, source: str, *, models: dict[str, str] | None = None,
-            datasets: dict[str, str] | None = None, version: str = "1.0") -> str:
-        """Install distribution ``dist`` whose module holds ``source``; ``models``/``datasets`` map entry-point
-        names to attributes of that module. Returns the module's name."""
+            datasets: dict[str, str] | None = None, weights: dict[str, str] | None = None, version: str = "1.0"
+            ) -> str:
+        """Install distribution ``dist`` whose module holds ``source``; ``models``/``datasets``/``weights`` map
+        entry-point names to attributes of that module. Returns the module's name."""
         module = f"{PREFIX}mod_{re.sub(r'[^a-z0-9]', '_', dist.lower())}_{uuid.uuid4().hex[:8]}"
         (self.root / f"{module}.py").write_text(textwrap.dedent(source))
         info = self.root / f"{re.sub(r'[-.]+', '_', dist)}-{version}.dist-info"
         info.mkdir()
         (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: {version}\n")
         lines = []
-        for group, entries in (("tactile_zoo.models", models), ("tactile_zoo.datasets", datasets)):
+        for group, entries in (("tactile_zoo.models", models), ("tactile_zoo.datasets", datasets),
+                               ("tactile_zoo.weights", weights)):
             if entries:
                 lines += [f"[{group}]"] + [f"{name} = {module}:{attr}" for name, attr in entries.items()] + [""]
         (info / "entry_points.txt").write_text("\n".join(lines))
         self.modules.append(module)
         importlib.invalidate_caches()
         registry.reset_plugins()
+        reset_weights()
         return module
 
     def close(self) -> None:
@@ -64,6 +69,7 @@ class FakeSite:
             sys.modules.pop(module, None)
         registry.set_plugin_policy()
         registry.reset_plugins()  # the folder leaves sys.path with monkeypatch; the next lookup discovers again
+        reset_weights()
 
 
 def forget_test_registrations(before: dict[str, set[str]]) -> None:

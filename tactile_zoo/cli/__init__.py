@@ -28,12 +28,14 @@ from .catalog import add_info, add_list, add_plugins
 from .download import add_download
 from .stream import add_stream
 from .train import add_evaluate, add_train
+from .weights import add_predict, add_weights
 
 __all__ = ["main", "entry", "build_parser", "SUBCOMMANDS"]
 
 #: Every subcommand's argument declaration, in help order.
 SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_list, add_info, add_plugins, add_download, add_bench, add_train, add_evaluate, add_report, add_stream,
+    add_weights, add_predict,
 ]
 
 

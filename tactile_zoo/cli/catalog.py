@@ -133,16 +133,23 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def add_plugins(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plugins", help="discovered plugin distributions and their status")
+    p = sub.add_parser("plugins", help="discovered plugin distributions (models, datasets, weights) and their status")
     p.set_defaults(handler=_cmd_plugins)
 
 
 def _cmd_plugins(args: argparse.Namespace) -> int:
-    found = registry.plugins()
-    if not found:
+    from ..weights import WEIGHTS_GROUP, weight_sources
+
+    found, weights = registry.plugins(), weight_sources()
+    if not found and not weights:
         echo("no tactile-zoo plugins installed" + (" (discovery disabled)" if not registry._enabled() else ""))
         return 0
     for info in found:
         line = f"{info.dist} {info.version:<8} {info.group:<22} {info.name} = {info.value}  [{info.status}]"
         echo(line + (f"  {info.error}" if info.error else ""))
-    return 1 if any(i.status == "failed" for i in found) and registry._strict() else 0
+    for src in weights:  # weights distributions: `tactile-zoo weights` lists what they ship
+        line = (f"{src.dist} {src.version:<8} {WEIGHTS_GROUP:<22} {src.name} = {src.value}"
+                + ("" if src.status == "failed" else f" (entries: {src.count})") + f"  [{src.status}]")
+        echo(line + (f"  {src.error}" if src.error else ""))
+    failed = any(i.status == "failed" for i in (*found, *weights))
+    return 1 if failed and registry._strict() else 0

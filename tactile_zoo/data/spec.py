@@ -7,7 +7,7 @@ proprioceptive features (``G`` may be 0, then ``g`` is ``[T, 0]``) and an intege
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -57,6 +57,37 @@ class DatasetSpec:
         return {"name": self.name, "num_classes": self.num_classes, "class_names": list(self.class_names),
                 "num_steps": self.num_steps, "num_nodes": self.num_nodes, "num_channels": self.num_channels,
                 "num_globals": self.num_globals, "sensor": self.sensor.name}
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any], where: str = "spec") -> DatasetSpec:
+        """The inverse of :meth:`to_dict`: the sensor is looked up by name in the registry.
+
+        Args:
+            values: a dict as :meth:`to_dict` writes it (a cell record's or a weights manifest's ``spec``).
+            where: what the dict belongs to, named in the error for a missing or malformed key.
+        """
+        from ..errors import ConfigError
+        from ..registry import get_sensor
+
+        if not isinstance(values, Mapping):
+            raise ConfigError(f"{where}: a dataset spec must be a dict, got {type(values).__name__}")
+        missing = [k for k in _SPEC_KEYS if k not in values]
+        if missing:
+            raise ConfigError(f"{where}: the dataset spec lacks {', '.join(missing)}")
+        try:
+            counts = {k: int(values[k]) for k in ("num_classes", "num_steps", "num_nodes", "num_channels",
+                                                  "num_globals")}
+        except (TypeError, ValueError):
+            given = {k: values[k] for k in _SPEC_KEYS if k.startswith("num_")}
+            raise ConfigError(f"{where}: the spec's counts must be integers, got {given}") from None
+        names = values["class_names"]
+        if isinstance(names, str) or not isinstance(names, Sequence):
+            raise ConfigError(f"{where}: class_names must be a list of names, got {names!r}")
+        return cls(name=str(values["name"]), class_names=tuple(str(c) for c in names),
+                   sensor=get_sensor(str(values["sensor"])), **counts)
+
+
+_SPEC_KEYS = ("name", "num_classes", "class_names", "num_steps", "num_nodes", "num_channels", "num_globals", "sensor")
 
 
 def collate(samples: Sequence[TactileSample]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -95,6 +95,9 @@ class CNNLSTM(BinnedStreamer):
         ``x_t (B, N, C)``, ``g_t (B, G)`` or None -> ``(B, num_classes)``.
     """
 
+    #: the final classifier layer, which ``create_model(..., pretrained=..., new_head=True)`` starts afresh
+    zoo_head = "head"
+
     def __init__(self, spec: DatasetSpec, conv_channels: tuple[int, int] = (16, 32), frame_features: int = 64,
                  hidden: int = 64, fill_passes: int | None = None, max_frames: int | None = 50) -> None:
         super().__init__()

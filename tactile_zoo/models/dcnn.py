@@ -190,6 +190,8 @@ class DCNN(nn.Module):
             nn.Linear(dense[0], dense[1]), nn.ReLU(inplace=True), _BatchNorm1d(dense[1], **bn),
             nn.Linear(dense[1], spec.num_classes),
         )
+        #: the final classifier layer, which ``create_model(..., pretrained=..., new_head=True)`` starts afresh
+        self.zoo_head = f"classifier.{len(self.classifier) - 1}"
         for m in self.modules():
             if isinstance(m, (nn.Conv2d, nn.Linear)):
                 nn.init.xavier_uniform_(m.weight)

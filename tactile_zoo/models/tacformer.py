@@ -142,6 +142,10 @@ class Tacformer(BinnedStreamer):
         ``g_t (B, G)`` or None -> ``(B, num_classes)``.
     """
 
+    #: the final classifier layer (X-Tacformer's too), which ``create_model(..., pretrained=..., new_head=True)``
+    #: starts afresh
+    zoo_head = "head"
+
     def __init__(self, spec: DatasetSpec, dim: int = 64, heads: int = 4, depth: int = 1, mlp_ratio: float = 0.0,
                  hops: int = 3, tau: float = 2.0, v_th: float = 1.0, surrogate: str = "atan",
                  detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, pool: str = "flatten",

@@ -1,0 +1,161 @@
+"""``tactile-zoo weights`` (the pretrained weights installed, or in a manifest) and ``predict`` (classes of recorded
+grasps from their files)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from .. import registry
+from ..errors import ConfigError
+from ._common import echo
+
+__all__ = ["add_weights", "add_predict", "add_pretrained_flags", "pretrained_model"]
+
+#: how to use weights that are not installed (your own, from `bench --save-weights` and a manifest)
+USE_LOCAL = "Use your own: tactile-zoo predict MODEL --weights FILE.safetensors --manifest FILE.json FILE..."
+NOTHING_INSTALLED = ("no pretrained weights installed. From a tactile-zoo checkout: pip install "
+                     f"./plugins/tactile-zoo-weights. {USE_LOCAL}")
+
+
+def add_weights(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("weights", help="list the pretrained weights installed (or in a manifest)",
+                       description="List pretrained weights: tag, model, dataset, test accuracy, file size and where "
+                                   "they come from (an installed distribution, or a manifest with --manifest).")
+    p.add_argument("pattern", nargs="?", default="*", help="fnmatch pattern on the tag, e.g. 'x_tacformer.*'")
+    p.add_argument("--manifest", default=None, metavar="FILE.json", help="list this manifest instead")
+    p.add_argument("--json", action="store_true", help="print every entry in full as JSON")
+    p.set_defaults(handler=_cmd_weights)
+
+
+def _size(entry: Any) -> str:
+    if entry.bytes is None:
+        return "?"
+    return f"{entry.bytes / 1e6:.1f} MB" if entry.bytes >= 1e6 else f"{entry.bytes / 1e3:.1f} kB"
+
+
+def _source(entry: Any) -> str:
+    local = entry.local_path()
+    where = entry.origin or (str(local) if local else "")
+    return f"{where} (download: {entry.url})" if entry.url and not (local and local.is_file()) else where
+
+
+def _cmd_weights(args: argparse.Namespace) -> int:
+    import fnmatch
+
+    from ..weights import list_weights, read_manifest, tag_key, weight_sources
+
+    if args.manifest:
+        sources, entries = [], read_manifest(args.manifest)
+    else:
+        sources, entries = weight_sources(), list_weights()
+    shown = [e for e in entries if fnmatch.fnmatchcase(tag_key(e.tag), tag_key(args.pattern))
+             or fnmatch.fnmatchcase(e.tag, args.pattern)]
+    failed = [s for s in sources if s.status == "failed"]
+    if args.json:
+        echo(json.dumps({"sources": [vars(s) for s in sources],
+                         "weights": [{"qualified_tag": e.qualified_tag, "origin": e.origin, **e.to_dict()}
+                                     for e in shown]}, indent=2))
+        return 1 if failed and registry._strict() else 0
+    for src in failed:
+        print(f"tactile-zoo: warning: weights distribution {src.dist} {src.version} failed to load: {src.error}",
+              file=sys.stderr)
+    if not shown:
+        if args.manifest:
+            echo(f"{args.manifest}: no weights" + (f" match {args.pattern!r}" if args.pattern != "*" else ""))
+        elif entries:
+            echo(f"no installed weights match {args.pattern!r}")
+        elif not registry._enabled():
+            echo("weights discovery is disabled (--no-plugins or TACTILE_ZOO_NO_PLUGINS)")
+        elif any(s.status == "ok" for s in sources):
+            names = ", ".join(f"{s.dist} {s.version}" for s in sources if s.status == "ok")
+            echo(f"no pretrained weights yet: {names} is installed, but its manifest lists none. {USE_LOCAL}")
+        else:
+            echo(NOTHING_INSTALLED)
+        return 0
+    rows = [(e.qualified_tag if not args.manifest else e.tag, e.model, e.dataset,
+             "-" if e.accuracy is None else f"{e.accuracy:.4f}", _size(e), _source(e)) for e in shown]
+    head = ("tag", "model", "dataset", "test acc", "size", "source")
+    widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(5)]
+    for row in [head, *rows]:
+        echo("  ".join(f"{str(v):<{w}}" for v, w in zip(row[:5], widths)) + f"  {row[5]}")
+    notes = [e for e in shown if e.note]
+    for e in notes:
+        echo(f"note ({e.tag}): {e.note}")
+    return 1 if failed and registry._strict() else 0
+
+
+def add_pretrained_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pretrained", default=None, metavar="DATASET|TAG",
+                   help="installed weights: the dataset they were trained on (e.g. ev_objects) or their tag "
+                        "(`tactile-zoo weights` lists them)")
+    p.add_argument("--weights", default=None, metavar="FILE.safetensors",
+                   help="a local weights file (described by --manifest, or by FILE.json / manifest.json next to it)")
+    p.add_argument("--manifest", default=None, metavar="FILE.json", help="the manifest describing --weights")
+
+
+def pretrained_model(model: str, args: argparse.Namespace) -> Any:
+    """Model ``model`` with the weights the flags name (``--pretrained``, or ``--weights`` with ``--manifest``)."""
+    from ..weights import create_model, local_weights
+
+    if args.pretrained and (args.weights or args.manifest):
+        raise ConfigError("give --pretrained (installed weights) or --weights/--manifest (a local file), not both")
+    if args.pretrained:
+        return create_model(model, pretrained=args.pretrained)
+    if args.weights and args.manifest:
+        return create_model(model, pretrained=local_weights(args.manifest, args.weights, model=model))
+    if args.weights:
+        return create_model(model, pretrained=args.weights)
+    if args.manifest:
+        return create_model(model, pretrained=args.manifest)
+    raise ConfigError("which weights? give --pretrained DATASET|TAG, or --weights FILE.safetensors (with "
+                      "--manifest FILE.json)")
+
+
+def add_predict(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("predict", help="classify recorded grasps (.csv/.npy files) with pretrained weights",
+                       description="Print the most probable classes of each recording. A file is one grasp in the "
+                                   "bring-your-own recordings format: one row per time step, the taxel readings in "
+                                   "row-major taxel order (all channels of a taxel together), then the global "
+                                   "features, in the units the weights' dataset feeds its models. A longer recording "
+                                   "is cut to the weights' number of steps; --length pad or resample accept shorter "
+                                   "ones.")
+    p.add_argument("model", help="a model name, e.g. x_tacformer")
+    p.add_argument("files", nargs="+", metavar="FILE", help=".csv or .npy recordings")
+    add_pretrained_flags(p)
+    p.add_argument("--top-k", dest="top_k", type=int, default=3, metavar="K", help="classes per file (default 3)")
+    p.add_argument("--length", default="crop", choices=["crop", "pad", "resample"],
+                   help="a recording of another length: crop (default: cut a longer one, refuse a shorter one), pad "
+                        "(zeros after a shorter one), resample (linear interpolation onto the weights' steps)")
+    p.add_argument("--device", default="cpu", help="cpu (default), cuda, auto")
+    p.add_argument("--json", action="store_true", help="print the predictions as JSON")
+    p.set_defaults(handler=_cmd_predict)
+
+
+def _cmd_predict(args: argparse.Namespace) -> int:
+    from ..weights import predict
+
+    if args.top_k < 1:
+        raise ConfigError(f"--top-k must be a positive integer, got {args.top_k}")
+    model = pretrained_model(args.model, args)
+    entry = model.zoo_pretrained
+    results = predict(model, args.files, top_k=args.top_k, length=args.length, device=args.device)
+    if args.json:
+        echo(json.dumps({"model": entry.model, "weights": entry.qualified_tag, "dataset": entry.dataset,
+                         "test_accuracy": entry.accuracy, "note": entry.note or None,
+                         "predictions": [{k: v for k, v in r.to_dict().items() if k != "probabilities"}
+                                         for r in results]}, indent=2))
+        return 0
+    accuracy = "" if entry.accuracy is None else f", test accuracy {entry.accuracy:.4f}"
+    echo(f"{entry.model} with weights {entry.qualified_tag} (trained on {entry.dataset}{accuracy})")
+    if entry.note:
+        echo(f"note: {entry.note}")
+    width = max(len("class"), *(len(name) for r in results for name, _ in r.top_k))
+    for r in results:
+        fitted = "" if r.length == "as recorded" else f", {r.length} to {entry.spec['num_steps']}"
+        echo(f"{r.source} ({r.steps_read} steps{fitted})")
+        for rank, (name, prob) in enumerate(r.top_k, start=1):
+            echo(f"  {rank:>2}  {name:<{width}}  {prob:.3f}")
+    return 0

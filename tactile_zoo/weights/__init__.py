@@ -1,0 +1,40 @@
+"""Pretrained weights: what they are, where they come from, loading them into a model, and predicting with them.
+
+The layer sits between the harness and the engine (``cli -> bench -> weights -> engine -> models -> data``): it
+builds models through the registry (never importing a model module), reads specs and files with the data layer, and
+runs inference with the engine's :func:`~tactile_zoo.engine.evaluate.predict_scores`, so a prediction here is the
+prediction :func:`tactile_zoo.evaluate` makes. The harness and the command line use it; the engine never does.
+
+Parts (one concept per module):
+
+- :mod:`.entry`: :class:`WeightEntry`, the manifest keys, the tag scheme ``<model>.<recipe>_<dataset>``;
+- :mod:`.manifest`: manifest files, and :func:`entry_from_record` (a ``bench --save-weights`` cell to an entry);
+- :mod:`.discovery`: installed weights, through the entry-point group ``tactile_zoo.weights``;
+- :mod:`.files`: locating a file (installed, local, or a URL downloaded into the cache), sha256-checked;
+- :mod:`.heads`: the classifier-head convention (``zoo_head``) that ``new_head=True`` relies on;
+- :mod:`.load`: ``create_model(name, spec=None, pretrained=..., new_head=False)``;
+- :mod:`.predict`: reading recordings in the bring-your-own format, and :func:`predict`.
+
+Sources of weights: (a) a distribution that declares a ``tactile_zoo.weights`` entry point (``pip install
+./plugins/tactile-zoo-weights``); (b) a local ``.safetensors`` file with a manifest (``<stem>.json`` or
+``manifest.json`` next to it); (c) a manifest entry with a ``url`` and ``sha256``, downloaded into
+``<cache home>/weights`` and verified.
+"""
+
+from __future__ import annotations
+
+from .discovery import WEIGHTS_GROUP, WeightSource, find_weights, list_weights, reset_weights, weight_sources
+from .entry import ENTRY_KEYS, MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
+from .files import locate, weights_cache
+from .heads import head_keys, head_name
+from .load import check_fit, create_model, load_pretrained, local_weights, resolve_weights
+from .manifest import DEFAULT_LICENCE, entry_from_record, parse_manifest, read_manifest, write_manifest
+from .predict import LENGTHS, Prediction, Recording, predict, read_recording
+
+__all__ = [
+    "WeightEntry", "MANIFEST_FORMAT", "ENTRY_KEYS", "make_tag", "tag_key", "read_manifest", "parse_manifest",
+    "write_manifest", "entry_from_record", "DEFAULT_LICENCE", "WEIGHTS_GROUP", "WeightSource", "weight_sources",
+    "list_weights", "find_weights", "reset_weights", "locate", "weights_cache", "head_name", "head_keys",
+    "create_model", "load_pretrained", "resolve_weights", "local_weights", "check_fit", "predict", "read_recording",
+    "Prediction", "Recording", "LENGTHS",
+]

@@ -1,0 +1,150 @@
+"""Manifest files: reading and writing them, and turning a harness cell record into an entry.
+
+A manifest is a JSON file ``{"format": "tactile-zoo-weights/1", "weights": [entry, ...]}`` (the entry keys are in
+:mod:`tactile_zoo.weights.entry`). A relative ``file`` in it is relative to the manifest's own folder, so a folder
+holding the manifest and its ``.safetensors`` files can be moved or shipped inside a distribution as is.
+
+:func:`entry_from_record` is the bridge from ``tactile-zoo bench --save-weights``: the cell record (``cells/<id>.json``)
+already holds the model, hyper-parameters, recipe, dataset options, spec, config hash, commit, test accuracy and the
+weights file's sha256; the entry copies them, so published weights are exactly a committed cell's.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from .entry import MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
+
+__all__ = ["read_manifest", "parse_manifest", "write_manifest", "entry_from_record", "DEFAULT_LICENCE"]
+
+#: The licence of weights trained by tactile-zoo (the project's own); the data they were trained on keep their terms.
+DEFAULT_LICENCE = "MIT (the weights, like tactile-zoo); the training data keep their own terms (dataset_licence)"
+
+
+def parse_manifest(document: Any, where: str, *, base_dir: str | Path | None = None, origin: str = "",
+                   dist: str | None = None) -> list[WeightEntry]:
+    """The entries of a loaded manifest ``document``; ``where`` names it in every error (a :class:`ConfigError`)."""
+    if isinstance(document, list):  # a bare list of entries is accepted too
+        document = {"format": MANIFEST_FORMAT, "weights": document}
+    if not isinstance(document, Mapping):
+        raise ConfigError(f"{where}: a weights manifest must be a JSON object with 'format' and 'weights', got "
+                          f"{type(document).__name__}")
+    if document.get("format") != MANIFEST_FORMAT:
+        raise ConfigError(f"{where}: format must be {MANIFEST_FORMAT!r}, got {document.get('format')!r}")
+    unknown = sorted(set(document) - {"format", "weights", "description"})
+    if unknown:
+        raise ConfigError(f"{where}: unknown top-level key(s) {unknown}; expected format, weights (and description)")
+    items = document.get("weights")
+    if not isinstance(items, list):
+        raise ConfigError(f"{where}: 'weights' must be a list of entries, got {type(items).__name__}")
+    entries = [WeightEntry.from_dict(item, f"{where}: entry {i}", base_dir=base_dir, origin=origin or where,
+                                     dist=dist) for i, item in enumerate(items)]
+    seen: dict[str, str] = {}
+    for entry in entries:
+        key = tag_key(entry.tag)
+        if key in seen:
+            raise ConfigError(f"{where}: tag {entry.tag!r} appears twice (also as {seen[key]!r})")
+        seen[key] = entry.tag
+    return entries
+
+
+def read_manifest(path: str | os.PathLike, *, origin: str = "", dist: str | None = None) -> list[WeightEntry]:
+    """The entries of the manifest file ``path`` (relative files resolve against its folder)."""
+    path = Path(path).expanduser()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"weights manifest {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"weights manifest {path} cannot be read: {exc}") from None
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"weights manifest {path} is not valid JSON: {exc}") from None
+    return parse_manifest(document, f"weights manifest {path}", base_dir=path.resolve().parent,
+                          origin=origin or str(path), dist=dist)
+
+
+def write_manifest(entries: Iterable[WeightEntry], path: str | os.PathLike, description: str | None = None) -> Path:
+    """Write ``entries`` as a manifest at ``path`` (atomically). A file inside the manifest's folder is written
+    relative to it, so the folder can move; any other file keeps its absolute path."""
+    path = Path(path).expanduser()
+    folder = path.resolve().parent
+    items = []
+    for entry in entries:
+        item = entry.to_dict()
+        local = entry.local_path()
+        if local is not None:
+            resolved = local.resolve()
+            item["file"] = str(resolved.relative_to(folder)) if resolved.is_relative_to(folder) else str(resolved)
+        items.append(item)
+    document: dict[str, Any] = {"format": MANIFEST_FORMAT, **({"description": description} if description else {}),
+                                "weights": items}
+    parse_manifest(document, f"weights manifest {path}")  # what is written must read back
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(document, fh, indent=2)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | None = None, *,
+                      tag: str | None = None, licence: str = DEFAULT_LICENCE, dataset_licence: str | None = None,
+                      note: str = "", url: str | None = None) -> WeightEntry:
+    """The :class:`WeightEntry` of a finished cell whose weights ``bench --save-weights`` wrote.
+
+    Args:
+        record: the cell record (``<run>/cells/<cell id>.json``, parsed), with ``status`` ok and ``weights``.
+        run_dir: the run folder (``--out``); the record's ``weights.file`` is relative to it. ``None``: leave
+            ``file`` relative (to be placed next to the manifest).
+        tag: default :func:`~tactile_zoo.weights.entry.make_tag` of the cell's model, recipe, dataset, fold, seed.
+        licence: the weights' licence (default: the project's, :data:`DEFAULT_LICENCE`).
+        dataset_licence: the training data's terms (default: the dataset's registry metadata ``licence``).
+        note: anything users must know (e.g. that a dataset's class names are unverified).
+        url: where the file will be downloadable from, if anywhere.
+    """
+    cell = record.get("cell_id", "?")
+    if record.get("status") != "ok":
+        raise ConfigError(f"cell {cell}: status {record.get('status')!r}; only a finished (ok) cell has weights")
+    weights = record.get("weights")
+    if not isinstance(weights, Mapping) or not weights.get("file") or not weights.get("sha256"):
+        raise ConfigError(f"cell {cell}: the record has no weights (run the bench with --save-weights)")
+    config = record.get("config") or {}
+    if config.get("subset"):
+        raise ConfigError(f"cell {cell} ran on a subset of the data ({config['subset']}, --quick); its weights are not "
+                          f"publishable")
+    if dataset_licence is None:
+        from ..registry import get_dataset_entry
+
+        try:
+            dataset_licence = str(get_dataset_entry(record["dataset"]).meta.get("licence", ""))
+        except Exception:  # noqa: BLE001 - a dataset no longer registered: the caller can still pass the terms
+            dataset_licence = ""
+    test = (record.get("metrics") or {}).get("test") or {}
+    fold, seed = int(record.get("fold", 0)), int(record.get("seed", 0))
+    recipe = str(config.get("recipe_name") or "source")
+    file = Path(weights["file"]) if run_dir is None else Path(run_dir) / weights["file"]
+    entry = WeightEntry(
+        tag=tag or make_tag(record["model"], record["dataset"], recipe, fold=fold, seed=seed),
+        model=record["model"], dataset=record["dataset"], spec=dict(record["spec"]), sha256=weights["sha256"],
+        file=str(file), url=url, bytes=weights.get("bytes"), hparams=dict(config.get("hparams") or {}),
+        dataset_kwargs=dict(config.get("dataset_kwargs") or {}), recipe=recipe,
+        loss=str((config.get("recipe") or {}).get("loss", "ce")), config_hash=record.get("config_hash"),
+        cell_id=record.get("cell_id"), seed=seed, fold=fold, model_revision=config.get("model_revision"),
+        dataset_revision=config.get("dataset_revision"),
+        accuracy=None if test.get("accuracy") is None else float(test["accuracy"]), commit=record.get("commit"),
+        licence=licence, dataset_licence=dataset_licence, note=note)
+    # through the manifest's checks, so an entry made here is one a manifest can hold
+    return WeightEntry.from_dict(entry.to_dict(), f"cell {cell}", origin=f"cell {cell}")

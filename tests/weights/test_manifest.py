@@ -1,0 +1,116 @@
+"""Weight entries and manifests: the tag scheme, the entry made from a bench cell record, round trips, and one clear
+error for each malformed manifest."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from weights_helpers import CELL_ID, CONFIG_HASH, DATA_ARGS, DATASET, HPARAMS, MODEL, Trained
+
+from tactile_zoo.data.base import file_sha256
+from tactile_zoo.errors import ConfigError
+from tactile_zoo.weights import (
+    DEFAULT_LICENCE,
+    ENTRY_KEYS,
+    MANIFEST_FORMAT,
+    WeightEntry,
+    entry_from_record,
+    make_tag,
+    parse_manifest,
+    read_manifest,
+    tag_key,
+)
+
+
+def test_tags_follow_model_dot_recipe_dataset() -> None:
+    assert make_tag("x_tacformer", "ev_objects") == "x_tacformer.source_ev_objects"
+    assert make_tag("tactile-zoo-tcn:tcn", "sim_evtouch", "default", fold=2, seed=1) == "tcn.default_sim_evtouch_f2_s1"
+    assert tag_key("X-Tacformer.Source_Ev-Objects") == tag_key("x_tacformer.source_ev_objects")
+    assert tag_key("x_tacformer.source_ev_objects") != tag_key("x_tacformer.source_ev_containers")
+
+
+def test_the_entry_of_a_cell_record_holds_everything_the_issue_lists(trained: Trained) -> None:
+    entry, record = trained.entry, trained.record
+    assert entry.tag == "cnn_lstm.source_sim_uskin_textures"
+    assert (entry.model, entry.dataset, entry.recipe, entry.loss) == (MODEL, DATASET, "source", "ce")
+    assert entry.spec == record["spec"] and entry.spec["num_nodes"] == 60 and entry.spec["sensor"] == "uskin_allegro"
+    assert entry.hparams == HPARAMS and entry.dataset_kwargs == DATA_ARGS
+    assert (entry.config_hash, entry.cell_id, entry.seed, entry.fold) == (CONFIG_HASH, CELL_ID, 0, 0)
+    assert entry.accuracy == record["metrics"]["test"]["accuracy"] and entry.commit == "0123abc"
+    assert entry.sha256 == file_sha256(trained.file) == record["weights"]["sha256"]
+    assert entry.bytes == trained.file.stat().st_size and entry.model_revision == 1
+    assert entry.licence == DEFAULT_LICENCE and entry.dataset_licence == "generated (MIT, part of tactile-zoo)"
+    assert entry.note == "trained by the test suite"
+    assert set(entry.to_dict()) == ENTRY_KEYS
+
+
+def test_a_written_manifest_reads_back_with_the_file_relative_to_it(trained: Trained) -> None:
+    document = json.loads(trained.manifest.read_text())
+    assert document["format"] == MANIFEST_FORMAT
+    assert document["weights"][0]["file"] == f"weights/{CELL_ID}.safetensors"  # relative: the folder can move
+    (entry,) = read_manifest(trained.manifest)
+    assert entry.local_path() == trained.file
+    assert dataclasses.replace(entry, file=None) == dataclasses.replace(trained.entry, file=None)
+    assert entry.origin == str(trained.manifest) and entry.dist is None
+
+
+def test_records_without_publishable_weights_are_refused(trained: Trained) -> None:
+    record = trained.record
+    with pytest.raises(ConfigError, match="status 'failed'"):
+        entry_from_record({**record, "status": "failed"})
+    with pytest.raises(ConfigError, match="has no weights"):
+        entry_from_record({k: v for k, v in record.items() if k != "weights"})
+    quick = {**record, "config": {**record["config"], "subset": {"train": 64}}}
+    with pytest.raises(ConfigError, match="ran on a subset"):
+        entry_from_record(quick)
+
+
+def _entry(**changes: Any) -> dict[str, Any]:
+    base = {"tag": "sgnet.source_sim_evtouch", "model": "sgnet", "dataset": "sim_evtouch", "sha256": "ab" * 32,
+            "file": "w.safetensors", "spec": {"name": "sim_evtouch", "num_classes": 2, "class_names": ["a", "b"],
+                                              "num_steps": 5, "num_nodes": 39, "num_channels": 2, "num_globals": 0,
+                                              "sensor": "neutouch"}}
+    return {k: v for k, v in {**base, **changes}.items() if v is not ...}
+
+
+@pytest.mark.parametrize(("document", "message"), [
+    ({"format": "other/1", "weights": []}, "format must be 'tactile-zoo-weights/1'"),
+    ({"format": MANIFEST_FORMAT, "weights": {}}, "'weights' must be a list"),
+    ({"format": MANIFEST_FORMAT, "weights": [], "extra": 1}, r"unknown top-level key\(s\) \['extra'\]"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(acuracy=0.5)]},
+     r"entry 0 \('sgnet.source_sim_evtouch'\): unknown key\(s\) \['acuracy'\]"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(sha256=...)]}, "entry 0 .*missing sha256"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(sha256="xyz")]}, "sha256 must be 64 hexadecimal digits"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(file=...)]}, "give file .*, url .*, or both"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(file=None, url="ftp://host/w")]}, "url must be an http"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(tag="dcnn.source_sim_evtouch")]},
+     "tag must read <model>.<name> with the entry's model 'sgnet'"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(spec={"name": "x"})]}, "spec lacks num_classes"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(accuracy="high")]}, "accuracy must be a number"),
+    ({"format": MANIFEST_FORMAT, "weights": [_entry(), _entry(tag="SGnet.source_sim_evtouch")]},
+     "tag 'SGnet.source_sim_evtouch' appears twice"),
+])
+def test_a_malformed_manifest_is_one_clear_error(document: dict[str, Any], message: str, tmp_path: Path) -> None:
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(document))
+    with pytest.raises(ConfigError, match=rf"weights manifest {path}: .*{message}|weights manifest {path}: {message}"):
+        read_manifest(path)
+
+
+def test_manifest_files_that_are_not_json_name_themselves(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="does not exist"):
+        read_manifest(tmp_path / "absent.json")
+    (tmp_path / "broken.json").write_text("{")
+    with pytest.raises(ConfigError, match=r"broken.json is not valid JSON"):
+        read_manifest(tmp_path / "broken.json")
+
+
+def test_a_bare_list_is_a_manifest_and_entries_compare_on_content(tmp_path: Path) -> None:
+    (one,) = parse_manifest([_entry()], "inline", base_dir=tmp_path)
+    assert one.local_path() == tmp_path / "w.safetensors" and one.sha256 == "ab" * 32
+    assert one == dataclasses.replace(one, origin="elsewhere")  # where it was read is not part of the weights
+    assert WeightEntry.from_dict(one.to_dict()) == one
