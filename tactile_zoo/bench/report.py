@@ -138,7 +138,24 @@ def _write_outputs(run: RunDir, plots: bool, all_cells: bool = False) -> dict[st
                          "compare their `config_hash` in leaderboard.csv.")
     atomic_write_text(written["report"], _markdown(run, records, board, summary, figures, info, ignored, notes,
                                                    _outdated_cells(records)))
+    manifest = _weights_manifest(run, records)
+    if manifest is not None:
+        written["weights_manifest"] = manifest
     return written
+
+
+def _weights_manifest(run: RunDir, records: list[dict[str, Any]]) -> Path | None:
+    """``weights/manifest.json`` for the cells whose weights ``--save-weights`` wrote, so ``tactile-zoo predict
+    --weights OUT/weights/<cell id>.safetensors`` finds its description next to the file."""
+    saved = [r for r in _ok(records) if r.get("weights") and (run.path / r["weights"]["file"]).is_file()]
+    if not saved:
+        return None
+    from ..weights.manifest import entry_from_record, write_manifest
+
+    path = run.path / "weights" / "manifest.json"
+    write_manifest([entry_from_record(r, run.path) for r in saved], path,
+                   description=f"weights saved by tactile-zoo bench --save-weights in {run.path}")
+    return path
 
 
 # ----------------------------------------------------------------------------------------------- markdown

@@ -39,3 +39,30 @@ def test_without_the_flag_no_weights_are_written(tmp_path: Path) -> None:
                     str(out), "-q"]) == 0
     assert not (out / "weights").exists()
     assert "weights" not in json.loads(next((out / "cells").glob("*.json")).read_text())
+
+
+def test_the_run_describes_its_weights_in_a_manifest_that_predict_reads(tmp_path: Path, capsys) -> None:
+    import numpy as np
+
+    from tactile_zoo.cli import main
+
+    out = tmp_path / "run"
+    assert run_cli(["--models", "tiny_mlp", "--datasets", "tiny_blobs", "--threads", "1", "--no-plots",
+                    "--save-weights", "--out", str(out), "-q"]) == 0
+    cell = json.loads(next((out / "cells").glob("*.json")).read_text())
+    manifest = json.loads((out / "weights" / "manifest.json").read_text())
+    (entry,) = manifest["weights"]
+    assert entry["sha256"] == cell["weights"]["sha256"] and entry["config_hash"] == cell["config_hash"]
+    assert entry["accuracy"] == cell["metrics"]["test"]["accuracy"]
+    test = tz.load_dataset("tiny_blobs", split="test")
+    sample = tmp_path / "sample.npy"
+    # one recording as a user would write it: a row per time step, taxel-major channels, then the globals
+    np.save(sample, np.concatenate([test.x[0].flatten(1).numpy(), test.g[0].numpy()], axis=1))
+    weights = out / cell["weights"]["file"]
+    capsys.readouterr()
+    assert main(["predict", "tiny_mlp", "--weights", str(weights), "--manifest", str(out / "weights" / "manifest.json"),
+                 str(sample), "--json"]) == 0
+    (answer,) = json.loads(capsys.readouterr().out)["predictions"]
+    # the cell's own prediction for that recording, with the probability the cell stored for it
+    assert answer["index"] == cell["predictions"]["test"]["predictions"][0]
+    assert abs(answer["probability"] - max(cell["predictions"]["test"]["probabilities"][0])) < 1e-6
