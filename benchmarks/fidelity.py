@@ -141,26 +141,36 @@ def tables() -> str:
     return "\n".join(lines)
 
 
+def replace_block(text: str, begin: str, end: str, body: str, where: Path) -> str:
+    """``text`` with what lies between the markers ``begin`` and ``end`` replaced by ``body`` (generated tables in a
+    hand-written page: the ledger, the README's Table I)."""
+    if begin not in text or end not in text:
+        raise SystemExit(f"{where} lacks the markers {begin!r} ... {end!r}")
+    head, rest = text.split(begin, 1)
+    return f"{head}{begin}\n{body}\n{end}{rest.split(end, 1)[1]}"
+
+
 def render(text: str) -> str:
-    if BEGIN not in text or END not in text:
-        raise SystemExit(f"{LEDGER} lacks the markers {BEGIN!r} ... {END!r}")
-    head, rest = text.split(BEGIN, 1)
-    return f"{head}{BEGIN}\n{tables()}\n{END}{rest.split(END, 1)[1]}"
+    return replace_block(text, BEGIN, END, tables(), LEDGER)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.fidelity", description=__doc__.split("\n")[0])
     parser.add_argument("--check", action="store_true", help="exit 1 if docs/fidelity.md is out of date")
     args = parser.parse_args(argv)
-    current = LEDGER.read_text()
-    new = render(current)
-    if args.check:
-        if new != current:
-            print(f"{LEDGER} is out of date: run python -m benchmarks.fidelity", file=sys.stderr)
+    return update_page(LEDGER, render(LEDGER.read_text()), args.check, "python -m benchmarks.fidelity")
+
+
+def update_page(path: Path, new: str, check: bool, command: str) -> int:
+    """Write ``new`` to ``path``; with ``check``, only compare (exit status 1 and a line naming ``command`` when the
+    committed page differs from what the results give)."""
+    if check:
+        if new != path.read_text():
+            print(f"{path} is out of date: run {command}", file=sys.stderr)
             return 1
         return 0
-    LEDGER.write_text(new)
-    print(f"wrote {LEDGER}")
+    path.write_text(new)
+    print(f"wrote {path}")
     return 0
 
 

@@ -157,10 +157,9 @@ BEGIN, END = "<!-- table1: begin (python -m benchmarks.paper_table1 --readme) --
 
 def render(text: str, folder: Path) -> str:
     """``text`` (the README) with the block between the markers replaced by the current tables."""
-    if BEGIN not in text or END not in text:
-        raise SystemExit(f"{README} lacks the markers {BEGIN!r} ... {END!r}")
-    head, rest = text.split(BEGIN, 1)
-    return f"{head}{BEGIN}\n{table(folder)}\n{END}{rest.split(END, 1)[1]}"
+    from benchmarks.fidelity import replace_block
+
+    return replace_block(text, BEGIN, END, table(folder), README)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -176,16 +175,10 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.readme or args.check):
         print(table(args.folder))
         return 0
-    current = README.read_text()
-    new = render(current, args.folder)
-    if args.check:
-        if new != current:
-            print(f"{README}'s Table I is out of date: run python -m benchmarks.paper_table1 --readme", file=sys.stderr)
-            return 1
-        return 0
-    README.write_text(new)
-    print(f"wrote the Table I block of {README}")
-    return 0
+    from benchmarks.fidelity import update_page
+
+    return update_page(README, render(README.read_text(), args.folder), args.check,
+                       "python -m benchmarks.paper_table1 --readme")
 
 
 if __name__ == "__main__":

@@ -9,16 +9,14 @@ first, because building in place would leave ``build/`` and ``*.egg-info`` in th
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import shutil
-import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import torch
+from plugin_install import pip_install
 
 from tactile_zoo import registry
 from tactile_zoo.cli import main
@@ -37,16 +35,7 @@ FAMILIES = [("neutouch", 2, 0), ("biotac_sp", 1, 0), ("optoforce3", 4, 3), ("usk
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    assert importlib.util.find_spec("setuptools") is not None, \
-        "building the plugin offline needs setuptools in the test environment: pip install -e '.[test]'"
-    work = tmp_path_factory.mktemp("tcn_plugin")
-    source, target = work / "src", work / "site"
-    shutil.copytree(PLUGIN, source, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
-    proc = subprocess.run(
-        [sys.executable, "-m", "pip", "install", "--no-index", "--no-deps", "--no-build-isolation",
-         "--disable-pip-version-check", "--no-input", "--quiet", "--target", str(target), str(source)],
-        capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, f"pip could not install {PLUGIN}:\n{proc.stdout}\n{proc.stderr}"
+    target = pip_install(PLUGIN, tmp_path_factory.mktemp("tcn_plugin"))
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
         mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)

@@ -1,0 +1,29 @@
+"""Installing a distribution of ``plugins/`` for real, offline, the way a user's ``pip install`` would.
+
+pip builds it with the test environment's setuptools (``--no-index --no-deps --no-build-isolation``) into a
+temporary ``--target`` folder, which the caller puts on ``sys.path``: entry points then come from the plugin's own
+``setup.cfg`` and the code from the installed copy. The source is copied first, because building in place would leave
+``build/`` and ``*.egg-info`` in the repository.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+
+def pip_install(plugin: Path, work: Path) -> Path:
+    """Install ``plugin`` (a distribution folder) under ``work``; returns the ``--target`` folder."""
+    assert importlib.util.find_spec("setuptools") is not None, \
+        "building the plugin offline needs setuptools in the test environment: pip install -e '.[test]'"
+    source, target = work / "src", work / "site"
+    shutil.copytree(plugin, source, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+    proc = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--no-index", "--no-deps", "--no-build-isolation",
+         "--disable-pip-version-check", "--no-input", "--quiet", "--target", str(target), str(source)],
+        capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, f"pip could not install {plugin}:\n{proc.stdout}\n{proc.stderr}"
+    return target
