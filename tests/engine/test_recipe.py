@@ -55,10 +55,13 @@ def test_registry_and_engine_share_one_recipe_schema() -> None:
 
 def test_every_registered_model_recipe_resolves() -> None:
     from tactile_zoo import registry
+    from tactile_zoo.recipe import named_recipe_for
 
     for name in registry.list_models():
-        recipe = registry.get_model_entry(name).meta.get("recipe")
-        resolve_recipe(recipe, where=f"recipe of {name}")  # raises ConfigError naming the model if a value is bad
+        for recipe_name, recipe in registry.get_model_entry(name).meta.get("recipes", {}).items():
+            for dataset in (None, *registry.list_datasets()):  # a dataset's own section, where the recipe has one
+                training = named_recipe_for(recipe, dataset, where=f"recipe {recipe_name!r} of {name}")[0]
+                resolve_recipe(training, where=f"recipe of {name}")  # raises ConfigError naming the model
 
 
 def test_cap_epochs_compresses_the_schedule_and_leaves_short_recipes_alone() -> None:
