@@ -82,6 +82,10 @@ class SGNet(nn.Module):
         graph: the sensor graph kind (``"default"``, ``"mst"``, ``"knn"``...), with ``graph_kwargs``.
         lif_backend: ``"fused"`` or ``"snntorch"``; graph_backend: ``"dense"`` or ``"pyg"``.
         init: ``"he"`` (He-normal Linear weights) or ``"default"`` (PyTorch's, as the reference).
+        graph_weight_grad: ``"autograd"`` (default) or ``"fast"`` (opt-in): the TAGConv weights' gradient summed in
+            another order, which skips a copy of the layer's output gradient (a training step on Ev-Objects at
+            batch 8 about 8% faster on 1 CPU thread); the same function, rounded differently
+            (:class:`~tactile_zoo.nn.graph.FrameGraphConv`'s ``weight_grad``).
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> rates ``(B, K)`` in [0, 1]; streaming:
@@ -91,7 +95,8 @@ class SGNet(nn.Module):
     def __init__(self, spec: DatasetSpec, graph_channels: int = 64, hops: int = 3, hidden: tuple[int, ...] = (128, 256),
                  beta: float = 0.2, threshold: float = 0.5, surrogate: str = "rect", surrogate_width: float = 1.0,
                  detach_reset: bool = False, graph: str = "default", graph_kwargs: dict[str, Any] | None = None,
-                 lif_backend: str = "fused", graph_backend: str = "dense", init: str = "he") -> None:
+                 lif_backend: str = "fused", graph_backend: str = "dense", init: str = "he",
+                 graph_weight_grad: str = "autograd") -> None:
         super().__init__()
         if init not in ("he", "default"):
             raise ConfigError(f"sgnet: init must be 'he' or 'default', got {init!r}")
@@ -102,7 +107,7 @@ class SGNet(nn.Module):
         n = spec.num_nodes
         edge_index = spec.sensor.edge_index(graph, **(graph_kwargs or {}))
         self.gc = FrameGraphConv(spec.num_channels, graph_channels, edge_index, n, kind="tag", K=hops,
-                                 backend=graph_backend)
+                                 backend=graph_backend, weight_grad=graph_weight_grad)
         widths = (n * graph_channels + spec.num_globals, *hidden, spec.num_classes)
         self.fcs = nn.ModuleList(nn.Linear(a, b) for a, b in zip(widths[:-1], widths[1:]))
         if init == "he":  # keeps every layer spiking at initialisation (see the model card)
