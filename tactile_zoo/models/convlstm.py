@@ -48,12 +48,16 @@ READOUTS = ("gap", "taxels")
     # the source gives Adam 1e-3, batch 32, cross-entropy; epochs and patience are ours (docs/models.md). On its own
     # data, BioTac-DoS, the source's whole setup: windows of 5 raw readings, every image min-max scaled, PyTorch
     # initialisation, 30 epochs without clipping or early stopping (benchmarks/results/convlstm-biotac/EXPERIMENTS.md)
-    recipes={"source": {"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False,
-                        "schedule": None, "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0,
-                        "datasets": {"biotac_dos": {
-                            "max_epochs": 30, "patience": None, "grad_clip": None,
-                            "hparams": {"frame_norm": "minmax", "init": "torch"},
-                            "dataset_kwargs": {"window": 5, "stride": 5, "normalize": "none"}}}}},
+    recipes={"source": {
+        "loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
+        "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0,
+        "datasets": {
+            # the taxel read-out, chosen on validation (benchmarks/results/tuning/convlstm-ev/PLAN.md)
+            "ev_containers": {"hparams": {"readout": "taxels"}},
+            "biotac_dos": {"max_epochs": 30, "patience": None, "grad_clip": None,
+                           "hparams": {"frame_norm": "minmax", "init": "torch"},
+                           "dataset_kwargs": {"window": 5, "stride": 5, "normalize": "none"}},
+        }}},
     causal=True,
     streaming=True,
     revision=1,
