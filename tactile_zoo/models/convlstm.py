@@ -53,6 +53,7 @@ READOUTS = ("gap", "taxels")
         "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0,
         "datasets": {
             # the taxel read-out, chosen on validation (benchmarks/results/tuning/convlstm-ev/PLAN.md)
+            "ev_objects": {"hparams": {"readout": "taxels"}},
             "ev_containers": {"hparams": {"readout": "taxels"}},
             "biotac_dos": {"max_epochs": 30, "patience": None, "grad_clip": None,
                            "hparams": {"frame_norm": "minmax", "init": "torch"},

@@ -2,9 +2,10 @@
 
 A weight entry says what a ``.safetensors`` file holds and what it expects: the model and the hyper-parameters that
 rebuild it, the dataset it was trained on with the spec (classes, taxels, channels, globals, steps) and the loading
-options (``dataset_kwargs``: windows, normalisation) its inputs went through, the recipe and the cell's config hash,
-the test accuracy, the commit that trained it, the licences, a note, and where the file is (a path, a URL, or both)
-with its sha256.
+options (``dataset_kwargs``: windows, normalisation) its inputs went through, the resolved preprocessing
+(``preprocessing``: every loading option with its default filled in, the frame period, and how many input frames the
+model sums or averages into one step), the recipe and the cell's config hash, the test accuracy, the commit that
+trained it, the licences, a note, and where the file is (a path, a URL, or both) with its sha256.
 
 Tags follow timm's ``model.tag`` style::
 
@@ -20,7 +21,10 @@ Manifest (JSON), the format a distribution ships and :func:`~tactile_zoo.weights
      "weights": [{"tag": "x_tacformer.source_ev_objects", "model": "x_tacformer", "dataset": "ev_objects",
                   "spec": {"name": "ev_objects", "num_classes": 36, "class_names": [...], "num_steps": 250,
                            "num_nodes": 39, "num_channels": 2, "num_globals": 0, "sensor": "neutouch"},
-                  "hparams": {}, "dataset_kwargs": {}, "recipe": "source", "loss": "ce",
+                  "hparams": {}, "dataset_kwargs": {},
+                  "preprocessing": {"dataset_options": {"verify_checksum": true}, "frame_period_s": null,
+                                    "frame_bin_size": 5},
+                  "recipe": "source", "loss": "ce",
                   "config_hash": "bcbb8a08732c9ba1", "cell_id": "x_tacformer__ev_objects__f0__s0__bcbb8a08732c9ba1",
                   "seed": 0, "fold": 0, "model_revision": 2, "dataset_revision": 1, "accuracy": 0.8819,
                   "commit": "f17f027...", "file": "x_tacformer.source_ev_objects.safetensors", "url": null,
@@ -28,7 +32,9 @@ Manifest (JSON), the format a distribution ships and :func:`~tactile_zoo.weights
                   "note": "Ev-Objects class names are unverified"}]}
 
 Required: ``tag``, ``model``, ``dataset``, ``spec``, ``sha256`` and ``file`` or ``url``; a relative ``file`` is
-relative to the manifest's folder. An unknown key is an error (a typo must not pass silently).
+relative to the manifest's folder. An unknown key is an error (a typo must not pass silently). ``preprocessing`` is
+descriptive (loading never reads it: ``dataset_kwargs`` and ``hparams`` rebuild the inputs and the model); a manifest
+written before it existed reads as ``{}``.
 """
 
 from __future__ import annotations
@@ -85,6 +91,10 @@ class WeightEntry:
         bytes: the file's size.
         hparams: the model's constructor keywords (``max_frames``, ``bin_size``, ...).
         dataset_kwargs: the dataset's keyword arguments the inputs were prepared with (``window``, ``normalize``...).
+        preprocessing: what the inputs went through, resolved (:func:`~.manifest.preprocessing_of`):
+            ``dataset_options`` (``dataset_kwargs`` with every default filled in), ``frame_period_s`` (seconds
+            between time steps, ``None`` when not known) and ``frame_bin_size`` (input frames the model sums or
+            averages into one of its steps; ``None``: the model reads every frame as is).
         recipe, loss: the training recipe's name and its loss (``"ce"``, or ``"mse_rate"``: scores are spike rates).
         config_hash, cell_id, seed, fold: the harness cell that trained the weights.
         model_revision, dataset_revision: the computational revisions the weights were trained under; loading
@@ -108,6 +118,7 @@ class WeightEntry:
     bytes: int | None = None
     hparams: Mapping[str, Any] = field(default_factory=dict)
     dataset_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    preprocessing: Mapping[str, Any] = field(default_factory=dict)
     recipe: str = "source"
     loss: str = "ce"
     config_hash: str | None = None
@@ -182,7 +193,7 @@ class WeightEntry:
         accuracy = values.get("accuracy")
         if accuracy is not None and (isinstance(accuracy, bool) or not isinstance(accuracy, int | float)):
             raise ConfigError(f"{label}: accuracy must be a number or null, got {accuracy!r}")
-        for key in ("hparams", "dataset_kwargs", "spec"):
+        for key in ("hparams", "dataset_kwargs", "preprocessing", "spec"):
             if key in values and not isinstance(values[key], Mapping):
                 raise ConfigError(f"{label}: {key} must be a JSON object, got {values[key]!r}")
         absent = [k for k in _SPEC_KEYS if k not in values["spec"]]
@@ -203,7 +214,8 @@ class WeightEntry:
             raise ConfigError(f"{label}: url must be an http(s) URL, got {url!r}")
         kwargs = {k: v for k, v in values.items() if k not in ("tag", "model", "sha256")}
         kwargs.update(hparams=dict(values.get("hparams") or {}), spec=dict(values["spec"]),
-                      dataset_kwargs=dict(values.get("dataset_kwargs") or {}), fold=int(values.get("fold") or 0))
+                      dataset_kwargs=dict(values.get("dataset_kwargs") or {}),
+                      preprocessing=dict(values.get("preprocessing") or {}), fold=int(values.get("fold") or 0))
         if accuracy is not None:
             kwargs["accuracy"] = float(accuracy)
         return cls(tag=tag, model=model, sha256=sha, origin=origin, dist=dist,

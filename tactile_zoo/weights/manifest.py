@@ -6,11 +6,15 @@ holding the manifest and its ``.safetensors`` files can be moved or shipped insi
 
 :func:`entry_from_record` is the bridge from ``tactile-zoo bench --save-weights``: the cell record (``cells/<id>.json``)
 already holds the model, hyper-parameters, recipe, dataset options, spec, config hash, commit, test accuracy and the
-weights file's sha256; the entry copies them, so published weights are exactly a committed cell's.
+weights file's sha256; the entry copies them, so published weights are exactly a committed cell's. It adds what the
+record leaves implicit (:func:`preprocessing_of`): the dataset options with their defaults, the frame period and the
+model's frame binning, so a user feeding a robot's readings sees every step the training inputs went through.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import os
 import tempfile
@@ -21,7 +25,8 @@ from typing import Any
 from ..errors import ConfigError
 from .entry import MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
 
-__all__ = ["read_manifest", "parse_manifest", "write_manifest", "entry_from_record", "DEFAULT_LICENCE"]
+__all__ = ["read_manifest", "parse_manifest", "write_manifest", "entry_from_record", "preprocessing_of",
+           "DEFAULT_LICENCE"]
 
 #: The licence of weights trained by tactile-zoo (the project's own); the data they were trained on keep their terms.
 DEFAULT_LICENCE = "MIT (the weights, like tactile-zoo); the training data keep their own terms (dataset_licence)"
@@ -100,6 +105,78 @@ def write_manifest(entries: Iterable[WeightEntry], path: str | os.PathLike, desc
     return path
 
 
+#: The base dataset's keywords: how a split is augmented or wrapped, never how its samples are made.
+_NOT_PREPROCESSING = frozenset({"root", "split", "fold", "download", "transform", "augment", "augment_factor",
+                                "augment_seed"})
+
+
+def _json_value(value: Any) -> Any:
+    """``value`` as JSON holds it (tuples as lists); anything else as its ``repr``, so the manifest still says it."""
+    if value is None or isinstance(value, bool | int | float | str):
+        return value
+    if isinstance(value, list | tuple):
+        return [_json_value(v) for v in value]
+    if isinstance(value, Mapping):
+        return {str(k): _json_value(v) for k, v in value.items()}
+    return repr(value)
+
+
+def _dataset_options(cls: type, dataset_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword options of dataset class ``cls`` (its constructor's keyword-only parameters, defaults filled in)
+    with ``dataset_kwargs`` applied: what loading the dataset with those keywords used."""
+    options: dict[str, Any] = {}
+    for param in inspect.signature(cls.__init__).parameters.values():
+        if param.kind is param.KEYWORD_ONLY and param.name not in _NOT_PREPROCESSING:
+            options[param.name] = _json_value(param.default) if param.default is not param.empty else None
+    options.update({str(k): _json_value(v) for k, v in dataset_kwargs.items()})
+    return options
+
+
+@functools.lru_cache(maxsize=64)
+def _frame_bin_size(model: str, spec_json: str, hparams_json: str) -> int | None:
+    """``bin_size`` of model ``model`` built for the spec (input frames per model step), ``None`` when the model has
+    none or cannot be built here. Cached: a report describes many cells of one configuration."""
+    import torch
+
+    from .. import registry
+    from ..data.spec import DatasetSpec
+
+    try:
+        spec = DatasetSpec.from_dict(json.loads(spec_json))
+        with torch.random.fork_rng(devices=[]):  # building initialises weights: the caller's RNG stream stays put
+            built = registry.create_model(model, spec, **json.loads(hparams_json))
+    except Exception:  # noqa: BLE001 - an unregistered plugin model: the entry is still valid without the figure
+        return None
+    size = getattr(built, "bin_size", None)
+    return int(size) if isinstance(size, int) and not isinstance(size, bool) else None
+
+
+def preprocessing_of(model: str, dataset: str, spec: Mapping[str, Any], hparams: Mapping[str, Any] | None = None,
+                     dataset_kwargs: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What inputs of ``dataset`` went through before ``model`` (built with ``hparams``) read them.
+
+    Returns:
+        ``{"dataset_options": ..., "frame_period_s": ..., "frame_bin_size": ...}``: the dataset's keyword options
+        with ``dataset_kwargs`` applied and every default filled in (BioTac-DoS: ``window``, ``normalize``,
+        ``baseline``, ``scale``...; ``None`` where the default is computed, e.g. ``stride`` = ``window``), the
+        seconds between two time steps (``None`` when the dataset does not say), and the input frames the model
+        sums or averages into one step (``None``: it reads every frame). A dataset or model that is not registered
+        here leaves its part empty rather than failing: the entry is still usable.
+    """
+    from .. import registry
+
+    hparams, dataset_kwargs = dict(hparams or {}), dict(dataset_kwargs or {})
+    try:
+        cls = registry.get_dataset_entry(dataset).obj
+    except Exception:  # noqa: BLE001 - a dataset plugin that is not installed
+        cls = None
+    options = _dataset_options(cls, dataset_kwargs) if isinstance(cls, type) else _json_value(dataset_kwargs)
+    period = getattr(cls, "frame_period", None)
+    return {"dataset_options": options, "frame_period_s": None if period is None else float(period),
+            "frame_bin_size": _frame_bin_size(model, json.dumps(dict(spec), sort_keys=True),
+                                              json.dumps(_json_value(hparams), sort_keys=True))}
+
+
 def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | None = None, *,
                       tag: str | None = None, licence: str = DEFAULT_LICENCE, dataset_licence: str | None = None,
                       note: str = "", url: str | None = None) -> WeightEntry:
@@ -132,15 +209,19 @@ def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | No
             dataset_licence = str(get_dataset_entry(record["dataset"]).meta.get("licence", ""))
         except Exception:  # noqa: BLE001 - a dataset no longer registered: the caller can still pass the terms
             dataset_licence = ""
+    from ..engine.cell import recipe_name_of
+
     test = (record.get("metrics") or {}).get("test") or {}
     fold, seed = int(record.get("fold", 0)), int(record.get("seed", 0))
-    recipe = str(config.get("recipe_name") or "source")
+    recipe = recipe_name_of(config)  # a record from before named recipes ran what is now the model's registered one
     file = Path(weights["file"]) if run_dir is None else Path(run_dir) / weights["file"]
     entry = WeightEntry(
         tag=tag or make_tag(record["model"], record["dataset"], recipe, fold=fold, seed=seed),
         model=record["model"], dataset=record["dataset"], spec=dict(record["spec"]), sha256=weights["sha256"],
         file=str(file), url=url, bytes=weights.get("bytes"), hparams=dict(config.get("hparams") or {}),
-        dataset_kwargs=dict(config.get("dataset_kwargs") or {}), recipe=recipe,
+        dataset_kwargs=dict(config.get("dataset_kwargs") or {}),
+        preprocessing=preprocessing_of(record["model"], record["dataset"], record["spec"], config.get("hparams"),
+                                       config.get("dataset_kwargs")), recipe=recipe,
         loss=str((config.get("recipe") or {}).get("loss", "ce")), config_hash=record.get("config_hash"),
         cell_id=record.get("cell_id"), seed=seed, fold=fold, model_revision=config.get("model_revision"),
         dataset_revision=config.get("dataset_revision"),

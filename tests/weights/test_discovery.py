@@ -170,3 +170,15 @@ def test_nothing_installed_says_so(monkeypatch: pytest.MonkeyPatch, capsys: pyte
             tz.create_model(MODEL, pretrained=DATASET)
     finally:
         discovery.reset_weights()
+
+
+def test_an_installed_distribution_with_an_empty_manifest_says_it_ships_none(site: FakeSite,
+                                                                             capsys: pytest.CaptureFixture) -> None:
+    # what tactile-zoo-weights 0.1.0 was (plugins/tactile-zoo-weights now ships weights, tested in test_plugin_weights)
+    write_manifest([], site.root / "empty_manifest.json")
+    site.add("empty-weights", 'MANIFEST = "empty_manifest.json"\n', weights={"manifest": "MANIFEST"}, version="0.1.0")
+    assert list_weights() == [] and [(s.dist, s.status, s.count) for s in weight_sources()] == [
+        ("empty-weights", "ok", 0)]
+    assert main(["weights"]) == 0
+    assert capsys.readouterr().out.startswith("no pretrained weights yet: empty-weights 0.1.0 is installed, but its "
+                                              "manifest lists none")

@@ -21,6 +21,7 @@ from tactile_zoo.weights import (
     entry_from_record,
     make_tag,
     parse_manifest,
+    preprocessing_of,
     read_manifest,
     tag_key,
 )
@@ -45,7 +46,23 @@ def test_the_entry_of_a_cell_record_holds_everything_the_issue_lists(trained: Tr
     assert entry.bytes == trained.file.stat().st_size and entry.model_revision == 1
     assert entry.licence == DEFAULT_LICENCE and entry.dataset_licence == "generated (MIT, part of tactile-zoo)"
     assert entry.note == "trained by the test suite"
+    # the preprocessing, resolved: the dataset's options with their defaults, and the model's frame bins (12 steps
+    # read as at most max_frames=4 bins: 3 frames each)
+    assert entry.preprocessing == {"dataset_options": {"seed": 0, **DATA_ARGS}, "frame_period_s": None,
+                                   "frame_bin_size": 3}
     assert set(entry.to_dict()) == ENTRY_KEYS
+
+
+def test_preprocessing_fills_the_datasets_defaults_and_leaves_the_unknown_empty() -> None:
+    spec = {"name": "biotac_dos", "num_classes": 7, "class_names": list("nsewcat"), "num_steps": 10, "num_nodes": 24,
+            "num_channels": 1, "num_globals": 0, "sensor": "biotac_sp"}
+    described = preprocessing_of("cnn_lstm", "biotac_dos", spec, {"max_frames": 5}, {"window": 10})
+    assert described == {"dataset_options": {"protocol": "objects", "validation": "recordings", "num_folds": 5,
+                                             "window": 10, "stride": None, "normalize": "baseline", "baseline": 10,
+                                             "scale": 1000.0},
+                         "frame_period_s": 0.01, "frame_bin_size": 2}
+    unknown = preprocessing_of("no_such_model", "no_such_dataset", spec, {}, {"window": 3})
+    assert unknown == {"dataset_options": {"window": 3}, "frame_period_s": None, "frame_bin_size": None}
 
 
 def test_a_written_manifest_reads_back_with_the_file_relative_to_it(trained: Trained) -> None:
@@ -112,5 +129,6 @@ def test_manifest_files_that_are_not_json_name_themselves(tmp_path: Path) -> Non
 def test_a_bare_list_is_a_manifest_and_entries_compare_on_content(tmp_path: Path) -> None:
     (one,) = parse_manifest([_entry()], "inline", base_dir=tmp_path)
     assert one.local_path() == tmp_path / "w.safetensors" and one.sha256 == "ab" * 32
+    assert one.preprocessing == {}  # a manifest written before entries described their preprocessing
     assert one == dataclasses.replace(one, origin="elsewhere")  # where it was read is not part of the weights
     assert WeightEntry.from_dict(one.to_dict()) == one
