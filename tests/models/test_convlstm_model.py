@@ -230,7 +230,7 @@ def test_taxel_readout_keeps_each_taxels_cell() -> None:
         tz.create_model("convlstm", spec, readout="flat")
 
 
-def test_the_source_recipe_carries_the_source_setup_on_biotac_dos_only() -> None:
+def test_the_source_recipe_carries_the_source_setup_on_biotac_dos_and_the_taxel_read_out_on_ev() -> None:
     from tactile_zoo.engine.cell import resolve_cell
 
     own = resolve_cell("convlstm", "biotac_dos")
@@ -238,5 +238,9 @@ def test_the_source_recipe_carries_the_source_setup_on_biotac_dos_only() -> None
     assert own.dataset_kwargs == {"window": 5, "stride": 5, "normalize": "none"}
     assert (own.recipe.max_epochs, own.recipe.patience, own.recipe.grad_clip, own.recipe.batch_size) == (30, None,
                                                                                                          None, 32)
-    ev = resolve_cell("convlstm", "ev_objects")
-    assert ev.hparams == {} and ev.dataset_kwargs == {} and ev.recipe.patience == 20 and ev.recipe.grad_clip == 1.0
+    for name in ("ev_objects", "ev_containers"):  # the read-out chosen on validation; the rest as on any dataset
+        ev = resolve_cell("convlstm", name)
+        assert ev.hparams == {"readout": "taxels"} and ev.dataset_kwargs == {}
+        assert (ev.recipe.patience, ev.recipe.grad_clip, ev.recipe.max_epochs) == (20, 1.0, 100)
+    other = resolve_cell("convlstm", "sim_evtouch")
+    assert other.hparams == {} and other.dataset_kwargs == {} and other.recipe.patience == 20
