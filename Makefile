@@ -12,7 +12,8 @@ $(BIN)/tactile-zoo: setup.cfg pyproject.toml constraints.txt
 	$(BIN)/python -m pip install -q --upgrade pip
 	# torch first: the CPU build on disk; a looser requirement would drag in several GB of CUDA packages
 	$(BIN)/python -m pip install -q "$(TORCH)"
-	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	# [export]: onnx, onnxscript and onnxruntime, so that the suite checks every ONNX export under onnxruntime
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test,export]"
 	# x_tacformer's temporal_backend="tgt": --no-deps, its release requires torch-sparse (source-only, does not build
 	# against this torch); the one module we load (TGCN2) needs only torch and torch-geometric, installed above
 	$(BIN)/python -m pip install -q --no-deps "$(TGT)"

@@ -12,6 +12,7 @@ BENCHMARKS = {
     "epoch_all_models": "epoch_all_models",
     "inference": "inference",
     "streaming_latency": "streaming_latency",
+    "export_latency": "export_latency",
     "scaling": "scaling",
     "bench_wall": "bench_wall",
     "progress_overhead": "progress_overhead",

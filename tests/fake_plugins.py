@@ -16,6 +16,7 @@ import uuid
 from pathlib import Path
 
 import pytest
+from plugin_install import only_weights_from
 
 from tactile_zoo import registry
 from tactile_zoo.weights import reset_weights
@@ -38,6 +39,7 @@ class FakeSite:
         monkeypatch.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
         monkeypatch.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
         monkeypatch.syspath_prepend(str(root))
+        only_weights_from(monkeypatch, root)  # weight packs installed in the environment stay out of sight
         registry.set_plugin_policy()
         registry.reset_plugins()
         reset_weights()

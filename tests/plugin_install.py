@@ -8,11 +8,15 @@ temporary ``--target`` folder, which the caller puts on ``sys.path``: entry poin
 
 from __future__ import annotations
 
+import importlib.metadata
 import importlib.util
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
+
+import pytest
 
 
 def pip_install(plugin: Path, work: Path) -> Path:
@@ -27,3 +31,23 @@ def pip_install(plugin: Path, work: Path) -> Path:
         capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"pip could not install {plugin}:\n{proc.stdout}\n{proc.stderr}"
     return target
+
+
+def only_weights_from(monkeypatch: pytest.MonkeyPatch, site: Path) -> None:
+    """Let weights discovery see only the distributions installed under ``site``.
+
+    A developer may have ``plugins/tactile-zoo-weights`` (or another pack) installed in the environment the suite runs
+    in; tests that assert exactly which packs are found must not see it. Only the ``tactile_zoo.weights`` group is
+    filtered: model and dataset plugins are discovered as usual.
+    """
+    real = importlib.metadata.entry_points
+    site = site.resolve()
+
+    def entry_points(**params: Any) -> importlib.metadata.EntryPoints:
+        found = real(**params)
+        if params.get("group") != "tactile_zoo.weights":
+            return found
+        return importlib.metadata.EntryPoints(
+            ep for ep in found if ep.dist is not None and Path(ep.dist.locate_file("")).resolve() == site)
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)

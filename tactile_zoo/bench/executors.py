@@ -105,8 +105,32 @@ class LocalExecutor(Executor):
         return f"local ({self.threads} thread{'s' if self.threads > 1 else ''})"
 
 
-def _init_process_worker(plugin_modules: tuple[str, ...], threads: int, sys_path: tuple[str, ...]) -> None:
+#: How often a pool worker checks that the run that started it is still alive (seconds).
+PARENT_POLL_S = 1.0
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Leave as soon as ``parent`` is no longer this process's parent (it died, and the process was re-parented).
+
+    A killed ``tactile-zoo bench`` (SIGKILL, an out-of-memory kill, a closed session) cannot shut its pool down, and
+    its workers would go on training cells whose records nobody will write, holding cores a resumed run needs.
+    Polling ``os.getppid()`` from a daemon thread works on every platform, unlike Linux's ``PR_SET_PDEATHSIG``.
+    """
+    import threading
+    import time
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)  # no cleanup to run: the cell's record was never going to be written
+
+    threading.Thread(target=watch, name="tactile-zoo-parent-watch", daemon=True).start()
+
+
+def _init_process_worker(plugin_modules: tuple[str, ...], threads: int, sys_path: tuple[str, ...],
+                         parent: int) -> None:
     os.environ["OMP_NUM_THREADS"] = str(threads)
+    _exit_with_parent(parent)
     setup_worker(plugin_modules, threads, sys_path)
 
 
@@ -114,7 +138,8 @@ class ProcessExecutor(Executor):
     """``workers`` local processes (spawned, so no thread pool state is forked), ``threads`` torch threads each.
 
     A worker that dies (killed by the OS for memory, a segfault in an extension) fails the cells it held; the pool
-    is rebuilt for the remaining cells.
+    is rebuilt for the remaining cells. A worker whose run died exits within about a second
+    (:func:`_exit_with_parent`).
     """
 
     name = "process"
@@ -124,7 +149,7 @@ class ProcessExecutor(Executor):
         self.workers = workers or max(1, min(cores, 4))
         self.threads = threads or DEFAULT_THREADS
         self.slots = self.workers
-        self._args = (tuple(plugin_modules), self.threads, tuple(sys.path))
+        self._args = (tuple(plugin_modules), self.threads, tuple(sys.path), os.getpid())
         self._pool = self._new_pool()
 
     def _new_pool(self) -> cf.ProcessPoolExecutor:

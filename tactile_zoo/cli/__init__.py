@@ -26,6 +26,7 @@ from ..errors import TactileZooError
 from .bench import add_bench, add_report
 from .catalog import add_info, add_list, add_plugins
 from .download import add_download
+from .export import add_export
 from .stream import add_stream
 from .train import add_evaluate, add_train
 from .weights import add_predict, add_weights
@@ -35,7 +36,7 @@ __all__ = ["main", "entry", "build_parser", "SUBCOMMANDS"]
 #: Every subcommand's argument declaration, in help order.
 SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_list, add_info, add_plugins, add_download, add_bench, add_train, add_evaluate, add_report, add_stream,
-    add_weights, add_predict,
+    add_weights, add_predict, add_export,
 ]
 
 

@@ -190,18 +190,25 @@ class FrameGraphConv(nn.Module):
         hops, n = self.propagator.shape[0], self.num_nodes
         if (n * f) * (n * hops * f) > KRON_LIMIT:
             return None
-        key = (f, adjoint, dtype, self.propagator.device, self.propagator.data_ptr(), KRON_LIMIT)
+        # Keyed on the buffer object itself (held by the entry, so its identity cannot be reused), not on its
+        # data_ptr(): torch.export traces with storage-less fake stand-ins for the buffers, whose data_ptr() raises.
+        # A new buffer (.to(), .float()) is a new object and misses, as a moved one did with data_ptr().
+        key = (f, adjoint, dtype, self.propagator.device, KRON_LIMIT)
         cache = self.__dict__.setdefault("_kron_cache", {})
-        if key not in cache:
-            prop = self.propagator.to(dtype)
-            eye = torch.eye(f, dtype=prop.dtype, device=prop.device)
-            if adjoint:  # rows (j, k, f), cols (i, g): kron[(j, k, f), (i, g)] = A^k[i, j] [f == g]
-                kron = torch.einsum("kij,fg->jkfig", prop, eye).reshape(n * hops * f, n * f)
-            else:  # rows (j, f), cols (i, k, g): kron[(j, f), (i, k, g)] = A^k[i, j] [f == g]
-                kron = torch.einsum("kij,fg->jfikg", prop, eye).reshape(n * f, n * hops * f)
+        hit = cache.get(key)
+        if hit is not None and hit[0] is self.propagator:
+            return hit[1]
+        prop = self.propagator.to(dtype)
+        eye = torch.eye(f, dtype=prop.dtype, device=prop.device)
+        if adjoint:  # rows (j, k, f), cols (i, g): kron[(j, k, f), (i, g)] = A^k[i, j] [f == g]
+            kron = torch.einsum("kij,fg->jkfig", prop, eye).reshape(n * hops * f, n * f)
+        else:  # rows (j, f), cols (i, k, g): kron[(j, f), (i, k, g)] = A^k[i, j] [f == g]
+            kron = torch.einsum("kij,fg->jfikg", prop, eye).reshape(n * f, n * hops * f)
+        kron = kron.contiguous()
+        if not torch.compiler.is_compiling():  # a traced (fake) matrix must not outlive the trace in the cache
             cache.clear()  # one graph, one dtype in use at a time: keep the cache from growing
-            cache[key] = kron.contiguous()
-        return cache[key]
+            cache[key] = (self.propagator, kron)
+        return kron
 
 
 #: Rows (``M * N``) from which the weight gradient's product runs on a contiguous copy of the output gradient: below,

@@ -83,3 +83,47 @@ def test_two_processes_on_one_out_share_the_work(uninterrupted: Path, tmp_path: 
     both = "".join(s for s, _ in results)
     assert "another tactile-zoo bench" in both or "finished by another process" in both  # says what happens
     assert read_board(out) == read_board(uninterrupted)
+
+
+_ORPHAN_SCRIPT = """
+import os, sys, time
+from tactile_zoo.bench.executors import ProcessExecutor
+
+executor = ProcessExecutor(workers=1, threads=1, plugin_modules=())
+worker = executor._pool.submit(os.getpid).result()
+executor._pool.submit(time.sleep, 300)  # a cell that is still training when its run is killed
+print(worker, flush=True)
+time.sleep(300)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    return "\\nState:\\tZ" not in state  # a zombie has exited; only its parent's wait() is missing
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads process states from /proc")
+def test_pool_workers_exit_when_the_run_is_killed() -> None:
+    """SIGKILL leaves the run no chance to shut its pool down: the worker, busy in a 300 s cell, must leave by
+    itself instead of training on for nobody."""
+    import subprocess
+    import sys
+
+    run = subprocess.Popen([sys.executable, "-c", _ORPHAN_SCRIPT], stdout=subprocess.PIPE, text=True)
+    try:
+        worker = int(run.stdout.readline())
+        assert _alive(worker)
+        time.sleep(2 * 1.0)  # the worker is inside its sleeping task, and has polled its parent at least once
+        assert _alive(worker)
+        run.send_signal(signal.SIGKILL)
+        run.wait(timeout=30)
+        deadline = time.time() + 60  # generous: it polls every second
+        while _alive(worker) and time.time() < deadline:
+            time.sleep(0.1)
+        assert not _alive(worker), f"pool worker {worker} outlived its killed run"
+    finally:
+        run.kill()
+        run.wait(timeout=30)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,29 @@ def test_window_and_stride(home: Path) -> None:
     ds = BioTacDoS(root=home, window=8, stride=3)
     assert ds.x.shape[1] == 8 and ds.spec.num_steps == 8
     assert len(ds) == len(_recording_files(home)) * ((ROWS - 8) // 3 + 1)
+
+
+def test_minmax_normalisation_scales_each_reading_by_its_own_range(home: Path) -> None:
+    ds = BioTacDoS(root=home, normalize="minmax")
+    path = _recording_files(home)[5]
+    table = np.loadtxt(path, delimiter=",", skiprows=1)[:30]
+    expected = (table.max(1, keepdims=True) - table) / (table.max(1, keepdims=True) - table.min(1, keepdims=True))
+    got = ds.x[ds.groups == 5, :, :, 0].reshape(-1, 24).numpy()
+    assert np.allclose(got, expected, atol=1e-6)
+    assert np.allclose(got.min(1), 0) and np.allclose(got.max(1), 1)  # per reading, not per window or recording
+    assert np.array_equal(got.argmax(1), table.argmin(1))  # pressure (a falling reading) is positive
+
+
+def test_minmax_of_a_flat_reading_is_zero(home: Path, tmp_path: Path) -> None:
+    home = Path(shutil.copytree(home, tmp_path / "home"))  # the module's files stay as they are
+    path = _recording_files(home)[0]
+    table = np.loadtxt(path, delimiter=",", skiprows=1)
+    table[3] = 1234.0  # every electrode equal: no range to scale by
+    _write(path, table)
+    ds = BioTacDoS(root=home, normalize="minmax")
+    assert np.array_equal(ds.x[ds.groups == 0][0, 3, :, 0].numpy(), np.zeros(24, dtype=np.float32))
+    with pytest.raises(ConfigError, match="normalize must be one of 'baseline', 'minmax', 'none', got 'zscore'"):
+        BioTacDoS(root=home, normalize="zscore")
 
 
 def test_baseline_normalisation(home: Path) -> None:

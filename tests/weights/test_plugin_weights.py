@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from plugin_install import pip_install
+from plugin_install import only_weights_from, pip_install
 
 from tactile_zoo import registry
 from tactile_zoo.cli import main
@@ -32,6 +32,7 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
         mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
         mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
         mp.syspath_prepend(str(target))
+        only_weights_from(mp, target)  # not a copy the environment may have installed
         reset_weights()
         yield target
         sys.modules.pop("tactile_zoo_weights", None)

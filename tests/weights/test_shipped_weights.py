@@ -13,12 +13,12 @@ compared the same way, but only a change that moves a spike shows in them.
 With the real data under ``../shared/data`` (skipped, with the reason, otherwise): each shipped checkpoint, loaded
 through ``create_model(..., pretrained=...)`` and evaluated on its real test split by :func:`tactile_zoo.evaluate`
 (what the cell ran), gives exactly its entry's accuracy and the cell's predictions, sample for sample; and ``.npy``
-files of real BioTac-DoS test windows, classified by ``tactile-zoo predict MODEL --pretrained biotac_dos`` with the
-pack installed by pip, get exactly ``evaluate``'s prediction for each.
+files of real test samples (X-Tacformer on Ev-Objects and on BioTac-DoS), classified by ``tactile-zoo predict MODEL
+--pretrained DATASET`` with the pack installed by pip, get exactly ``evaluate``'s prediction for each.
 
 Cost, measured in CPU seconds on one thread: the BioTac-DoS test split (5290 windows) is read once per loading
 configuration (window 10; window 5 for SGnet; window 5 in raw units for ConvLSTM), about 1 s each, and each model
-evaluates it once: 1-4 s each, ConvLSTM about 22 s. An Ev entry (none shipped yet) is marked ``slow``.
+evaluates it once: 1-4 s each, ConvLSTM about 22 s. The Ev entries are marked ``slow``.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from plugin_install import pip_install
+from plugin_install import only_weights_from, pip_install
 from weights_helpers import sample_table
 
 import tactile_zoo as tz
@@ -204,41 +204,44 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
         mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
         mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
         mp.syspath_prepend(str(target))
+        only_weights_from(mp, target)  # not a copy the environment may have installed
         reset_weights()
         yield target
         sys.modules.pop("tactile_zoo_weights", None)
     reset_weights()
 
 
-def _biotac_entry() -> WeightEntry:
-    """X-Tacformer's BioTac-DoS weights (the issue's example model), else the first shipped BioTac-DoS entry."""
-    mine = sorted((e for e in ENTRIES if e.dataset == "biotac_dos"), key=lambda e: e.model != "x_tacformer")
-    if not mine:
-        pytest.fail("the pack ships no BioTac-DoS weights")
-    return mine[0]
+def _predict_cases() -> list[Any]:
+    """The issue's example, X-Tacformer's Ev-Objects weights (``slow``: 250 event frames per file), and X-Tacformer's
+    BioTac-DoS weights (else the first shipped BioTac-DoS entry)."""
+    cases = [pytest.param(e, id=e.tag, marks=pytest.mark.slow) for e in ENTRIES
+             if (e.model, e.dataset) == ("x_tacformer", "ev_objects")]
+    biotac = sorted((e for e in ENTRIES if e.dataset == "biotac_dos"), key=lambda e: e.model != "x_tacformer")
+    return cases + [pytest.param(e, id=e.tag) for e in biotac[:1]]
 
 
 @pytest.mark.real_data
 @pytest.mark.xdist_group("plugin_weights")
-def test_npy_files_of_real_test_windows_get_evaluates_prediction(tmp_path: Path, capsys: pytest.CaptureFixture,
+@pytest.mark.parametrize("entry", _predict_cases())
+def test_npy_files_of_real_test_samples_get_evaluates_prediction(entry: WeightEntry, tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture,
                                                                  request: pytest.FixtureRequest) -> None:
-    entry = _biotac_entry()
     test, result = _evaluate(entry)  # skips without the data, before installing anything
     request.getfixturevalue("installed")
     targets = np.asarray(result.targets)
     chosen = [int(i) for c in range(entry.num_classes) for i in np.flatnonzero(targets == c)[[0, -1]]]
     files = []
-    for i in chosen:  # one window of the documented recordings format per file: (T, 24 electrodes)
-        files.append(tmp_path / f"window{i}.npy")
+    for i in chosen:  # one sample of the documented recordings format per file: (T, N * C + G)
+        files.append(tmp_path / f"sample{i}.npy")
         np.save(files[-1], sample_table(test, i))
-    assert main(["predict", entry.model, "--pretrained", "biotac_dos", *map(str, files), "--json"]) == 0
+    assert main(["predict", entry.model, "--pretrained", entry.dataset, *map(str, files), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["weights"] == f"tactile-zoo-weights:{entry.tag}" and out["test_accuracy"] == entry.accuracy
     expected = [result.predictions[i] for i in chosen]
     assert [p["index"] for p in out["predictions"]] == expected
     assert [p["file"] for p in out["predictions"]] == [str(f) for f in files]
     assert expected == [_record(entry)["predictions"]["test"]["predictions"][i] for i in chosen]
-    assert len(set(expected)) > 1  # the windows are not all read as one class
-    api = tz.predict(entry.model, files, pretrained="biotac_dos")  # the Python equivalent
+    assert len(set(expected)) > 1  # the samples are not all read as one class
+    api = tz.predict(entry.model, files, pretrained=entry.dataset)  # the Python equivalent
     assert [p.index for p in api] == expected
     assert np.allclose([p.probabilities for p in api], [result.probabilities[i] for i in chosen], atol=1e-6)

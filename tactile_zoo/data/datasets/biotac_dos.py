@@ -18,7 +18,10 @@ and 10: non-overlapping): ``x [window, 24, 1]``, ``g [window, 0]``. A recording 
 Normalisation (``normalize="baseline"``, the default): per electrode, ``x = (b - E) / scale`` with ``b`` the mean of
 the recording's first ``baseline`` readings (10) and ``scale`` 1000 raw units: 0 at the start, positive under added
 pressure; it removes the per-recording electrode offsets (which drift with temperature) without statistics from other
-recordings, so no split leaks into another. ``normalize="none"`` keeps the raw values.
+recordings, so no split leaks into another. ``normalize="minmax"`` scales every reading by its own range over the 24
+electrodes, ``x = (max E - E) / (max E - min E)`` (0 where all are equal): 1 at the most pressed electrode, 0 at the
+least, the pattern kept and the overall pressure level removed, as the ConvLSTM source scales each of its sensor
+images (sign as for the baseline: pressure is positive). ``normalize="none"`` keeps the raw values.
 
 Protocols:
 
@@ -65,6 +68,7 @@ _HEADER = tuple(f"ff_e{i}" for i in range(1, 25))
 _FILE = re.compile(r"^([A-Za-z]+?)[_-]?(\d+)\.csv$")
 _UNSEEN = ("solids", "small", "textures")
 VALIDATIONS = ("recordings", "object")
+NORMALIZATIONS = ("baseline", "minmax", "none")
 
 
 @register_dataset(
@@ -91,7 +95,7 @@ class BioTacDoS(TactileDataset):
         num_folds: folds of the ``kfold`` protocol (default 5).
         window: readings per sample (W, default 10).
         stride: readings between window starts (default ``window``: non-overlapping).
-        normalize: ``"baseline"`` (default) or ``"none"``.
+        normalize: ``"baseline"`` (default), ``"minmax"`` (each reading by its own range) or ``"none"``.
         baseline: readings at the start of a recording that define its baseline (default 10).
         scale: raw units per normalised unit (default 1000).
         **kwargs: :class:`~tactile_zoo.data.base.TactileDataset`'s (``transform``, ``augment``, ...).
@@ -117,8 +121,9 @@ class BioTacDoS(TactileDataset):
         if validation == "object" and protocol != "objects":
             raise ConfigError("biotac_dos: validation='object' belongs to the 'objects' protocol (the kfold "
                               "protocol mixes every object into every fold)")
-        if normalize not in ("baseline", "none"):
-            raise ConfigError(f"biotac_dos: normalize must be 'baseline' or 'none', got {normalize!r}")
+        if normalize not in NORMALIZATIONS:
+            raise ConfigError(f"biotac_dos: normalize must be one of {', '.join(map(repr, NORMALIZATIONS))}, "
+                              f"got {normalize!r}")
         stride = window if stride is None else stride
         for arg, value in (("window", window), ("stride", stride), ("baseline", baseline)):
             if int(value) < 1:
@@ -218,6 +223,10 @@ class BioTacDoS(TactileDataset):
             if r < self.baseline:
                 raise DatasetError(f"{path}: {r} readings, fewer than the {self.baseline} baseline readings")
             readings = (readings[: self.baseline].mean(0, keepdims=True) - readings) / self.scale
+        elif self.normalize == "minmax":  # each reading (R, 24) by its own range: the pattern, not the level
+            high, low = readings.max(1, keepdims=True), readings.min(1, keepdims=True)
+            span = high - low
+            readings = np.divide(high - readings, span, out=np.zeros(readings.shape), where=span > 0)
         starts = np.arange(0, r - self.window + 1, self.stride)
         return np.stack([readings[s: s + self.window] for s in starts]).astype(np.float32)  # (K, W, 24)
 
