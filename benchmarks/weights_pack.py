@@ -31,8 +31,9 @@ Building writes, under ``plugins/tactile-zoo-weights/tactile_zoo_weights/``:
   (:func:`probe_inputs`), which ``tests/weights/test_shipped_weights.py`` reproduces without any real data;
 
 and the table of shipped weights in the plugin's README, between its markers. The distribution must stay within
-:data:`LIMIT_BYTES` (32 MB); the build stops, listing the sizes, before writing anything larger. Everything fits in
-float32 (all six models on the three datasets come to about 28 MB), so no half-precision copy is made.
+:data:`LIMIT_BYTES` (15 MB); the build stops, listing the sizes, before writing anything larger. What ships fits in
+float32 (about 9 MB), so no half-precision copy is made; D-CNN's Ev weights (about 9 MB per dataset in float32) are
+not shipped (the README says why).
 
 ``--check`` reads only committed files (cell records, the pack, the README; never the uncommitted
 ``benchmarks/results/**/weights/*.safetensors``), so it runs in CI; ``tests/weights/test_shipped_weights.py`` runs it.
@@ -73,9 +74,18 @@ PLUGIN = REPO / "plugins" / "tactile-zoo-weights"
 PACK = PLUGIN / "tactile_zoo_weights"
 README = PLUGIN / "README.md"
 MANIFEST, LOGITS = "manifest.json", "expected_logits.json"
-#: the whole distribution (weights, manifest, logits, code, README): 32 MB, counted in decimal megabytes (the
-#: stricter reading of the issue's limit)
-LIMIT_BYTES = 32_000_000
+#: the whole distribution (weights, manifest, logits, code, README): 15 MB, counted in decimal megabytes. The weights
+#: issue allows 32 MB; the project's rule for committed weights, the stricter, allows 15.
+LIMIT_BYTES = 15_000_000
+#: pairs whose weights are deliberately not shipped, and why (shown instead of "awaiting a rerun")
+DECLINED = {
+    (model, dataset): "its Table I cells were trained on another CPU (2-core Intel Xeon, 2026-11-22) before "
+                      "`--save-weights` existed, so a rerun here trains other weights, and re-running its three seeds "
+                      "on both Ev datasets (about 2 CPU-hours) was left for a later round; its two Ev checkpoints, "
+                      "about 18 MB in float32, would also need half precision, with accuracy measured on the stored "
+                      "weights, to fit the 15 MB limit"
+    for model, dataset in (("dcnn", "ev_objects"), ("dcnn", "ev_containers"))
+}
 MODELS = ("sgnet", "dcnn", "convlstm", "cnn_lstm", "tacformer", "x_tacformer")
 DATASETS = ("ev_objects", "ev_containers", "biotac_dos")
 BEGIN, END = "<!-- shipped weights: begin (python -m benchmarks.weights_pack) -->", "<!-- shipped weights: end -->"
@@ -220,8 +230,8 @@ def select(reruns: Sequence[Path] = (), table: Path = TABLE) -> list[Slot]:
         if found is not None:
             slots.append(Slot(model, dataset, found))
         else:
-            hint = (f"{cell['cell_id']} was run without --save-weights; rerun it with --save-weights into "
-                    f"benchmarks/results/weights-<name>/")
+            hint = DECLINED.get((model, dataset)) or (f"{cell['cell_id']} was run without --save-weights; rerun it "
+                                                      f"with --save-weights into benchmarks/results/weights-<name>/")
             slots.append(Slot(model, dataset, None, "; ".join([hint, *refused])))
     return slots
 

@@ -6,7 +6,8 @@ as one line (exit code 2) and shows a traceback only with ``--debug``.
 
 from __future__ import annotations
 
-__all__ = ["TactileZooError", "UnknownNameError", "DatasetError", "PluginError", "ConfigError", "TestSplitForbidden"]
+__all__ = ["TactileZooError", "UnknownNameError", "DatasetError", "PluginError", "ConfigError", "TestSplitForbidden",
+           "ExportError"]
 
 
 class TactileZooError(Exception):
@@ -37,3 +38,7 @@ class TestSplitForbidden(ConfigError):
     validation data may be read."""
 
     __test__ = False  # not a pytest test class, despite the name
+
+
+class ExportError(TactileZooError):
+    """A model that cannot be exported as asked, or an export whose check against eager PyTorch failed."""

@@ -52,9 +52,10 @@ READOUTS = ("gap", "taxels")
         "loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
         "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0,
         "datasets": {
-            # the taxel read-out, chosen on validation (benchmarks/results/tuning/convlstm-ev/PLAN.md)
+            # the taxel read-out, and on Ev-Containers no early stopping (all 100 epochs, the best validation epoch
+            # kept), chosen on validation (benchmarks/results/tuning/convlstm-ev/PLAN.md)
             "ev_objects": {"hparams": {"readout": "taxels"}},
-            "ev_containers": {"hparams": {"readout": "taxels"}},
+            "ev_containers": {"patience": None, "hparams": {"readout": "taxels"}},
             "biotac_dos": {"max_epochs": 30, "patience": None, "grad_clip": None,
                            "hparams": {"frame_norm": "minmax", "init": "torch"},
                            "dataset_kwargs": {"window": 5, "stride": 5, "normalize": "none"}},

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 __all__ = ["manifest", "MANIFEST", "__version__"]
 
