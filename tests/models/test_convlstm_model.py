@@ -238,9 +238,10 @@ def test_the_source_recipe_carries_the_source_setup_on_biotac_dos_and_the_taxel_
     assert own.dataset_kwargs == {"window": 5, "stride": 5, "normalize": "none"}
     assert (own.recipe.max_epochs, own.recipe.patience, own.recipe.grad_clip, own.recipe.batch_size) == (30, None,
                                                                                                          None, 32)
-    for name in ("ev_objects", "ev_containers"):  # the read-out chosen on validation; the rest as on any dataset
+    # the read-out chosen on validation, and on Ev-Containers no early stopping; the rest as on any dataset
+    for name, patience in (("ev_objects", 20), ("ev_containers", None)):
         ev = resolve_cell("convlstm", name)
         assert ev.hparams == {"readout": "taxels"} and ev.dataset_kwargs == {}
-        assert (ev.recipe.patience, ev.recipe.grad_clip, ev.recipe.max_epochs) == (20, 1.0, 100)
+        assert (ev.recipe.patience, ev.recipe.grad_clip, ev.recipe.max_epochs) == (patience, 1.0, 100)
     other = resolve_cell("convlstm", "sim_evtouch")
     assert other.hparams == {} and other.dataset_kwargs == {} and other.recipe.patience == 20
