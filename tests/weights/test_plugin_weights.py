@@ -7,16 +7,15 @@ from __future__ import annotations
 
 import json
 import re
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from plugin_install import only_weights_from, pip_install
+from weights_helpers import installed_weight_pack
 
 from tactile_zoo import registry
 from tactile_zoo.cli import main
-from tactile_zoo.weights import MANIFEST_FORMAT, list_weights, read_manifest, reset_weights, weight_sources
+from tactile_zoo.weights import MANIFEST_FORMAT, list_weights, read_manifest, weight_sources
 
 pytestmark = pytest.mark.xdist_group("plugin_weights")
 
@@ -27,16 +26,8 @@ VERSION = re.search(r'__version__ = "([^"]+)"', (PLUGIN / "tactile_zoo_weights" 
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    target = pip_install(PLUGIN, tmp_path_factory.mktemp("weights_plugin"))
-    with pytest.MonkeyPatch.context() as mp:
-        mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
-        mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
-        mp.syspath_prepend(str(target))
-        only_weights_from(mp, target)  # not a copy the environment may have installed
-        reset_weights()
+    with installed_weight_pack(PLUGIN, tmp_path_factory.mktemp("weights_plugin")) as target:
         yield target
-        sys.modules.pop("tactile_zoo_weights", None)
-    reset_weights()
 
 
 def test_the_installed_pack_holds_its_files_and_lists_its_entries(installed: Path,

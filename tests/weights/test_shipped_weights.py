@@ -34,15 +34,14 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from plugin_install import only_weights_from, pip_install
-from weights_helpers import sample_table
+from weights_helpers import installed_weight_pack, sample_table
 
 import tactile_zoo as tz
 from tactile_zoo import registry
 from tactile_zoo.cli import main
 from tactile_zoo.engine.evaluate import EvalResult, predict_scores
 from tactile_zoo.engine.runtime import flush_denormals
-from tactile_zoo.weights import WeightEntry, create_model, head_name, read_manifest, reset_weights
+from tactile_zoo.weights import WeightEntry, create_model, head_name, read_manifest
 
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
@@ -199,16 +198,8 @@ def test_a_shipped_checkpoint_evaluates_to_its_entrys_accuracy_exactly(entry: We
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """The pack installed by pip (offline) and on ``sys.path``, found through its entry point."""
-    target = pip_install(weights_pack.PLUGIN, tmp_path_factory.mktemp("shipped_weights"))
-    with pytest.MonkeyPatch.context() as mp:
-        mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
-        mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
-        mp.syspath_prepend(str(target))
-        only_weights_from(mp, target)  # not a copy the environment may have installed
-        reset_weights()
+    with installed_weight_pack(weights_pack.PLUGIN, tmp_path_factory.mktemp("shipped_weights")) as target:
         yield target
-        sys.modules.pop("tactile_zoo_weights", None)
-    reset_weights()
 
 
 def _predict_cases() -> list[Any]:

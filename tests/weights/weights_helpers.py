@@ -3,11 +3,15 @@ test sample as a recording file in the documented format."""
 
 from __future__ import annotations
 
+import contextlib
+import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 import torch
 
 from tactile_zoo.weights import WeightEntry
@@ -53,3 +57,23 @@ def slip_spec() -> Any:
 
     return tz.load_dataset("sim_biotac_slip", split="test", n_train_per_class=2, n_test_per_class=1,
                            num_steps=12).spec
+
+
+@contextlib.contextmanager
+def installed_weight_pack(plugin: Path, work: Path) -> Iterator[Path]:
+    """``plugin`` installed by pip (offline) under ``work`` and on ``sys.path``, the only weight pack discovery sees
+    (not a copy the environment may have installed); yields the install target."""
+    from plugin_install import only_weights_from, pip_install
+
+    from tactile_zoo.weights import reset_weights
+
+    target = pip_install(plugin, work)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
+        mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
+        mp.syspath_prepend(str(target))
+        only_weights_from(mp, target)
+        reset_weights()
+        yield target
+        sys.modules.pop("tactile_zoo_weights", None)
+    reset_weights()
