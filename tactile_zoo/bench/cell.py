@@ -98,13 +98,16 @@ def _base_record(task: CellTask) -> dict[str, Any]:
 
 #: decimals kept of each stored class probability: enough to average seeds into an ensemble, a third of the bytes
 PROBABILITY_DECIMALS = 6
+#: test splits larger than this keep targets and predictions but no class probabilities: BioTac-DoS's 5290 windows
+#: x 7 classes would be about 0.8 MB per cell record, most of it, and nothing in the project reads them back
+MAX_PROBABILITY_ROWS = 2000
 
 
 def _eval_dict(result: Any, groups: list[int] | None, probabilities: bool) -> dict[str, Any]:
     out: dict[str, Any] = {"targets": result.targets, "predictions": result.predictions}
     if groups is not None and len(set(groups)) < len(groups):
         out["groups"] = groups  # samples share recordings: intervals resample recordings, not samples
-    if probabilities:
+    if probabilities and len(result.targets) <= MAX_PROBABILITY_ROWS:
         out["probabilities"] = [[round(p, PROBABILITY_DECIMALS) for p in row] for row in result.probabilities]
     return out
 

@@ -182,3 +182,15 @@ def test_a_cell_record_keeps_the_recording_of_each_window_when_windows_share_one
     assert windows["groups"] == [7, 7] and windows["probabilities"][0] == [0.123457, 0.876543]
     assert "groups" not in _eval_dict(result, [3, 9], probabilities=False)  # each sample its own unit: implicit
     assert "probabilities" not in _eval_dict(result, None, probabilities=False)
+
+
+def test_a_large_test_split_keeps_predictions_but_not_probabilities(monkeypatch: pytest.MonkeyPatch) -> None:
+    from tactile_zoo.bench import cell
+    from tactile_zoo.engine.evaluate import EvalResult
+
+    monkeypatch.setattr(cell, "MAX_PROBABILITY_ROWS", 2)
+    small = EvalResult({"accuracy": 1.0}, [0, 1], [[0.9, 0.1], [0.2, 0.8]], [0, 1])
+    large = EvalResult({"accuracy": 1.0}, [0, 1, 1], [[0.9, 0.1], [0.2, 0.8], [0.3, 0.7]], [0, 1, 1])
+    assert cell._eval_dict(small, None, probabilities=True)["probabilities"] == [[0.9, 0.1], [0.2, 0.8]]
+    out = cell._eval_dict(large, [4, 4, 5], probabilities=True)
+    assert "probabilities" not in out and out["predictions"] == [0, 1, 1] and out["groups"] == [4, 4, 5]
