@@ -59,13 +59,13 @@ def _current(record: dict[str, Any]) -> bool:
     return cfg.get("model_revision", 1) >= model and cfg.get("dataset_revision", 1) >= data
 
 
-def cells(folder: Path, evaluation: str = "validation") -> list[dict[str, Any]]:
-    """The ok, current, ``source``-recipe cells of ``folder`` under ``evaluation``."""
+def cells(folder: Path, evaluation: str = "validation", recipe: str = "source") -> list[dict[str, Any]]:
+    """The ok, current cells of ``folder`` that trained with the named ``recipe`` under ``evaluation``."""
     out = []
     for path in sorted((folder / "cells").glob("*.json")):
         rec = json.loads(path.read_text())
         cfg = rec.get("config") or {}
-        if rec.get("status") == "ok" and _current(rec) and recipe_name_of(cfg) == "source" \
+        if rec.get("status") == "ok" and _current(rec) and recipe_name_of(cfg) == recipe \
                 and cfg.get("evaluation", "validation") == evaluation:
             out.append(rec)
     return out

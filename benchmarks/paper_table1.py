@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from tactile_zoo.bench.intervals import records_interval
+from tactile_zoo.bench.paired import holm, records_paired
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MODELS = ("sgnet", "convlstm", "cnn_lstm", "tacformer", "x_tacformer", "dcnn")
@@ -136,14 +137,114 @@ def augment8000_table(released: Path = RESULTS / "dcnn_released.csv") -> list[st
     return lines
 
 
-def table(folder: Path) -> str:
+#: the split each dataset's comparison reads: the declared column (BioTac-DoS: textures, as the paper)
+ZOO_SPLITS = {"ev_objects": "test", "ev_containers": "test", "biotac_dos": "test_textures"}
+
+
+def _figure(recs: list[dict[str, Any]], split: str) -> str:
+    if not recs:
+        return "not run yet"
+    values = [r["metrics"][split]["accuracy"] for r in recs]
+    return f"{statistics.fmean(values):.4f} {_interval(recs, split)} ({len(recs)})"
+
+
+def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: str) -> list[str]:
+    """The ``zoo`` recipe beside ``source`` and the paper on one dataset: a paired bootstrap of ``zoo - source`` over
+    the runs both have (same fold and seed) and their test units, one-sided, Holm-corrected across the models."""
+    split = ZOO_SPLITS[dataset]
+    title = EV[dataset][0] if dataset in EV else "BioTac-DoS (textures)"
+    column = EV[dataset][1] if dataset in EV else 2
+    paired, same, rows = {}, set(), {}
+    for model in MODELS:
+        src, new = _group(source, model, dataset), _group(zoo, model, dataset)
+        rows[model] = (src, new)
+        if src and new and {r["config_hash"] for r in src} == {r["config_hash"] for r in new}:
+            same.add(model)
+        if src and new and {(r["fold"], r["seed"]) for r in src} & {(r["fold"], r["seed"]) for r in new}:
+            paired[model] = records_paired(src, new, split)
+    adjusted = holm({m: r.p_value for m, r in paired.items() if m not in same})
+    lines = [f"**`zoo` against `source` on {title}** (accuracy [95 % interval] (runs); the difference is paired over "
+             "the runs both recipes have, one-sided p Holm-corrected across the models)", "",
+             "| model | paper | `source` | `zoo` | `zoo - source`, paired [95 %] (pairs) | Holm p | reading |",
+             "|---|---|---|---|---|---|---|"]
+    verdicts: dict[str, list[str]] = {"better": [], "noise": [], "worse": [], "same": [], "pending": []}
+    for model in MODELS:
+        src, new = rows[model]
+        paper = PAPER[model][column]
+        result = paired.get(model)
+        if result is None:
+            diff, p_text, reading = "-", "-", "not run yet"
+            verdicts["pending"].append(NAMES[model])
+        else:
+            diff = f"{result.difference:+.4f} [{result.low:+.3f}, {result.high:+.3f}] ({result.n_cells})"
+            if model in same:
+                p_text, reading = "-", "the same configuration"
+                verdicts["same"].append(NAMES[model])
+            else:
+                p_text = f"{adjusted[model]:.3f}"
+                if adjusted[model] < 0.05:
+                    reading = "`zoo` better"
+                    verdicts["better"].append(NAMES[model])
+                elif result.high < 0:
+                    reading = "`zoo` worse"
+                    verdicts["worse"].append(NAMES[model])
+                else:
+                    reading = "within noise"
+                    verdicts["noise"].append(NAMES[model])
+            if paper is not None and new and (records_interval(new, split) or (1, 1))[1] < paper:
+                reading += "; paper above the `zoo` interval"
+        lines.append(f"| {NAMES[model]} | {'-' if paper is None else f'{paper:.4f}'} | {_figure(src, split)} | "
+                     f"{_figure(new, split)} | {diff} | {p_text} | {reading} |")
+    said = [f"{what}: {', '.join(names)}" for what, names in (
+        ("`zoo` better (Holm p < 0.05)", verdicts["better"]), ("within noise", verdicts["noise"]),
+        ("`zoo` worse", verdicts["worse"]), ("trained identically", verdicts["same"]),
+        ("not run yet", verdicts["pending"])) if names]
+    lines += ["", f"On {title}: " + "; ".join(said) + "."]
+    return lines
+
+
+def cost_table(records: list[dict[str, Any]]) -> list[str]:
+    """What the table cost: per model and dataset the summed wall time of its cells (each ran on one torch thread,
+    two cells at a time on two cores, so a cell's wall time is about its CPU time)."""
+    datasets = (*EV, "biotac_dos")
+    lines = ["**What this table cost** (the cells' own recorded times, `seconds` in each cell file: CPU-minutes of one "
+             "thread, summed over the cell's runs)", "",
+             "| model | " + " | ".join(EV[d][0] if d in EV else "BioTac-DoS" for d in datasets) + " | model total |",
+             "|---|" + "---|" * (len(datasets) + 1)]
+    grand = 0.0
+    for model in MODELS:
+        row, total = [], 0.0
+        for dataset in datasets:
+            recs = _group(records, model, dataset)
+            minutes = sum(r.get("seconds", r["train_seconds"]) for r in recs) / 60
+            total += minutes
+            row.append(f"{minutes:.0f} ({len(recs)} runs)" if recs else "-")
+        grand += total
+        lines.append(f"| {NAMES[model]} | " + " | ".join(row) + f" | {total:.0f} |")
+    lines += ["", f"In all {grand / 60:.1f} CPU-hours, each cell computed from scratch in its own run (the target of "
+              "the performance issue was 5). The same configuration took up to twice as long when its cell shared the "
+              "machine with other work (Tacformer on Ev-Containers: 8 to 18 minutes over three seeds), so these sums "
+              "are upper bounds for a quiet pair of cores."]
+    return lines
+
+
+def table(folder: Path, zoo_folder: Path | None = None) -> str:
+    """The tables of ``folder``'s ``source`` cells; where ``zoo_folder`` (default: the sibling ``<folder>-zoo``, as
+    ``paper-table1-zoo`` beside ``paper-table1``) holds ``zoo`` cells, each dataset's comparison follows its table."""
     from benchmarks.fidelity import cells
 
     current = cells(folder)
+    zoo_folder = folder.parent / f"{folder.name}-zoo" if zoo_folder is None else zoo_folder
+    zoo = cells(zoo_folder, recipe="zoo") if (zoo_folder / "cells").is_dir() else []
     lines: list[str] = []
     for dataset in EV:
         lines += ev_table(current, dataset) + [""]
-    lines += biotac_table(current) + [""] + augment8000_table() + ["", READING]
+        if zoo:
+            lines += zoo_table(current, zoo, dataset) + [""]
+    lines += biotac_table(current) + [""]
+    if zoo:
+        lines += zoo_table(current, zoo, "biotac_dos") + [""]
+    lines += augment8000_table() + ["", READING, ""] + cost_table(current)
     left_out = len(list((folder / "cells").glob("*.json"))) - len(current)
     if left_out:
         lines.append(f"\n{left_out} cell file(s) are left out: not ok, another recipe, or computed by an older "

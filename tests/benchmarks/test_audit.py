@@ -91,3 +91,28 @@ def test_a_recipe_changed_after_the_freeze_or_a_missing_freeze_fails(repo: Path)
     (repo / "tuning" / "freeze.json").unlink()
     _, failures = audit(repo / "tuning", repo / "empty", "zoo", repo=repo)
     assert failures == [f"{repo / 'tuning' / 'freeze.json'}: missing; the recipes were never frozen"]
+
+
+def test_the_freeze_scopes_the_seed_rule_to_the_zoo_trial_folders_but_every_trial_counts(repo: Path) -> None:
+    # an earlier issue tuned the source recipe on other seeds, in its own folder
+    _cell(repo / "tuning" / "source-issue", "oldseed1", evaluation="tuning", test_reads=0, seed=1)
+    _cell(repo / "tuning" / "lr", "zooseed2", evaluation="tuning", test_reads=0, seed=2)
+    freeze = json.loads((repo / "tuning" / "freeze.json").read_text())
+    (repo / "tuning" / "freeze.json").write_text(json.dumps({**freeze, "trial_folders": ["lr"]}))
+    lines, failures = audit(repo / "tuning", repo / "empty", "zoo", max_trials=3, repo=repo)
+    assert any(f.startswith("trial zooseed2: seed 2") for f in failures)
+    assert not any("oldseed1" in f for f in failures)
+    assert any("oldseed1 (in source-issue/, not a zoo trial folder): seed 1" in line for line in lines)
+    assert any("4 trials, more than the budget of 3" in f for f in failures)  # the old trial still counts
+
+
+def test_write_freeze_records_the_registered_recipes_and_refuses_an_unknown_folder(tmp_path: Path) -> None:
+    from benchmarks.audit import write_freeze
+
+    (tmp_path / "lr").mkdir()
+    frozen = json.loads(write_freeze(tmp_path, "zoo", ["lr"]).read_text())
+    assert frozen["recipe"] == "zoo" and frozen["trial_folders"] == ["lr"]
+    assert frozen["models"]["audit_mlp"] == json.loads(json.dumps(ZOO))
+    assert "tiny_mlp" not in frozen["models"]  # a model without a zoo recipe is not frozen
+    with pytest.raises(SystemExit, match="no trial folder nope"):
+        write_freeze(tmp_path, "zoo", ["nope"])

@@ -98,3 +98,37 @@ def test_render_replaces_only_the_marked_block(tmp_path: Path) -> None:
     assert "old table" not in out and render(out, tmp_path) == out
     with pytest.raises(SystemExit, match="lacks the markers"):
         render("no markers", tmp_path)
+
+
+def _zoo(record: dict, folder: Path, accuracy: float, config_hash: str = "z") -> dict:
+    """``record`` retrained with the ``zoo`` recipe: the same test set, another accuracy."""
+    zoo = {**record, "config_hash": config_hash, "metrics": {"test": {"accuracy": accuracy}},
+           "predictions": {"test": _predictions(accuracy, 20)}, "config": {**record["config"], "recipe_name": "zoo"}}
+    (folder / "cells").mkdir(parents=True, exist_ok=True)
+    name = f"{record['model']}__{record['dataset']}__f{record['fold']}__s{record['seed']}__{config_hash}.json"
+    (folder / "cells" / name).write_text(json.dumps(zoo))
+    return zoo
+
+
+def test_the_zoo_comparison_pairs_runs_corrects_across_models_and_reads_each_row(tmp_path: Path) -> None:
+    source, zoo = tmp_path / "t1", tmp_path / "t1-zoo"
+    for seed in (0, 1, 2):
+        _zoo(_cell(source, "x_tacformer", "ev_objects", seed, accuracy=0.50), zoo, 1.0)  # every sample fixed
+        _zoo(_cell(source, "tacformer", "ev_objects", seed, accuracy=0.50), zoo, 0.55)  # one sample of 20
+        same = _cell(source, "cnn_lstm", "ev_objects", seed, accuracy=0.60)
+        _zoo(same, zoo, 0.60, config_hash="h")  # the zoo recipe trains exactly as the source one here
+    _zoo(_cell(source, "x_tacformer", "ev_objects", 3, accuracy=0.5) | {"seed": 3}, zoo, 1.0)
+    (source / "cells" / "x_tacformer__ev_objects__f0__s3__ok__None__h.json").unlink()  # a zoo-only seed: unpaired
+    rows = _rows(table(source), "`zoo` against `source` on Ev-Objects")
+    assert rows["X-Tacformer"].startswith("| X-Tacformer | 0.9167 | 0.5000 [")
+    # four zoo seeds in its row, three pairs in the difference; p = 1/2001 for each of 2 tested models, x2 by Holm
+    assert "| 1.0000 [1.000, 1.000] (4) | +0.5000 [+0.3" in rows["X-Tacformer"]
+    assert rows["X-Tacformer"].endswith("(3) | 0.001 | `zoo` better |")
+    assert rows["Tacformer"].endswith("| within noise; paper above the `zoo` interval |")
+    assert "| - | the same configuration; paper above" in rows["CNN-LSTM"] and "+0.0000" in rows["CNN-LSTM"]
+    assert rows["SGnet"].endswith("| not run yet |")
+    text = table(source)
+    assert ("On Ev-Objects: `zoo` better (Holm p < 0.05): X-Tacformer; within noise: Tacformer; trained identically: "
+            "CNN-LSTM; not run yet: SGnet, ConvLSTM, D-CNN.") in text
+    assert "`zoo` against `source` on Ev-Containers" in text  # every dataset gets its block once zoo cells exist
+    assert "`zoo` against" not in table(source, zoo_folder=tmp_path / "none")

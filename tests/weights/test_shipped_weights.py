@@ -51,7 +51,9 @@ from benchmarks import weights_pack  # noqa: E402
 SHARED_DATA = Path(os.environ.get("TACTILE_ZOO_SHARED_DATA", REPO.parent / "shared" / "data"))  # as tests/conftest.py
 ENTRIES = read_manifest(weights_pack.PACK / weights_pack.MANIFEST)
 LOGITS = json.loads((weights_pack.PACK / weights_pack.LOGITS).read_text()) if ENTRIES else {"entries": {}}
-TOLERANCE = {"rtol": 1e-6, "atol": 1e-6}
+# float32 logits recomputed on another x86 CPU (an AVX-512 Xeon against the AMD EPYC that wrote them) differ by up
+# to 9e-6: other vector widths sum in another order. A changed weight moves them by far more (the test below: 1e-3)
+TOLERANCE = {"rtol": 1e-4, "atol": 5e-5}
 
 
 def _params(entries: list[WeightEntry], *, real_data: bool = False) -> list[Any]:
@@ -113,7 +115,8 @@ def test_rebuilding_the_pack_changes_nothing(tmp_path: Path, monkeypatch: pytest
     assert (plugin / "README.md").read_text() == weights_pack.README.read_text()
     rebuilt = json.loads((pack / weights_pack.LOGITS).read_text())["entries"]
     assert set(rebuilt) == set(LOGITS["entries"])
-    for tag, item in rebuilt.items():  # recomputed here: equal within the tolerance above (exactly, on this machine)
+    # recomputed here: equal within the tolerance above (exactly, on the machine that wrote them)
+    for tag, item in rebuilt.items():
         torch.testing.assert_close(torch.tensor(item["logits"]), torch.tensor(LOGITS["entries"][tag]["logits"]),
                                    **TOLERANCE)
     (pack / ENTRIES[0].file).unlink()  # neither the run's file nor the pack's copy: the build stops, naming it
@@ -147,7 +150,7 @@ def test_the_logits_check_sees_a_change_of_the_classifiers_bias(entry: WeightEnt
     # spike rates, multiples of 1/T, which a change this small may leave as they are (its real-data test covers it)
     model = create_model(entry.model, pretrained=entry)
     with torch.no_grad():
-        model.get_submodule(head_name(model, entry.num_classes)).bias.add_(1e-4)
+        model.get_submodule(head_name(model, entry.num_classes)).bias.add_(1e-3)
     got, stored = _logits(entry, model)
     with pytest.raises(AssertionError):
         torch.testing.assert_close(got, torch.tensor(stored["logits"], dtype=torch.float32), **TOLERANCE)
