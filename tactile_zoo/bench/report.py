@@ -83,11 +83,12 @@ def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool =
 
 
 def _mixed_configs(records: list[dict[str, Any]]) -> list[str]:
-    """``model on dataset`` for every pair whose cells carry more than one config hash."""
-    hashes: dict[tuple[str, str], set[str]] = {}
+    """``model (recipe) on dataset`` for every summary row whose cells carry more than one config hash."""
+    hashes: dict[tuple[str, str, str], set[str]] = {}
     for rec in records:
-        hashes.setdefault((rec["model"], rec["dataset"]), set()).add(str(rec.get("config_hash")))
-    return [f"{m} on {d}" for (m, d), h in sorted(hashes.items()) if len(h) > 1]
+        key = (rec["model"], recipe_name_of(rec.get("config") or {}), rec["dataset"])
+        hashes.setdefault(key, set()).add(str(rec.get("config_hash")))
+    return [f"{m} ({r}) on {d}" for (m, r, d), h in sorted(hashes.items()) if len(h) > 1]
 
 
 def _outdated_cells(records: list[dict[str, Any]]) -> list[str]:

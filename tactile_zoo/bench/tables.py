@@ -151,8 +151,8 @@ def _std(values: list[Any]) -> float | None:
 
 
 def _ranks(summary: pd.DataFrame) -> tuple[list[int | None], list[float | None]]:
-    """Per summary row: its rank among the models of its dataset (1 = best mean accuracy, ties share the best rank,
-    no accuracy = no rank) and its model's mean rank over the datasets where it has one."""
+    """Per summary row: its rank among the rows of its dataset (1 = best mean accuracy, ties share the best rank,
+    no accuracy = no rank) and its model's (model and recipe's) mean rank over the datasets where it has one."""
     pd = _pd()
     accuracy = summary["accuracy_mean"].astype("float64")  # None -> NaN: no rank, and not counted in others'
     rank = accuracy.groupby(summary["dataset"], sort=False, dropna=False).rank(method="min", ascending=False,
@@ -163,8 +163,9 @@ def _ranks(summary: pd.DataFrame) -> tuple[list[int | None], list[float | None]]
 
 
 def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple[list[dict[str, Any]], list[str]]:
-    """Per (model, dataset) over ok cells: means, sample std of accuracy, rank per dataset (1 = best mean accuracy,
-    ties share the best rank) and each model's mean rank over the datasets it ran on."""
+    """Per (model, recipe, dataset) over ok cells: means, sample std of accuracy, rank per dataset (1 = best mean
+    accuracy, ties share the best rank) and each model-and-recipe's mean rank over the datasets it ran on. Two
+    recipes of one model are two rows, never one average."""
     pd = _pd()
     extra = [c for c in columns if c.startswith("accuracy_") and c not in ("accuracy_mean",)] + \
         (["earliness"] if "earliness" in columns else [])
@@ -177,10 +178,9 @@ def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple
     cells = pd.DataFrame({c: [row.get(c) for row in ok] for c in ("model", "recipe", "dataset", *averaged)},
                          dtype=object)
     out: list[dict[str, Any]] = []
-    for (model, dataset), group in cells.groupby(["model", "dataset"], sort=True, dropna=False):
-        # one row per model and dataset; a group mixing recipes names them all (report.md warns about the mix)
-        recipes = "+".join(sorted({str(r) for r in group["recipe"]}))
-        entry: dict[str, Any] = {"model": model, "recipe": recipes, "dataset": dataset, "n_cells": len(group),
+    cells["recipe"] = [str(r) for r in cells["recipe"]]  # a record without one (None) groups as "None", not dropped
+    for (model, recipe, dataset), group in cells.groupby(["model", "recipe", "dataset"], sort=True, dropna=False):
+        entry: dict[str, Any] = {"model": model, "recipe": recipe, "dataset": dataset, "n_cells": len(group),
                                  "accuracy_mean": _mean(group["accuracy"].tolist()),
                                  "accuracy_std": _std(group["accuracy"].tolist()),
                                  "balanced_accuracy_mean": _mean(group["balanced_accuracy"].tolist()),
@@ -189,7 +189,8 @@ def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple
         for col in extra:
             entry[f"{col}_mean"] = _mean(group[col].tolist())
         out.append(entry)
-    frame = pd.DataFrame({"model": [e["model"] for e in out], "dataset": [e["dataset"] for e in out],
+    # a model's recipes rank as separate entries ("x_tacformer zoo" beside "x_tacformer source")
+    frame = pd.DataFrame({"model": [f"{e['model']} {e['recipe']}" for e in out], "dataset": [e["dataset"] for e in out],
                           "accuracy_mean": [e["accuracy_mean"] for e in out]}, dtype=object)
     for entry, rank, mean_rank in zip(out, *_ranks(frame)):
         entry["rank"], entry["mean_rank"] = rank, mean_rank

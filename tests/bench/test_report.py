@@ -86,8 +86,8 @@ def test_all_cells_warns_when_one_pair_mixes_configurations(reference_run: Path,
     text = text.replace('"config_hash": "', '"config_hash": "other', 1)  # the same pair under another configuration
     (out / "cells" / "other.json").write_text(text)
     assert main(["report", str(out), "--all-cells", "--no-plots"]) == 0
-    assert "Warning: cells of more than one configuration are averaged together for tiny_mlp on tiny_blobs" in (
-        out / "report.md").read_text()
+    warning = "Warning: cells of more than one configuration are averaged together for tiny_mlp (default) on tiny_blobs"
+    assert warning in (out / "report.md").read_text()
 
 
 def _edit_cell(path: Path, **config: object) -> None:

@@ -126,6 +126,21 @@ def test_summary_means_std_ranks_and_mean_rank() -> None:
     assert by[("c", "d2")]["mean_rank"] == 3.0 and ("c", "d1") not in by  # failed cells are not averaged
 
 
+def test_two_recipes_of_one_model_are_two_summary_rows_never_one_average() -> None:
+    def named(record: dict, recipe: str) -> dict:
+        return {**record, "config": {"recipe_name": recipe}}
+
+    recs = [named(_record("a", "d1", 0, 0.6), "source"), named(_record("a", "d1", 1, 0.8), "source"),
+            named(_record("a", "d1", 0, 0.9), "zoo"), named(_record("b", "d1", 0, 0.7), "source")]
+    summary, _ = summary_rows(*leaderboard_rows(recs))
+    by = {(s["model"], s["recipe"]): s for s in summary}
+    assert set(by) == {("a", "source"), ("a", "zoo"), ("b", "source")}
+    assert by[("a", "source")]["accuracy_mean"] == pytest.approx(0.7) and by[("a", "source")]["n_cells"] == 2
+    assert by[("a", "zoo")]["accuracy_mean"] == 0.9 and by[("a", "zoo")]["n_cells"] == 1
+    # ranked as separate entries: a's zoo first, b and a's source tie at 0.7
+    assert (by[("a", "zoo")]["rank"], by[("b", "source")]["rank"], by[("a", "source")]["rank"]) == (1, 2, 2)
+
+
 def test_means_are_summed_left_to_right_as_the_committed_tables_were() -> None:
     """pandas' own mean (pairwise / Kahan summation) would give 0.1 here; the tables keep the plain left-to-right sum
     their committed numbers were computed with, and write it exactly."""
