@@ -14,6 +14,9 @@ What it reads:
   the commit that froze the recipes. That commit is found in the git history (the last one that changed the file).
 - **Final cells**: the ok cells of ``--recipe`` under ``--final`` (default ``benchmarks/results/paper-table1-zoo``).
 
+What it prints: the trials per model and dataset (with the best validation score), the freeze commit and, per
+model, what its frozen recipe changes against ``source``, then every final cell's test reads and commit.
+
 What it checks (each failure is one line; the exit status is 1 if there is any):
 
 1. every trial cell ran in tuning mode and read no test split;
@@ -71,6 +74,32 @@ def freeze_commit(path: Path, repo: Path = REPO) -> str | None:
     return done.stdout.strip() or None
 
 
+def recipe_changes(model: str, frozen: dict[str, Any], base: str = "source") -> str:
+    """What ``model``'s frozen recipe changes against its registered ``base`` recipe: the training keys, ``hparams``
+    and ``dataset_kwargs`` that resolve differently everywhere, then on each dataset either recipe has a section for
+    (what that dataset changes beyond the general ones)."""
+    from tactile_zoo.recipe import named_recipe_for
+
+    reference = registry.get_model_entry(model).meta.get("recipes", {}).get(base) or {}
+
+    def changes(dataset: str | None) -> dict[str, tuple[Any, Any]]:
+        new, old = named_recipe_for(frozen, dataset), named_recipe_for(reference, dataset)
+        return {f"{part}{key}": (old[i].get(key), value)
+                for i, part in enumerate(("", "hparams.", "dataset_kwargs.")) for key, value in new[i].items()
+                if old[i].get(key) != value}
+
+    def said(diff: dict[str, tuple[Any, Any]]) -> str:
+        return ", ".join(f"{key} {old!r} -> {new!r}" for key, (old, new) in sorted(diff.items()))
+
+    everywhere = changes(None)
+    parts = [f"everywhere: {said(everywhere)}"] if everywhere else []
+    for dataset in sorted({*(frozen.get("datasets") or {}), *(reference.get("datasets") or {})}):
+        own = {k: v for k, v in changes(dataset).items() if everywhere.get(k) != v}
+        if own:
+            parts.append(f"{dataset}: {said(own)}")
+    return "; ".join(parts) or f"the {base} recipe"
+
+
 def descends(commit: str, ancestor: str, repo: Path = REPO) -> bool:
     return _git(repo, "merge-base", "--is-ancestor", ancestor, commit).returncode == 0
 
@@ -119,6 +148,7 @@ def audit(tuning: Path, final: Path, recipe: str, max_trials: int = 8, repo: Pat
         registered = registry.get_model_entry(model).meta.get("recipes", {}).get(recipe)
         if json.loads(json.dumps(registered)) != frozen_recipe:  # as JSON: a tuple and a list are one recipe
             failures.append(f"{model}: the registered {recipe!r} recipe differs from the frozen one")
+        lines.append(f"- {model} against `source`: {recipe_changes(model, frozen_recipe)}")
     lines += ["", f"## Final `{recipe}` cells", "", "| cell | test reads | commit | after the freeze |",
               "|---|---|---|---|"]
     for rec in _records(final):

@@ -116,3 +116,14 @@ def test_write_freeze_records_the_registered_recipes_and_refuses_an_unknown_fold
     assert "tiny_mlp" not in frozen["models"]  # a model without a zoo recipe is not frozen
     with pytest.raises(SystemExit, match="no trial folder nope"):
         write_freeze(tmp_path, "zoo", ["nope"])
+
+
+def test_the_audit_prints_what_each_frozen_recipe_changes(repo: Path) -> None:
+    from benchmarks.audit import recipe_changes
+
+    lines, _ = audit(repo / "tuning", repo / "final", "zoo", repo=repo)
+    assert "- audit_mlp against `source`: everywhere: label_smoothing None -> 0.1, lr 0.03 -> 0.02" in lines
+    sectioned = {**ZOO, "datasets": {"tiny_blobs": {"lr": 0.5, "dataset_kwargs": {"window": 5}}}}
+    assert recipe_changes("audit_mlp", sectioned) == ("everywhere: label_smoothing None -> 0.1, lr 0.03 -> 0.02; "
+                                                       "tiny_blobs: dataset_kwargs.window None -> 5, lr 0.03 -> 0.5")
+    assert recipe_changes("audit_mlp", dict(tiny_zoo.TINY_RECIPE)) == "the source recipe"
