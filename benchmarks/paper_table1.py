@@ -203,12 +203,12 @@ def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: 
     return lines
 
 
-def cost_table(records: list[dict[str, Any]]) -> list[str]:
+def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[str]:
     """What the table cost: per model and dataset the summed wall time of its cells (each ran on one torch thread,
     two cells at a time on two cores, so a cell's wall time is about its CPU time)."""
     datasets = (*EV, "biotac_dos")
-    lines = ["**What this table cost** (the cells' own recorded times, `seconds` in each cell file: CPU-minutes of one "
-             "thread, summed over the cell's runs)", "",
+    lines = [f"**What {what} cost** (the cells' own recorded times, `seconds` in each cell file: CPU-minutes of one "
+             "thread, summed over the runs)", "",
              "| model | " + " | ".join(EV[d][0] if d in EV else "BioTac-DoS" for d in datasets) + " | model total |",
              "|---|" + "---|" * (len(datasets) + 1)]
     grand = 0.0
@@ -218,13 +218,16 @@ def cost_table(records: list[dict[str, Any]]) -> list[str]:
             recs = _group(records, model, dataset)
             minutes = sum(r.get("seconds", r["train_seconds"]) for r in recs) / 60
             total += minutes
-            row.append(f"{minutes:.0f} ({len(recs)} runs)" if recs else "-")
+            row.append(f"{minutes:.0f} ({len(recs)} run{'s' if len(recs) != 1 else ''})" if recs else "-")
         grand += total
         lines.append(f"| {NAMES[model]} | " + " | ".join(row) + f" | {total:.0f} |")
-    lines += ["", f"In all {grand / 60:.1f} CPU-hours, each cell computed from scratch in its own run (the target of "
-              "the performance issue was 5). The same configuration took up to twice as long when its cell shared the "
-              "machine with other work (Tacformer on Ev-Containers: 8 to 18 minutes over three seeds), so these sums "
-              "are upper bounds for a quiet pair of cores."]
+    if what == "this table":
+        lines += ["", f"In all {grand / 60:.1f} CPU-hours, each cell computed from scratch in its own run (the target "
+                  "of the performance issue was 5). The same configuration took up to twice as long when its cell "
+                  "shared the machine with other work (Tacformer on Ev-Containers: 8 to 18 minutes over three seeds), "
+                  "so these sums are upper bounds for a quiet pair of cores."]
+    else:
+        lines += ["", f"In all {grand / 60:.1f} CPU-hours so far, one fresh run into its own folder."]
     return lines
 
 
@@ -245,6 +248,8 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     if zoo:
         lines += zoo_table(current, zoo, "biotac_dos") + [""]
     lines += augment8000_table() + ["", READING, ""] + cost_table(current)
+    if zoo:
+        lines += [""] + cost_table(zoo, f"the `zoo` cells in `{zoo_folder.name}/`")
     left_out = len(list((folder / "cells").glob("*.json"))) - len(current)
     if left_out:
         lines.append(f"\n{left_out} cell file(s) are left out: not ok, another recipe, or computed by an older "

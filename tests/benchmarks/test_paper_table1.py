@@ -132,3 +132,5 @@ def test_the_zoo_comparison_pairs_runs_corrects_across_models_and_reads_each_row
             "CNN-LSTM; not run yet: SGnet, ConvLSTM, D-CNN.") in text
     assert "`zoo` against `source` on Ev-Containers" in text  # every dataset gets its block once zoo cells exist
     assert "`zoo` against" not in table(source, zoo_folder=tmp_path / "none")
+    zoo_cost = _rows(text, "What the `zoo` cells in `t1-zoo/` cost")  # 60 s per cell in the fixture
+    assert zoo_cost["X-Tacformer"] == "| X-Tacformer | 4 (4 runs) | - | - | 4 |"
