@@ -134,3 +134,31 @@ def test_the_zoo_comparison_pairs_runs_corrects_across_models_and_reads_each_row
     assert "`zoo` against" not in table(source, zoo_folder=tmp_path / "none")
     zoo_cost = _rows(text, "What the `zoo` cells in `t1-zoo/` cost")  # 60 s per cell in the fixture
     assert zoo_cost["X-Tacformer"] == "| X-Tacformer | 4 (4 runs) | - | - | 4 |"
+
+
+def test_the_declared_ensemble_averages_all_five_seeds_probabilities(tmp_path: Path) -> None:
+    source, zoo = tmp_path / "t1", tmp_path / "t1-zoo"
+    targets = [0, 1, 2, 0, 1]
+    # each seed is confidently wrong on a different sample and mildly right elsewhere: every seed scores 4/5, the
+    # average of the probabilities is right on all five
+    for seed in range(5):
+        probabilities = [[0.1, 0.1, 0.1] for _ in targets]
+        for i, t in enumerate(targets):
+            probabilities[i][t] = 0.5
+        probabilities[seed][targets[seed]], probabilities[seed][(targets[seed] + 1) % 3] = 0.0, 0.9
+        predictions = [max(range(3), key=row.__getitem__) for row in probabilities]
+        record = _cell(source, "x_tacformer", "ev_objects", seed, accuracy=0.5)
+        record["predictions"] = {"test": {"targets": targets, "predictions": [0] * 5}}  # the same test set
+        (source / "cells" / f"x_tacformer__ev_objects__f0__s{seed}__ok__None__h.json").write_text(json.dumps(record))
+        zoo_record = _zoo(record, zoo, 0.8)
+        zoo_record["predictions"] = {"test": {"targets": targets, "predictions": predictions,
+                                              "probabilities": probabilities}}
+        zoo_record["metrics"] = {"test": {"accuracy": 0.8}}
+        name = f"x_tacformer__ev_objects__f0__s{seed}__z.json"
+        (zoo / "cells" / name).write_text(json.dumps(zoo_record))
+    rows = _rows(table(source), "Declared seed ensembles on Ev-Objects")
+    assert rows["X-Tacformer"].startswith("| X-Tacformer | 0.9167 | 0.8000 | 1.0000 | [1.000, 1.000] |")
+    assert rows["SGnet"] == "| SGnet | 0.8944 | - | 0 of 5 seeds so far | - |"
+    (zoo / "cells" / "x_tacformer__ev_objects__f0__s4__z.json").unlink()  # four seeds are not the declared model
+    assert _rows(table(source), "Declared seed ensembles on Ev-Objects")["X-Tacformer"].endswith(
+        "| - | 4 of 5 seeds so far | - |")
