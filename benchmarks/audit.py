@@ -183,8 +183,8 @@ def write_freeze(tuning: Path, recipe: str, trial_folders: list[str]) -> Path:
     missing = [f for f in trial_folders if not (tuning / f).is_dir()]
     if missing:
         raise SystemExit(f"--freeze: no trial folder {', '.join(missing)} under {tuning}")
-    models = {name: registry.get_model_entry(name).meta["recipes"][recipe] for name in registry.list_models()
-              if recipe in (registry.get_model_entry(name).meta.get("recipes") or {})}
+    recipes = {name: registry.get_model_entry(name).meta.get("recipes") or {} for name in registry.list_models()}
+    models = {name: entry[recipe] for name, entry in recipes.items() if recipe in entry}
     path = tuning / "freeze.json"
     path.write_text(json.dumps({"recipe": recipe, "trial_folders": sorted(trial_folders), "models": models},
                                indent=1, sort_keys=True) + "\n")

@@ -141,11 +141,14 @@ def augment8000_table(released: Path = RESULTS / "dcnn_released.csv") -> list[st
 ZOO_SPLITS = {"ev_objects": "test", "ev_containers": "test", "biotac_dos": "test_textures"}
 
 
-def _figure(recs: list[dict[str, Any]], split: str) -> str:
+def _figure(recs: list[dict[str, Any]], split: str, low_high: tuple[float, float] | None = None) -> str:
+    """``mean [95 % interval] (runs)``; pass ``low_high`` when the caller has already bootstrapped the interval."""
     if not recs:
         return "not run yet"
     values = [r["metrics"][split]["accuracy"] for r in recs]
-    return f"{statistics.fmean(values):.4f} {_interval(recs, split)} ({len(recs)})"
+    low_high = low_high or records_interval(recs, split)
+    interval = "-" if low_high is None else f"[{low_high[0]:.3f}, {low_high[1]:.3f}]"
+    return f"{statistics.fmean(values):.4f} {interval} ({len(recs)})"
 
 
 def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: str) -> list[str]:
@@ -172,6 +175,7 @@ def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: 
         src, new = rows[model]
         paper = PAPER[model][column]
         result = paired.get(model)
+        new_interval = records_interval(new, split) if new else None
         if result is None:
             diff, p_text, reading = "-", "-", "not run yet"
             verdicts["pending"].append(NAMES[model])
@@ -191,10 +195,10 @@ def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: 
                 else:
                     reading = "within noise"
                     verdicts["noise"].append(NAMES[model])
-            if paper is not None and new and (records_interval(new, split) or (1, 1))[1] < paper:
+            if paper is not None and new_interval is not None and new_interval[1] < paper:
                 reading += "; paper above the `zoo` interval"
         lines.append(f"| {NAMES[model]} | {'-' if paper is None else f'{paper:.4f}'} | {_figure(src, split)} | "
-                     f"{_figure(new, split)} | {diff} | {p_text} | {reading} |")
+                     f"{_figure(new, split, new_interval)} | {diff} | {p_text} | {reading} |")
     said = [f"{what}: {', '.join(names)}" for what, names in (
         ("`zoo` better (Holm p < 0.05)", verdicts["better"]), ("within noise", verdicts["noise"]),
         ("`zoo` worse", verdicts["worse"]), ("trained identically", verdicts["same"]),
