@@ -58,6 +58,25 @@ def test_the_seed0_fold0_default_recipe_cell_with_weights_is_chosen(tmp_path: Pa
     assert len(slots) == len(weights_pack.MODELS) * len(weights_pack.DATASETS)
 
 
+def test_each_model_reads_the_table_of_its_default_recipe(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    zoo_cell = _record(recipe_name="zoo", config_hash="fedcba9876543210")
+    zoo = _folder(tmp_path / "zoo", zoo_cell, _record("dcnn", "ev_objects", recipe_name="zoo"))
+    source = _folder(tmp_path / "source", _record(), _record("convlstm"), _record("dcnn", "ev_objects"))
+    monkeypatch.setattr(weights_pack, "TABLES", {"source": source, "zoo": zoo})
+    defaults = {"cnn_lstm": "zoo", "dcnn": "zoo"}
+    monkeypatch.setattr(weights_pack, "default_recipe", lambda model: defaults.get(model, "source"))
+    slots = weights_pack.select()
+    chosen = _slot(slots).source
+    assert chosen is not None and chosen.cell == zoo_cell and chosen.table == zoo and chosen.run_dir == zoo
+    other = _slot(slots, "convlstm").source
+    assert other is not None and other.table == source
+    # D-CNN's zoo cell has weights, but its Ev checkpoint is declined for its size
+    declined = _slot(slots, "dcnn", "ev_objects")
+    assert declined.source is None and "past the 15 MB limit" in declined.reason
+    defaults["convlstm"] = "fast"
+    assert "default recipe 'fast' has no Table I folder" in _slot(weights_pack.select(), "convlstm").reason
+
+
 @pytest.mark.parametrize(("change", "reason"), [
     ({"status": "failed"}, "status failed"),
     ({"config": {"recipe_name": "fast"}}, "recipe 'fast', not the default 'source'"),

@@ -162,7 +162,7 @@ _EVALS: dict[str, EvalResult] = {}
 
 
 def _record(entry: WeightEntry) -> dict[str, Any]:
-    return json.loads((weights_pack.TABLE / "cells" / f"{entry.cell_id}.json").read_text())
+    return json.loads((weights_pack.TABLES[entry.recipe] / "cells" / f"{entry.cell_id}.json").read_text())
 
 
 def _test_split(entry: WeightEntry) -> Any:
