@@ -51,9 +51,10 @@ def _without(config: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
 
 
 def _rebuilt(record: dict[str, Any], root: str | None) -> dict[str, Any]:
-    """The record's cell as the current grid resolves it (its registered recipe, its stored settings)."""
+    """The record's cell as the current grid resolves it (the registered recipe of its name, its stored settings)."""
     stored = record["config"]
     bench = BenchConfig(models=[record["model"]], datasets=[record["dataset"]], root=root, seeds=[record["seed"]],
+                        recipe_name=recipe_name_of(stored),
                         refit=bool(stored.get("refit")), quick=stored.get("subset") is not None,
                         prefixes=list(stored.get("prefixes") or []), hparams=dict(stored.get("hparams") or {}),
                         dataset_kwargs={record["dataset"]: dict(stored.get("dataset_kwargs") or {})})

@@ -455,7 +455,7 @@ def build(reruns: Sequence[Path] = (), pack: Path = PACK, readme: Path = README)
             shutil.copyfile(source, tmp)
             os.replace(tmp, target)
     for old in sorted(set(pack.glob("*.safetensors")) - set(targets.values())):
-        print(f"removed {_rel(old)} (no current source cell gives it)")
+        print(f"removed {_rel(old)} (no current Table I cell gives it)")
         old.unlink()
     write_manifest([dataclasses.replace(e, file=str(targets[e.tag])) for _, e in chosen], pack / MANIFEST,
                    description=DESCRIPTION)
@@ -529,7 +529,7 @@ def check(reruns: Sequence[Path] = (), pack: Path = PACK, readme: Path = README)
     for tag in sorted(set(shipped) - set(expected)):
         why = next((s.reason for s in slots if make_tag(s.model, s.dataset, default_recipe(s.model)) == tag
                     and s.source is None), "no source cell gives it")
-        problems.append(f"{tag}: shipped, but no current source cell gives it ({why})")
+        problems.append(f"{tag}: shipped, but no current Table I cell gives it ({why})")
     boards = {folder: _leaderboard_csv(folder) for folder in {source.table for source in origin.values()}}
     for tag in sorted(set(expected) & set(shipped)):
         want, have, cell = expected[tag].to_dict(), shipped[tag].to_dict(), origin[tag].cell

@@ -78,6 +78,7 @@ _ZOO = {**_SOURCE, "datasets": {"ev_objects": {"patience": 15}, "ev_containers":
     tags=["recurrent", "convolutional"],
     inputs=["grid", "globals"],
     recipes={"source": _SOURCE, "zoo": _ZOO},
+    default_recipe="zoo",
     causal=True,
     streaming=True,
     revision=1,

@@ -153,6 +153,7 @@ _ZOO = {**_SOURCE, "datasets": {"ev_objects": {"patience": 10}, "ev_containers":
     tags=["convolutional"],
     inputs=["globals"],
     recipes={"source": _SOURCE, "zoo": _ZOO},
+    default_recipe="zoo",
     causal=False,
     streaming=False,
     revision=1,

@@ -63,6 +63,7 @@ _ZOO = {**_SOURCE, "datasets": {"ev_objects": {"max_epochs": 80}, "ev_containers
     tags=["spiking", "graph"],
     inputs=["graph", "globals"],
     recipes={"source": _SOURCE, "zoo": _ZOO},
+    default_recipe="zoo",
     causal=True,
     streaming=True,
     revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list

@@ -115,6 +115,7 @@ _ZOO = {**_SOURCE, "datasets": {"biotac_dos": {"dataset_kwargs": {"window": 10, 
     tags=["spiking", "graph", "attention"],
     inputs=["graph", "globals"],
     recipes={"source": _SOURCE, "zoo": _ZOO},
+    default_recipe="zoo",
     causal=True,
     streaming=True,
     revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list

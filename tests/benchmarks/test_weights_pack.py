@@ -24,8 +24,8 @@ def _record(model: str = "cnn_lstm", dataset: str = "biotac_dos", *, fold: int =
     cell_id = f"{model}__{dataset}__f{fold}__s{seed}__{config_hash}"
     record = {"cell_id": cell_id, "model": model, "dataset": dataset, "fold": fold, "seed": seed,
               "config_hash": config_hash, "status": "ok",
-              "config": {"recipe_name": "source", "evaluation": "validation", "subset": None, "model_revision": 1,
-                         "dataset_revision": 1, **config},
+              "config": {"recipe_name": weights_pack.default_recipe(model), "evaluation": "validation",
+                         "subset": None, "model_revision": 1, "dataset_revision": 1, **config},
               "metrics": {"test": {"accuracy": 0.5}},
               "predictions": {"test": {"targets": [0, 1, 2, 3], "predictions": [0, 1, 1, 2]}}}
     if weights:
@@ -61,7 +61,8 @@ def test_the_seed0_fold0_default_recipe_cell_with_weights_is_chosen(tmp_path: Pa
 def test_each_model_reads_the_table_of_its_default_recipe(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     zoo_cell = _record(recipe_name="zoo", config_hash="fedcba9876543210")
     zoo = _folder(tmp_path / "zoo", zoo_cell, _record("dcnn", "ev_objects", recipe_name="zoo"))
-    source = _folder(tmp_path / "source", _record(), _record("convlstm"), _record("dcnn", "ev_objects"))
+    source = _folder(tmp_path / "source", *(_record(*pair, recipe_name="source") for pair in (
+        ("cnn_lstm", "biotac_dos"), ("convlstm", "biotac_dos"), ("dcnn", "ev_objects"))))
     monkeypatch.setattr(weights_pack, "TABLES", {"source": source, "zoo": zoo})
     defaults = {"cnn_lstm": "zoo", "dcnn": "zoo"}
     monkeypatch.setattr(weights_pack, "default_recipe", lambda model: defaults.get(model, "source"))
@@ -79,7 +80,7 @@ def test_each_model_reads_the_table_of_its_default_recipe(tmp_path: Path, monkey
 
 @pytest.mark.parametrize(("change", "reason"), [
     ({"status": "failed"}, "status failed"),
-    ({"config": {"recipe_name": "fast"}}, "recipe 'fast', not the default 'source'"),
+    ({"config": {"recipe_name": "fast"}}, "recipe 'fast', not the default 'zoo'"),
     ({"config": {"evaluation": "reference"}}, "evaluation 'reference'"),
     ({"config": {"subset": {"train": 64}}}, "ran on a subset"),
     ({"config": {"model_revision": 0}}, "stale: model revision 0, the code is now revision 1"),
@@ -137,7 +138,7 @@ def test_notes_say_what_users_must_know() -> None:
     record = _record(dataset_kwargs={"window": 10}) | {"spec": _spec("biotac_dos", 10, 24, 1, 7)}
     biotac = weights_pack.planned_entry(weights_pack.Source(record, record, Path(".")))
     assert "windows of 10 BioTac SP readings at 100 Hz, each electrode as (baseline - reading) / 1000" in biotac.note
-    assert biotac.tag == "cnn_lstm.source_biotac_dos" and biotac.preprocessing["frame_period_s"] == 0.01
+    assert biotac.tag == "cnn_lstm.zoo_biotac_dos" and biotac.preprocessing["frame_period_s"] == 0.01
 
 
 def _spec(name: str, steps: int, nodes: int, channels: int, classes: int) -> dict[str, Any]:

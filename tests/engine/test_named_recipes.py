@@ -16,6 +16,7 @@ from tactile_zoo.cli import main
 from tactile_zoo.engine.cell import CellConfig, resolve_cell
 from tactile_zoo.errors import ConfigError
 
+FREEZE = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "tuning" / "freeze.json"
 TWO = {"source": {**tiny_zoo.TINY_RECIPE, "lr": 0.03}, "fast": {**tiny_zoo.TINY_RECIPE, "lr": 0.1, "max_epochs": 2}}
 
 
@@ -27,14 +28,16 @@ def two_recipes():
     registry._unregister("model", "tiny_two")
 
 
-def test_every_builtin_model_has_a_source_recipe_as_its_default() -> None:
+def test_every_builtin_model_has_a_source_recipe_and_defaults_to_its_frozen_zoo_recipe() -> None:
     builtins = [name for name in tz.list_models()
                 if str(getattr(registry.get_model_entry(name).obj, "__module__", "")).startswith("tactile_zoo.")]
     assert len(builtins) >= 6  # test zoos registered by other tests in this worker are not built-ins
+    frozen = json.loads(FREEZE.read_text())["models"]
     for name in builtins:
         meta = registry.get_model_entry(name).meta
-        assert meta["default_recipe"] == "source" and "source" in meta["recipes"], name
-        assert meta["recipe"] == meta["recipes"]["source"], name  # the derived default, for older readers
+        assert meta["default_recipe"] == "zoo" and {"source", "zoo"} <= set(meta["recipes"]), name
+        assert meta["recipe"] == meta["recipes"]["zoo"], name  # the derived default, for older readers
+        assert json.loads(json.dumps(meta["recipes"]["zoo"])) == frozen[name], name  # the default is what was frozen
 
 
 def test_the_registry_derives_the_default_and_names_a_lone_recipe_default(two_recipes: str) -> None:

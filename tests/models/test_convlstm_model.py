@@ -233,15 +233,15 @@ def test_taxel_readout_keeps_each_taxels_cell() -> None:
 def test_the_source_recipe_carries_the_source_setup_on_biotac_dos_and_the_taxel_read_out_on_ev() -> None:
     from tactile_zoo.engine.cell import resolve_cell
 
-    own = resolve_cell("convlstm", "biotac_dos")
+    own = resolve_cell("convlstm", "biotac_dos", recipe_name="source")
     assert own.hparams == {"frame_norm": "minmax", "init": "torch"}
     assert own.dataset_kwargs == {"window": 5, "stride": 5, "normalize": "none"}
     assert (own.recipe.max_epochs, own.recipe.patience, own.recipe.grad_clip, own.recipe.batch_size) == (30, None,
                                                                                                          None, 32)
     # the read-out chosen on validation, and on Ev-Containers no early stopping; the rest as on any dataset
     for name, patience in (("ev_objects", 20), ("ev_containers", None)):
-        ev = resolve_cell("convlstm", name)
+        ev = resolve_cell("convlstm", name, recipe_name="source")
         assert ev.hparams == {"readout": "taxels"} and ev.dataset_kwargs == {}
         assert (ev.recipe.patience, ev.recipe.grad_clip, ev.recipe.max_epochs) == (patience, 1.0, 100)
-    other = resolve_cell("convlstm", "sim_evtouch")
+    other = resolve_cell("convlstm", "sim_evtouch", recipe_name="source")
     assert other.hparams == {} and other.dataset_kwargs == {} and other.recipe.patience == 20

@@ -24,7 +24,7 @@ from tactile_zoo.engine.evaluate import predict_scores
 from tactile_zoo.errors import PluginError
 from tactile_zoo.weights import discovery, find_weights, list_weights, weight_sources, write_manifest
 
-TAG = "cnn_lstm.source_sim_uskin_textures"
+TAG = "cnn_lstm.zoo_sim_uskin_textures"
 TUNED = "cnn_lstm.tuned_sim_uskin_textures"
 
 
@@ -64,17 +64,17 @@ def test_discovery_lists_without_loading_in_a_deterministic_order(site: FakeSite
     assert found == [("aa-weights", "zoo", f"{aa}:weights"), ("zz-weights", "manifest", f"{zz}:MANIFEST")]
     assert zz not in sys.modules and aa not in sys.modules  # listing imports nothing
     entries = list_weights()
-    assert [(e.tag, e.dist) for e in entries] == [(TAG, "zz-weights"), (TUNED, "aa-weights")]  # sorted by tag
+    assert [(e.tag, e.dist) for e in entries] == [(TUNED, "aa-weights"), (TAG, "zz-weights")]  # sorted by tag
     assert [(s.dist, s.status, s.count) for s in weight_sources()] == [("aa-weights", "ok", 1),
                                                                       ("zz-weights", "ok", 1)]
-    assert entries[0].origin == "zz-weights 2.0" and entries[0].qualified_tag == f"zz-weights:{TAG}"
-    assert [e.tag for e in list_weights(MODEL, DATASET)] == [TAG, TUNED] and list_weights("sgnet") == []
+    assert entries[1].origin == "zz-weights 2.0" and entries[1].qualified_tag == f"zz-weights:{TAG}"
+    assert [e.tag for e in list_weights(MODEL, DATASET)] == [TUNED, TAG] and list_weights("sgnet") == []
 
 
 def test_installed_weights_by_dataset_tag_or_qualified_tag(site: FakeSite, trained: Trained,
                                                           capsys: pytest.CaptureFixture) -> None:
     _install_two(site, trained)
-    by_dataset = tz.create_model(MODEL, pretrained=DATASET)  # two recipes: the model's default one ("source") wins
+    by_dataset = tz.create_model(MODEL, pretrained=DATASET)  # two recipes: the model's default one ("zoo") wins
     assert by_dataset.zoo_pretrained.qualified_tag == f"zz-weights:{TAG}"
     assert torch.equal(predict_scores(by_dataset, trained.test.x, trained.test.g), trained.logits)
     assert tz.create_model(MODEL, pretrained=TUNED.upper()).zoo_pretrained.dist == "aa-weights"
@@ -87,7 +87,7 @@ def test_installed_weights_by_dataset_tag_or_qualified_tag(site: FakeSite, train
     assert main(["weights"]) == 0
     out = capsys.readouterr().out
     assert f"zz-weights:{TAG}" in out and f"aa-weights:{TUNED}" in out and "zz-weights 2.0" in out
-    assert "note (cnn_lstm.source_sim_uskin_textures): trained by the test suite" in out
+    assert "note (cnn_lstm.zoo_sim_uskin_textures): trained by the test suite" in out
 
 
 def test_predict_and_stream_with_installed_weights(site: FakeSite, trained: Trained, tmp_path: Path,
@@ -125,7 +125,7 @@ def test_a_broken_distribution_is_skipped_with_a_warning_naming_it(site: FakeSit
     messages = [str(w.message) for w in caught if issubclass(w.category, registry.PluginWarning)]
     assert any("'bb-broken'" in m and "the weights module is broken" in m for m in messages)
     assert any("'cc-bad-entry'" in m and "sha256 must be 64 hexadecimal digits" in m for m in messages)
-    assert [e.dist for e in entries] == ["zz-weights", "aa-weights"]  # the others still load
+    assert [e.dist for e in entries] == ["aa-weights", "zz-weights"]  # the others still load (sorted by tag)
     status = {s.dist: s.status for s in weight_sources()}
     assert status == {"aa-weights": "ok", "bb-broken": "failed", "cc-bad-entry": "failed", "zz-weights": "ok"}
     registry.set_plugin_policy(strict=True)
