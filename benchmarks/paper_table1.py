@@ -263,7 +263,8 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[
                   "shared the machine with other work (Tacformer on Ev-Containers: 8 to 18 minutes over three seeds), "
                   "so these sums are upper bounds for a quiet pair of cores."]
     else:
-        lines += ["", f"In all {grand / 60:.1f} CPU-hours so far, one fresh run into its own folder."]
+        runs = sum(len(_group(records, m, d)) for m in MODELS for d in datasets)
+        lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} runs, each run computed from scratch."]
     return lines
 
 
