@@ -247,13 +247,13 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[
              "thread, summed over the runs)", "",
              "| model | " + " | ".join(EV[d][0] if d in EV else "BioTac-DoS" for d in datasets) + " | model total |",
              "|---|" + "---|" * (len(datasets) + 1)]
-    grand = 0.0
+    grand, runs = 0.0, 0
     for model in MODELS:
         row, total = [], 0.0
         for dataset in datasets:
             recs = _group(records, model, dataset)
             minutes = sum(r.get("seconds", r["train_seconds"]) for r in recs) / 60
-            total += minutes
+            total, runs = total + minutes, runs + len(recs)
             row.append(f"{minutes:.0f} ({len(recs)} run{'s' if len(recs) != 1 else ''})" if recs else "-")
         grand += total
         lines.append(f"| {NAMES[model]} | " + " | ".join(row) + f" | {total:.0f} |")
@@ -263,7 +263,6 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[
                   "shared the machine with other work (Tacformer on Ev-Containers: 8 to 18 minutes over three seeds), "
                   "so these sums are upper bounds for a quiet pair of cores."]
     else:
-        runs = sum(len(_group(records, m, d)) for m in MODELS for d in datasets)
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} runs, each run computed from scratch."]
     return lines
 

@@ -113,7 +113,7 @@ class Source:
     cell: dict[str, Any]
     saved: dict[str, Any]
     run_dir: Path
-    table: Path = TABLE
+    table: Path
 
     @property
     def file(self) -> Path:

@@ -99,15 +99,14 @@ def _by_dataset(model: str, dataset: str) -> WeightEntry:
     found = list_weights(model, dataset)
     if len(found) == 1:
         return found[0]
+    default, _ = registry.model_recipe(registry.get_model_entry(model).meta)
     if not found:
         mine = list_weights(model)
         if mine:
             raise UnknownNameError(f"no installed weights of model {model!r} for dataset {dataset!r}; installed for "
                                    f"{model!r}: {', '.join(e.qualified_tag for e in mine)}")
-        default, _ = registry.model_recipe(registry.get_model_entry(model).meta)
         raise UnknownNameError(f"no installed weights of model {model!r} (tag {make_tag(model, dataset, default)!r}); "
                                f"`tactile-zoo weights` lists what is installed")
-    default, _ = registry.model_recipe(registry.get_model_entry(model).meta)
     preferred = [e for e in found if e.recipe == default and e.fold == 0 and not e.seed]
     if len(preferred) == 1:
         return preferred[0]

@@ -166,7 +166,8 @@ def test_nothing_installed_says_so(monkeypatch: pytest.MonkeyPatch, capsys: pyte
         assert main(["weights"]) == 0
         out = capsys.readouterr().out
         assert out.startswith("no pretrained weights installed") and "pip install ./plugins/tactile-zoo-weights" in out
-        with pytest.raises(registry.UnknownNameError, match="no installed weights of model 'cnn_lstm'"):
+        missing = rf"no installed weights of model 'cnn_lstm' \(tag '{TAG}'\)"  # the default recipe's tag
+        with pytest.raises(registry.UnknownNameError, match=missing):
             tz.create_model(MODEL, pretrained=DATASET)
     finally:
         discovery.reset_weights()
