@@ -135,7 +135,7 @@ def compare(folder: Path, other: Path) -> int:
 
 def add_groups(path: Path, record: dict[str, Any], root: str | None) -> str:
     """Write the recording of every stored test sample into ``record`` (see the module docstring)."""
-    from tactile_zoo.engine.cell import load_splits
+    from tactile_zoo.engine.build import load_splits
     from tactile_zoo.engine.tensors import as_split
 
     if record.get("status") != "ok":

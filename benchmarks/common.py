@@ -222,7 +222,7 @@ def ev_objects(ctx: Context) -> EvData:
     if root in _EV_CACHE:
         return _EV_CACHE[root]
     from tactile_zoo.engine import as_split, concat
-    from tactile_zoo.engine.cell import load_splits
+    from tactile_zoo.engine.build import load_splits
     from tactile_zoo.errors import TactileZooError
 
     try:

@@ -44,7 +44,7 @@ VARIANTS = {"index_only": "_IndexOnlyMaxPool (keeps the argmax indices)",
 
 def _splits(root: Path | None) -> tuple[Any, Any, str]:
     """Ev-Containers' train and test splits, else synthetic events of their shapes."""
-    from tactile_zoo.engine.cell import load_splits
+    from tactile_zoo.engine.build import load_splits
     from tactile_zoo.errors import TactileZooError
 
     try:

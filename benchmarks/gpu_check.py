@@ -351,7 +351,7 @@ def compare_model(name: str, split: Any, device: torch.device, reference: torch.
     import torch
 
     from benchmarks.common import model_recipe
-    from tactile_zoo.engine.cell import build_model
+    from tactile_zoo.engine.build import build_model
     from tactile_zoo.registry import get_model_entry
 
     reference = reference or torch.device("cpu")
@@ -419,7 +419,7 @@ def sim_split(name: str, split: str, steps: int | None = None, samples: int | No
 def section_compare(ctx: Context, budget: Budget, models: list[str], datasets: list[str], batch: int,
                     steps: int | None, reference: torch.device) -> list[dict[str, Any]]:
     """Every model on every dataset (datasets outermost, so a short budget still checks every model once)."""
-    from tactile_zoo.engine.cell import ModelCannotConsume
+    from tactile_zoo.engine.build import ModelCannotConsume
 
     rows = []
     with tf32_off():
@@ -459,7 +459,7 @@ def time_model(ctx: Context, name: str, train: Any, reference: torch.device) -> 
 
     from benchmarks.common import model_recipe, time_calls
     from tactile_zoo.engine import fit, take
-    from tactile_zoo.engine.cell import build_model
+    from tactile_zoo.engine.build import build_model
 
     recipe = model_recipe(name)
     model = build_model(name, train.spec, seed=0).to(ctx.device)

@@ -177,3 +177,4 @@ def test_console_script_is_installed():
         pytest.skip(f"no console script next to {sys.executable} (package not pip-installed)")
     proc = subprocess.run([str(script), "--version"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and proc.stdout.strip() == f"tactile-zoo {tactile_zoo.__version__}"
+

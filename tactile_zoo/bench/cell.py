@@ -21,7 +21,8 @@ from typing import Any
 import torch
 
 from .. import registry
-from ..engine.cell import CellConfig, CellResult, ModelCannotConsume, train_cell
+from ..engine.build import ModelCannotConsume
+from ..engine.cell import CellConfig, CellResult, train_cell
 from ..engine.runtime import cpu_model, flush_denormals, resolve_device, set_threads, versions
 from .progress import ProgressWriter
 

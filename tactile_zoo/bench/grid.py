@@ -22,11 +22,12 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
-from ..engine.cell import UNHASHED_KEYS, CellConfig, load_splits, resolve_cell
+from ..engine.build import load_splits
+from ..engine.cell import UNHASHED_KEYS, CellConfig, resolve_cell
 from ..errors import ConfigError, DatasetError, UnknownNameError
 from .config import BenchConfig
 
-__all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "resolve_models", "resolve_datasets",
+__all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "cell_config", "resolve_models", "resolve_datasets",
            "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message"]
 
 #: 2: the configuration gained the model's and the dataset's computational revisions (``model_revision``,
@@ -224,7 +225,9 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
                        entry.meta.get("max_epochs"))
 
 
-def _cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
+def cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
+    """The resolved configuration of ``model`` on ``dataset`` under ``config``: the one place the command line's
+    settings become a cell (``tactile-zoo bench`` and ``tactile-zoo train`` both call it)."""
     entry = registry.get_model_entry(model)
     recipe_over, hparams = config.overrides_for(model, (entry.name, entry.qualified_name))
     return resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
@@ -238,7 +241,7 @@ def build_grid(config: BenchConfig) -> Grid:
     models = resolve_models(config.models)
     dataset_names = resolve_datasets(config.datasets)
     # every pair's configuration first: a bad recipe override fails here, before any dataset is loaded
-    cell_configs = {(m, d): _cell_config(m, d, config) for d in dataset_names for m in models}
+    cell_configs = {(m, d): cell_config(m, d, config) for d in dataset_names for m in models}
     infos: list[DatasetInfo] = []
     skipped: list[SkipRow] = []
     notes: dict[str, str] = {}
@@ -253,8 +256,8 @@ def build_grid(config: BenchConfig) -> Grid:
     cells: list[Cell] = []
     for info in infos:
         for model in models:
-            cell_config = cell_configs[model, info.name]
-            digest, cfg = config_hash(cell_config), cell_config.to_dict()
+            resolved = cell_configs[model, info.name]
+            digest, cfg = config_hash(resolved), resolved.to_dict()
             for fold in info.folds:
                 for seed in config.seeds:
                     cells.append(Cell(model, info.name, fold, seed, digest, cfg, info.protocol, info.extra_splits))

@@ -39,9 +39,9 @@ def _single_config(args: argparse.Namespace) -> Any:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..bench.config import parse_positive_int, parse_seeds
-    from ..bench.grid import resolve_datasets, resolve_models
+    from ..bench.grid import cell_config, resolve_datasets, resolve_models
     from ..engine import save_checkpoint
-    from ..engine.cell import resolve_cell, train_cell
+    from ..engine.cell import train_cell
     from ..engine.runtime import set_threads, versions
     from ..errors import ConfigError
 
@@ -57,12 +57,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
     seed, fold = seeds[0], fold_arg(args.fold)
     model = resolve_models([args.model])[0]
     dataset = resolve_datasets([args.dataset])[0]
-    recipe_over, hparams = config.overrides_for(model, (registry.get_model_entry(model).name,))
-    # the harness's own cell: same resolution (the dataset's epoch budget included), same numbers
-    cell = resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
-                        epochs=config.effective_epochs(),
-                        dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
-                        prefixes=config.prefixes)
+    # the harness's own cell configuration, through its one function: same resolution, same numbers
+    cell = cell_config(model, dataset, config)
     outcome = train_cell(cell, fold=fold, seed=seed, root=config.root, download=config.download,
                          device=config.device, progress=not args.quiet)
     result, prefix = outcome.fit, outcome.prefix or {"fractions": [], "accuracy": []}

@@ -1,8 +1,7 @@
 """Data: the sample/spec contract, sensors, splits, the dataset base class, and the built-in datasets."""
 
-# importing the datasets package registers every built-in dataset, real and simulated (see its docstring);
-# ``simulated`` is the compatibility module that re-exports the simulators
-from . import datasets, simulated  # noqa: F401
+# importing the datasets package registers every built-in dataset, real and simulated (see its docstring)
+from . import datasets  # noqa: F401
 from .base import TactileDataset, TensorData, cache_home, data_home
 from .sensors import Sensor
 from .spec import DatasetSpec, TactileSample, collate

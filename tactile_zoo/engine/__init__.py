@@ -4,6 +4,8 @@
 never imports the harness (:mod:`tactile_zoo.bench`), and models never import it.
 """
 
+from ..recipe import DEFAULT_RECIPE, RECIPE_KEYS, Recipe, resolve_recipe
+from .api import fit
 from .checkpoint import build_from_checkpoint, load_checkpoint, save_checkpoint
 from .evaluate import (
     DEFAULT_PREFIXES,
@@ -22,10 +24,9 @@ from .metrics import (
     macro_f1,
     scores_to_probabilities,
 )
-from .recipe import DEFAULT_RECIPE, RECIPE_KEYS, Recipe, resolve_recipe
 from .runtime import PeakMemory, count_parameters, resolve_device, seed_everything
 from .tensors import TensorSplit, as_split, concat, take
-from .train import FitResult, TrainingError, fit
+from .train import FitResult, TrainingError
 
 __all__ = [
     "fit", "evaluate", "FitResult", "EvalResult", "TrainingError", "Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS",

@@ -8,15 +8,11 @@ command-line settings give the same numbers whichever of them ran the cell.
 - :class:`CellConfig` is the resolved configuration: the model with its constructor keywords, the fully resolved
   recipe (the dataset's epoch budget applied), the dataset with its keyword arguments, and the computational
   revisions of both, which the harness's cell hash covers.
-- :func:`load_splits` is the one place a dataset's splits are loaded (memoised for consecutive cells).
-- :func:`build_model` is the one place a model is built from its registry name (seeded first, so its initial weights
-  depend on the seed only).
+- Its ingredients, the splits and the model built by name, come from :mod:`.build`.
 """
 
 from __future__ import annotations
 
-import json
-from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,16 +22,16 @@ import torch
 from .. import registry
 from ..data.guard import tuning
 from ..errors import ConfigError
-from ..recipe import Recipe, cap_epochs, named_recipe_for, resolve_recipe
+from ..recipe import Recipe, cap_epochs, resolve_recipe
+from .build import SPLITS, build_model, load_splits
 from .evaluate import DEFAULT_PREFIXES, EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
-from .runtime import PeakMemory, flush_denormals, resolve_device, seed_everything
+from .runtime import PeakMemory, flush_denormals, resolve_device
 from .tensors import concat, take
-from .train import FitResult, fit
+from .train import FitResult, train_model
 
-__all__ = ["CellConfig", "CellResult", "EVALUATIONS", "UNHASHED_KEYS", "ModelCannotConsume", "resolve_cell",
-           "train_cell", "load_splits", "build_model", "recipe_name_of"]
+__all__ = ["CellConfig", "CellResult", "EVALUATIONS", "UNHASHED_KEYS", "resolve_cell", "train_cell",
+           "recipe_name_of"]
 
-SPLITS = ("train", "val", "test")
 #: Keys of a stored cell configuration that are labels, not settings: the cell hash leaves them out.
 UNHASHED_KEYS = ("causal", "recipe_name")
 #: How a cell reaches its test figure.
@@ -48,10 +44,6 @@ UNHASHED_KEYS = ("causal", "recipe_name")
 #: exactly as ``validation`` does, but never read a test split: the cell runs in tuning mode
 #: (:mod:`tactile_zoo.data.guard`), where loading one raises, and records the validation score only.
 EVALUATIONS = ("validation", "reference", "tuning")
-
-
-class ModelCannotConsume(ConfigError):
-    """The model's constructor refused the dataset (a :class:`ConfigError` from it): the cell is skipped, not failed."""
 
 
 @dataclass(frozen=True)
@@ -144,18 +136,16 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
     data_entry = registry.get_dataset_entry(dataset)
     if isinstance(recipe, str):
         recipe, recipe_name = None, recipe
-    try:
-        name, base = registry.model_recipe(entry.meta, recipe_name)
-    except ConfigError as exc:
-        raise ConfigError(f"model {model!r}: {exc}") from None
+    custom = isinstance(recipe, Recipe)
+    named = registry.resolve_model_recipe(entry.meta, recipe_name, dataset, None if custom else recipe, epochs,
+                                          owner=f"model {model!r}")
     # a named recipe may carry the model's and the dataset's settings; the user's own (hparams, dataset_kwargs) win
-    base, recipe_hparams, recipe_kwargs = named_recipe_for(base, dataset, where=f"recipe {name!r} of model {model!r}")
-    hparams = {**recipe_hparams, **dict(hparams or {})}
-    dataset_kwargs = {**recipe_kwargs, **dict(dataset_kwargs or {})}
-    if isinstance(recipe, Recipe):
+    hparams = {**named.hparams, **dict(hparams or {})}
+    dataset_kwargs = {**named.dataset_kwargs, **dict(dataset_kwargs or {})}
+    if custom:
         name, resolved = "custom", resolve_recipe(recipe, None, epochs)
     else:
-        resolved = resolve_recipe(base, recipe, epochs, where=f"recipe of model {model!r}")
+        name, resolved = named.name, named.recipe
         budget = data_entry.meta.get("max_epochs")
         if epochs is None and budget is not None:
             resolved = cap_epochs(resolved, int(budget))
@@ -165,46 +155,6 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
                       subset=dict(subset) if subset else None, prefixes=tuple(prefixes),
                       causal=bool(entry.meta.get("causal", False)), model_revision=registry.revision_of(entry),
                       dataset_revision=registry.revision_of(data_entry), evaluation=evaluation)
-
-
-# ----------------------------------------------------------------------------------------------- data and model
-_SPLIT_CACHE: OrderedDict[str, dict[str, Any]] = OrderedDict()
-_SPLIT_CACHE_SIZE = 2
-
-
-def load_splits(name: str, root: Any = None, fold: int = 0, download: bool = False,
-                kwargs: Mapping[str, Any] | None = None, splits: Sequence[str] = SPLITS) -> dict[str, Any]:
-    """The requested splits of one fold of dataset ``name``.
-
-    Memoised over the last two (dataset, root, fold, kwargs) keys: the harness runs model-innermost, so consecutive
-    cells share a fold, and a loaded split (up to hundreds of MB of dense events) is not read twice.
-    """
-    kwargs = dict(kwargs or {})
-    key = json.dumps([name, None if root is None else str(root), fold, kwargs], sort_keys=True, default=str)
-    cached = _SPLIT_CACHE.setdefault(key, {})
-    _SPLIT_CACHE.move_to_end(key)
-    while len(_SPLIT_CACHE) > _SPLIT_CACHE_SIZE:
-        _SPLIT_CACHE.popitem(last=False)
-    for split in splits:
-        if split not in cached:
-            cached[split] = registry.load_dataset(name, root=root, split=split, fold=fold, download=download, **kwargs)
-    return {split: cached[split] for split in splits}
-
-
-def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, seed: int = 0) -> torch.nn.Module:
-    """Model ``name`` built for ``spec`` right after seeding, so its initial weights depend on ``seed`` only.
-
-    A :class:`ConfigError` from the constructor (the model cannot consume this dataset) becomes
-    :class:`ModelCannotConsume`.
-    """
-    seed_everything(seed)
-    try:
-        return registry.create_model(name, spec, **dict(hparams or {}))
-    except ModelCannotConsume:
-        raise
-    except ConfigError as exc:
-        raise ModelCannotConsume(f"model {name!r} cannot consume dataset {getattr(spec, 'name', '?')!r}: {exc}") \
-            from exc
 
 
 # ----------------------------------------------------------------------------------------------- the cell
@@ -270,8 +220,8 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         if config.evaluation == "reference":
             result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback)
         else:
-            result = fit(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev, refit=config.refit,
-                         progress=progress, callback=callback)
+            result = train_model(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev,
+                                 refit=config.refit, progress=progress, callback=callback)
         evals = {name: evaluate(result.model, split, loss=rec.loss, batch_size=rec.eval_batch_size)
                  for name, split in tests.items()}
         if measure:
@@ -299,8 +249,8 @@ def _tune_cell(config: CellConfig, fold: int, seed: int, root: Any, download: bo
     train, val = take(splits["train"], subset.get("train")), take(splits["val"], subset.get("val"))
     with PeakMemory(dev) as peak:
         model = build_model(config.model, train.spec, config.hparams, seed)
-        result = fit(model, train, recipe=config.recipe, seed=seed, val_dataset=val, device=dev, refit=config.refit,
-                     progress=progress, callback=callback)
+        result = train_model(model, train, recipe=config.recipe, seed=seed, val_dataset=val, device=dev,
+                             refit=config.refit, progress=progress, callback=callback)
     return CellResult(config=config, fold=fold, seed=seed, fit=result, tests={}, spec=train.spec, n_train=len(train),
                       n_val=len(val), n_test=0, device=str(dev), peak_memory_mb=peak.mb, peak_memory_source=peak.source,
                       peak_gpu_memory_mb=peak.gpu_mb, test_reads=0)
@@ -321,8 +271,8 @@ def _fit_reference(model: torch.nn.Module, train: Any, val: Any, test: Any, reci
         if callback is not None:
             callback(row)
 
-    result = fit(model, concat(train, val), recipe=recipe.replace(patience=None), seed=seed, device=device,
-                 progress=progress, callback=after_epoch)
+    result = train_model(model, concat(train, val), recipe=recipe.replace(patience=None), seed=seed, device=device,
+                         progress=progress, callback=after_epoch)
     # final_epoch_accuracy is filled in by train_cell from its one evaluation of the test split
     return result, {"best_test_epoch_accuracy": best["accuracy"],
                     "best_test_epoch": best["epoch"], "epochs": result.epochs_run,

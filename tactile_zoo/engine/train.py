@@ -1,4 +1,4 @@
-"""``fit``: train one model on one dataset split with its recipe, select the epoch on validation, evaluate on test.
+"""The training loop: train one model on one split with its recipe, select the epoch on validation, evaluate on test.
 
 The loop batches straight from the split's tensors (a seeded ``torch.randperm`` per epoch indexes ``x``, ``g``,
 ``y``), which is many times faster than a per-sample ``DataLoader`` for these small, fixed-size sequences.
@@ -7,7 +7,7 @@ Protocol:
 
 1. seed Python/NumPy/torch with ``seed`` (so a model built here, its dropout and the shuffling repeat exactly on CPU);
 2. train up to ``max_epochs``; after every epoch evaluate on the validation split and keep the best state (see
-   :mod:`tactile_zoo.engine.recipe` for what "best" means); stop after ``patience`` epochs without improvement;
+   `tactile_zoo.recipe` for what "best" means); stop after ``patience`` epochs without improvement;
 3. restore the best state (test data is never looked at before this point);
 4. with ``refit=True``, restart from the initial weights and train on train + val for the selected number of epochs
    (same seed, same schedule), and use that model;
@@ -30,13 +30,15 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from .. import registry
 from ..errors import ConfigError, TactileZooError
+from ..recipe import Recipe, lr_factor, resolve_recipe
+from .build import build_model, load_splits
 from .evaluate import EvalResult, evaluate, predict_scores
-from .recipe import Recipe, lr_factor, named_recipe_for, resolve_recipe
 from .runtime import count_parameters, flush_denormals, resolve_device, seed_everything
 from .tensors import TensorSplit, as_split, concat
 
-__all__ = ["fit", "FitResult", "TrainingError", "build_optimizer", "compute_loss"]
+__all__ = ["train_model", "FitResult", "TrainingError", "build_optimizer", "compute_loss"]
 
 
 class TrainingError(TactileZooError):
@@ -182,10 +184,7 @@ def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: in
                  ) -> tuple[torch.nn.Module, Any]:
     """A module (built from its registry name after seeding) and its registry metadata (its named recipes)."""
     if isinstance(model, str):
-        from ..registry import get_model_entry
-        from .cell import build_model
-
-        return build_model(model, spec, hparams, seed), get_model_entry(model).meta
+        return build_model(model, spec, hparams, seed), registry.get_model_entry(model).meta
     if not isinstance(model, torch.nn.Module):
         raise ConfigError(f"fit() needs a torch.nn.Module or a registered model name, got {type(model).__name__}")
     if hparams:
@@ -193,52 +192,15 @@ def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: in
     return model, getattr(model, "zoo_meta", None) or {}
 
 
-def _fit_named_cell(model: str, dataset: str, recipe: Recipe | dict[str, Any] | str | None, seed: int, device: Any,
-                    epochs: int | None, refit: bool, hparams: dict[str, Any] | None, root: Any, fold: int,
-                    dataset_kwargs: dict[str, Any] | None, progress: bool,
-                    callback: Callable[[dict[str, Any]], None] | None) -> FitResult:
-    """``fit("sgnet", "sim_evtouch")``: the harness's cell, so it gives the leaderboard's numbers."""
-    from .cell import resolve_cell, train_cell
-
-    config = resolve_cell(model, dataset, recipe=recipe, hparams=hparams, epochs=epochs,
-                          dataset_kwargs=dataset_kwargs, refit=refit)
-    return train_cell(config, fold=fold, seed=seed, root=root, device=device, measure=False, progress=progress,
-                      callback=callback).fit
-
-
 @flush_denormals()
-def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | str | None = None, seed: int = 0,
-        val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None, *,
-        test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None, root: Any = None,
-        fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = False,
-        callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
-    """Train ``model`` on ``dataset`` (the train split) and select the epoch on ``val_dataset``.
-
-    Args:
-        model: a ``torch.nn.Module`` (trained in place), or a registered model name (built for the dataset's spec
-            with ``hparams``, after seeding, so the initial weights repeat too).
-        dataset: the training split, or a registered dataset name (then its ``train``/``val``/``test`` splits of
-            ``fold`` are loaded from ``root`` with ``dataset_kwargs``, unless given explicitly). A model name with a
-            dataset name runs exactly the harness's cell (:func:`tactile_zoo.engine.cell.train_cell`): the dataset's
-            epoch budget applies and the numbers equal the leaderboard's for the same settings and thread count.
-        recipe: a :class:`Recipe` (used as is), a registered recipe's name (``"source"``), a dict of overrides on
-            top of the model's default recipe, or ``None`` for that default (the harness default for a model that
-            registers none).
-        seed: seeds model initialisation (name given), dropout and the batch order.
-        val_dataset: the split that selects the epoch and drives early stopping; never the test split.
-        device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``...
-        epochs: replaces the recipe's ``max_epochs``.
-        test_dataset: evaluated once, with the selected (or refit) model.
-        refit: retrain on train + val for the selected epoch count (needs ``val_dataset``).
-        progress: a tqdm bar over epochs (hidden when stderr is not a terminal).
-        callback: called with each epoch's curve row.
-    """
-    if isinstance(model, str) and isinstance(dataset, str) and val_dataset is None and test_dataset is None:
-        return _fit_named_cell(model, dataset, recipe, seed, device, epochs, refit, hparams, root, fold,
-                               dataset_kwargs, progress, callback)
+def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | str | None = None,
+                seed: int = 0, val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None,
+                *, test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None,
+                root: Any = None, fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = False,
+                callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
+    """The training loop behind :func:`tactile_zoo.engine.fit` (see there for the arguments), without its by-name
+    shortcut: a model name with a dataset name trains here on the dataset's splits, not as the harness's cell."""
     if isinstance(dataset, str):
-        from .cell import load_splits
-
         named = load_splits(dataset, root, fold, False, dataset_kwargs)
         dataset, val_dataset = named["train"], val_dataset if val_dataset is not None else named["val"]
         test_dataset = test_dataset if test_dataset is not None else named["test"]
@@ -253,14 +215,12 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
     if isinstance(recipe, Recipe):
         rec = resolve_recipe(recipe, None, epochs)
     else:
-        from ..registry import model_recipe
-
-        name, base_recipe = model_recipe(meta, recipe if isinstance(recipe, str) else None)
         # a model built by the caller: the recipe's model and dataset settings cannot apply any more, only its
-        # training keys (the by-name fit above applies all three)
-        base_recipe = named_recipe_for(base_recipe, getattr(train.spec, "name", None), f"recipe {name!r}")[0]
-        rec = resolve_recipe(base_recipe, None if isinstance(recipe, str) else recipe, epochs,
-                             where=f"recipe {name!r}")
+        # training keys (the by-name fit, :func:`tactile_zoo.engine.fit`, applies all three)
+        rec = registry.resolve_model_recipe(meta, recipe if isinstance(recipe, str) else None,
+                                            getattr(train.spec, "name", None),
+                                            None if isinstance(recipe, str) else recipe, epochs,
+                                            owner=f"model {meta.get('name', type(module).__name__)!r}").recipe
     seed_everything(seed)  # dropout and any other randomness during training
     module.to(dev)
     module.zoo_loss = rec.loss  # so evaluate(model, ...) later knows how scores become probabilities

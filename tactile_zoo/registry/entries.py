@@ -15,7 +15,7 @@ from types import MappingProxyType
 from typing import Any, TypeVar
 
 from ..errors import ConfigError, PluginError, TactileZooError
-from ..recipe import check_named_recipe
+from ..recipe import Recipe, check_named_recipe, named_recipe_for, resolve_recipe
 
 T = TypeVar("T")
 
@@ -214,6 +214,30 @@ def model_recipe(meta: Mapping[str, Any], name: str | None = None) -> tuple[str,
         return name, None
     known = ", ".join(sorted(recipes)) or "none (it trains with the harness's default recipe, called 'default')"
     raise ConfigError(f"model has no recipe named {name!r}; its recipes: {known}")
+
+
+@dataclass(frozen=True)
+class ModelRecipe:
+    """A model's named recipe resolved for one dataset: its name, the training recipe, and the constructor keywords
+    and dataset keywords it carries (the user's own, applied later by the caller, win over these)."""
+
+    name: str
+    recipe: Recipe
+    hparams: dict[str, Any]
+    dataset_kwargs: dict[str, Any]
+
+
+def resolve_model_recipe(meta: Mapping[str, Any], name: str | None = None, dataset: str | None = None,
+                         overrides: Mapping[str, Any] | None = None, epochs: int | None = None,
+                         owner: str = "the model") -> ModelRecipe:
+    """The one recipe lookup: the named recipe (:func:`model_recipe`), then its section for ``dataset``, then the
+    caller's ``overrides`` and ``epochs`` (the CLI's ``--epochs``). ``owner`` names the model in error messages."""
+    try:
+        name, base = model_recipe(meta, name)
+    except ConfigError as exc:
+        raise ConfigError(f"{owner}: {exc}") from None
+    training, hparams, kwargs = named_recipe_for(base, dataset, where=f"recipe {name!r} of {owner}")
+    return ModelRecipe(name, resolve_recipe(training, overrides, epochs, where=f"recipe of {owner}"), hparams, kwargs)
 
 
 def _register(kind: str, obj: Any, name: str | None, meta: Mapping[str, Any]) -> Entry:

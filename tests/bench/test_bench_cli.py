@@ -114,3 +114,30 @@ def test_train_bad_seed_and_fold(capsys: pytest.CaptureFixture) -> None:
 def test_report_of_a_folder_that_is_not_a_run(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert main(["report", str(tmp_path)]) == 2
     assert "no cells/ folder" in _err(capsys)
+
+
+def test_train_resolves_its_cell_with_the_harness_function(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``train`` builds its cell configuration through bench's one function (``bench.grid.cell_config``): a plugin
+    model's override scoped by its qualified name (``dist:name``) reaches ``train`` as it reaches ``bench``, and the
+    saved configuration hashes as the harness's cell does. The copy ``train`` once kept knew only the bare name."""
+    import torch
+    from fake_plugins import GOOD_MODULE, FakeSite, unique
+
+    from tactile_zoo.bench.config import merge_config
+    from tactile_zoo.bench.grid import build_grid, config_hash
+    from tactile_zoo.engine.cell import CellConfig
+
+    site = FakeSite(tmp_path, monkeypatch)
+    try:
+        name = unique("bench_scoped")
+        site.add("zt-bench-scoped", GOOD_MODULE, models={name: "Net"})
+        qualified, scoped = f"zt-bench-scoped:{name}", [f"zt-bench-scoped:{name}:width=7"]
+        saved = tmp_path / "scoped.pt"
+        assert main(["train", qualified, "tiny_blobs", "--hparam", scoped[0], "--epochs", "1", "-q",
+                     "--save", str(saved)]) == 0
+        trained = CellConfig.from_dict(torch.load(saved, weights_only=True)["config"])
+        assert trained.hparams == {"width": 7}
+        flags = {"models": [qualified], "datasets": ["tiny_blobs"], "epochs": 1}
+        assert config_hash(trained) == build_grid(merge_config(None, flags, (), scoped)).cells[0].config_hash
+    finally:
+        site.close()

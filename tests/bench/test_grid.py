@@ -105,7 +105,7 @@ def test_cell_ids_are_file_names() -> None:
 
 
 def test_a_dataset_epoch_budget_caps_recipes_unless_epochs_are_given(tmp_path: Path) -> None:
-    from tactile_zoo.data.simulated import SIM_EPOCH_BUDGET
+    from tactile_zoo.data.datasets._simulator import SIM_EPOCH_BUDGET
 
     grid = _grid(tmp_path, models=["sgnet", "tiny_mlp"], datasets=["sim_biotac_slip", "tiny_blobs"])
     recipes = {(c.model, c.dataset): c.config["recipe"] for c in grid.cells}

@@ -10,7 +10,8 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from threadpoolctl import threadpool_limits
 
-from tactile_zoo.data import simulated
+from tactile_zoo.data.datasets._simulator import _Simulator
+from tactile_zoo.data.datasets.sim_biotac_slip import _biotac_raw
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.registry import get_dataset_entry, list_datasets, load_dataset
 
@@ -22,7 +23,7 @@ SHAPES = {  # name: (sensor, classes, T, N, C, G)
 }
 
 
-def _cls(name: str) -> type[simulated._Simulator]:
+def _cls(name: str) -> type[_Simulator]:
     return get_dataset_entry(name).obj
 
 
@@ -146,7 +147,7 @@ def test_events_binary_and_plausible() -> None:
 def test_biotac_raw_range_and_normalisation() -> None:
     rng = np.random.default_rng(0)
     y = np.repeat(np.arange(7), 4)
-    raw, baseline = simulated._biotac_raw(rng, y, 30)
+    raw, baseline = _biotac_raw(rng, y, 30)
     assert raw.min() >= 1800 and raw.max() <= 3850  # the release's range is roughly 1900-3750
     assert np.all(raw == np.rint(raw))  # integer ADC readings
     assert np.all((baseline[:, None, :] - raw).max(axis=(1, 2)) > 200)  # contact drops the values

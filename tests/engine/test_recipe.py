@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from tactile_zoo.engine.recipe import DEFAULT_RECIPE, RECIPE_KEYS, Recipe, cap_epochs, lr_factor, resolve_recipe
 from tactile_zoo.errors import ConfigError
+from tactile_zoo.recipe import DEFAULT_RECIPE, RECIPE_KEYS, Recipe, cap_epochs, lr_factor, resolve_recipe
 
 
 def test_default_recipe_is_cross_entropy_adam() -> None:

@@ -14,7 +14,7 @@ from reliability_helpers import cell_records, numbers, quiet_bench, read_csv
 from tactile_zoo import registry
 from tactile_zoo.bench.config import BenchConfig, merge_config
 from tactile_zoo.bench.grid import build_grid
-from tactile_zoo.engine.recipe import RECIPE_KEYS, resolve_recipe
+from tactile_zoo.recipe import RECIPE_KEYS, resolve_recipe
 
 
 def test_same_seeds_same_numbers_and_a_cell_does_not_depend_on_its_neighbours(tmp_path: Path) -> None:

@@ -12,8 +12,8 @@ from pathlib import Path
 import torch
 
 import tactile_zoo as tz
+from tactile_zoo.engine import fit
 from tactile_zoo.engine.tensors import concat
-from tactile_zoo.engine.train import fit
 
 torch.set_num_threads(1)
 seed = int(sys.argv[1]) if len(sys.argv) > 1 else 0

@@ -1,0 +1,57 @@
+"""``fit``, the engine's public entry point: train a model on a dataset with its recipe, select the epoch on
+validation, evaluate on test.
+
+It only dispatches. A registered model name with a registered dataset name runs exactly the harness's cell
+(:mod:`.cell`), so its numbers equal the leaderboard's; anything else (a module, or explicit splits) goes to the
+training loop (:func:`.train.train_model`). Keeping the dispatch here, above both, is what lets the cell use the loop
+without the loop importing the cell.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+
+from ..recipe import Recipe
+from .cell import resolve_cell, train_cell
+from .train import FitResult, train_model
+
+__all__ = ["fit"]
+
+
+def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | str | None = None, seed: int = 0,
+        val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None, *,
+        test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None, root: Any = None,
+        fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = False,
+        callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
+    """Train ``model`` on ``dataset`` (the train split) and select the epoch on ``val_dataset``.
+
+    Args:
+        model: a ``torch.nn.Module`` (trained in place), or a registered model name (built for the dataset's spec
+            with ``hparams``, after seeding, so the initial weights repeat too).
+        dataset: the training split, or a registered dataset name (then its ``train``/``val``/``test`` splits of
+            ``fold`` are loaded from ``root`` with ``dataset_kwargs``, unless given explicitly). A model name with a
+            dataset name runs exactly the harness's cell (:func:`tactile_zoo.engine.cell.train_cell`): the dataset's
+            epoch budget applies and the numbers equal the leaderboard's for the same settings and thread count.
+        recipe: a :class:`Recipe` (used as is), a registered recipe's name (``"source"``), a dict of overrides on
+            top of the model's default recipe, or ``None`` for that default (the harness default for a model that
+            registers none).
+        seed: seeds model initialisation (name given), dropout and the batch order.
+        val_dataset: the split that selects the epoch and drives early stopping; never the test split.
+        device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"``...
+        epochs: replaces the recipe's ``max_epochs``.
+        test_dataset: evaluated once, with the selected (or refit) model.
+        refit: retrain on train + val for the selected epoch count (needs ``val_dataset``).
+        progress: a tqdm bar over epochs (hidden when stderr is not a terminal).
+        callback: called with each epoch's curve row.
+    """
+    if isinstance(model, str) and isinstance(dataset, str) and val_dataset is None and test_dataset is None:
+        config = resolve_cell(model, dataset, recipe=recipe, hparams=hparams, epochs=epochs,
+                              dataset_kwargs=dataset_kwargs, refit=refit)
+        return train_cell(config, fold=fold, seed=seed, root=root, device=device, measure=False, progress=progress,
+                          callback=callback).fit
+    return train_model(model, dataset, recipe, seed, val_dataset, device, epochs, test_dataset=test_dataset,
+                       refit=refit, hparams=hparams, root=root, fold=fold, dataset_kwargs=dataset_kwargs,
+                       progress=progress, callback=callback)

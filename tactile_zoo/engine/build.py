@@ -1,0 +1,69 @@
+"""Where a cell's ingredients come from: a dataset's splits and a model built from its registry name.
+
+Both the training loop (:mod:`.train`, which accepts names) and the harness's cell (:mod:`.cell`) need them, so they
+sit below both: the loop never has to import the cell to build a model.
+
+- :func:`load_splits` is the one place a dataset's splits are loaded (memoised for consecutive cells).
+- :func:`build_model` is the one place a model is built from its registry name (seeded first, so its initial weights
+  depend on the seed only).
+"""
+
+from __future__ import annotations
+
+import json
+from collections import OrderedDict
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import torch
+
+from .. import registry
+from ..errors import ConfigError
+from .runtime import seed_everything
+
+__all__ = ["SPLITS", "ModelCannotConsume", "load_splits", "build_model"]
+
+SPLITS = ("train", "val", "test")
+
+
+class ModelCannotConsume(ConfigError):
+    """The model's constructor refused the dataset (a :class:`ConfigError` from it): the cell is skipped, not failed."""
+
+
+_SPLIT_CACHE: OrderedDict[str, dict[str, Any]] = OrderedDict()
+_SPLIT_CACHE_SIZE = 2
+def load_splits(name: str, root: Any = None, fold: int = 0, download: bool = False,
+                kwargs: Mapping[str, Any] | None = None, splits: Sequence[str] = SPLITS) -> dict[str, Any]:
+    """The requested splits of one fold of dataset ``name``.
+
+    Memoised over the last two (dataset, root, fold, kwargs) keys: the harness runs model-innermost, so consecutive
+    cells share a fold, and a loaded split (up to hundreds of MB of dense events) is not read twice.
+    """
+    kwargs = dict(kwargs or {})
+    key = json.dumps([name, None if root is None else str(root), fold, kwargs], sort_keys=True, default=str)
+    cached = _SPLIT_CACHE.setdefault(key, {})
+    _SPLIT_CACHE.move_to_end(key)
+    while len(_SPLIT_CACHE) > _SPLIT_CACHE_SIZE:
+        _SPLIT_CACHE.popitem(last=False)
+    for split in splits:
+        if split not in cached:
+            cached[split] = registry.load_dataset(name, root=root, split=split, fold=fold, download=download, **kwargs)
+    return {split: cached[split] for split in splits}
+
+
+def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, seed: int = 0) -> torch.nn.Module:
+    """Model ``name`` built for ``spec`` right after seeding, so its initial weights depend on ``seed`` only.
+
+    A :class:`ConfigError` from the constructor (the model cannot consume this dataset) becomes
+    :class:`ModelCannotConsume`.
+    """
+    seed_everything(seed)
+    try:
+        return registry.create_model(name, spec, **dict(hparams or {}))
+    except ModelCannotConsume:
+        raise
+    except ConfigError as exc:
+        raise ModelCannotConsume(f"model {name!r} cannot consume dataset {getattr(spec, 'name', '?')!r}: {exc}") \
+            from exc
+
+

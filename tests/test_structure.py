@@ -1,0 +1,32 @@
+"""The shape of the tree, checked: no import circle (function-level imports included), so every module can be read
+and tested below the ones that use it."""
+
+from __future__ import annotations
+
+import grimp
+import networkx as nx
+import pytest
+
+
+def import_cycles(*packages: str) -> list[list[str]]:
+    """Every set of modules that import each other, directly or around a loop (strongly connected components of the
+    import graph, ``import`` statements inside functions included)."""
+    graph = grimp.build_graph(*packages, include_external_packages=False)
+    edges = nx.DiGraph((m, n) for m in graph.modules for n in graph.find_modules_directly_imported_by(m))
+    return sorted(sorted(c) for c in nx.strongly_connected_components(edges) if len(c) > 1)
+
+
+@pytest.mark.parametrize("packages", [("tactile_zoo",)])
+def test_no_import_circle(packages: tuple[str, ...]) -> None:
+    assert import_cycles(*packages) == []
+
+
+def test_a_circle_is_found(tmp_path, monkeypatch) -> None:
+    """The check itself: two modules that import each other inside functions form a circle."""
+    pkg = tmp_path / "zt_circle"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("def f():\n    from . import b\n    return b\n")
+    (pkg / "b.py").write_text("def g():\n    from .a import f\n    return f\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert import_cycles("zt_circle") == [["zt_circle.a", "zt_circle.b"]]
