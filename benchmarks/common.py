@@ -291,11 +291,9 @@ def pair_row(case: str, fast: str, naive: str, t_fast: Timing, t_naive: Timing, 
 
 def model_recipe(name: str) -> Any:
     """The registered training recipe of model ``name`` as a :class:`~tactile_zoo.engine.Recipe`."""
-    from tactile_zoo.engine import resolve_recipe
-    from tactile_zoo.recipe import named_recipe_for
-    from tactile_zoo.registry import get_model_entry
+    from tactile_zoo.registry import get_model_entry, resolve_model_recipe
 
-    return resolve_recipe(named_recipe_for(get_model_entry(name).meta.get("recipe"), None)[0])
+    return resolve_model_recipe(get_model_entry(name).meta, owner=f"model {name!r}").recipe
 
 
 def epoch_seconds(model: torch.nn.Module, split: Any, recipe: Any, ctx: Context, seed: int = 0) -> float:
