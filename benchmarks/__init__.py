@@ -16,4 +16,5 @@ BENCHMARKS = {
     "scaling": "scaling",
     "bench_wall": "bench_wall",
     "progress_overhead": "progress_overhead",
+    "dcnn_memory": "dcnn_memory",
 }

@@ -1,8 +1,9 @@
 """E3 of EXPERIMENTS.md: the source's protocol as closely as our API allows: train on ALL basic-object windows (train +
 val of the objects protocol, no held-out split), exactly 30 epochs, keep the LAST epoch, then evaluate each unseen set.
 
-Run from the repository root: ``OMP_NUM_THREADS=1 .venv/bin/python benchmarks/results/convlstm-biotac/
-e3_all_basic_last_epoch.py SEED`` (writes ``e3_seed<SEED>.json`` next to this file).
+Run from the repository root: ``OMP_NUM_THREADS=1 .venv/bin/python -m tools.experiments.convlstm_biotac_e3 SEED``
+(writes ``benchmarks/results/convlstm-biotac/e3_seed<SEED>.json``, the record it produced; kept in
+``benchmarks/results/`` until it moved here, a script among results).
 """
 import json
 import sys
@@ -34,5 +35,6 @@ out["train_accuracy_last_epoch_model"] = tz.evaluate(res.model, train).metrics["
 out["mean3"] = sum(out[s] for s in ("test_solids", "test_small", "test_textures")) / 3
 out["seconds"] = time.time() - t0
 print(json.dumps({k: v for k, v in out.items() if k != "curve"}))
-dest = Path(sys.argv[2]) if len(sys.argv) > 2 else Path(__file__).with_name(f"e3_seed{seed}.json")
+RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "convlstm-biotac"
+dest = Path(sys.argv[2]) if len(sys.argv) > 2 else RESULTS / f"e3_seed{seed}.json"
 dest.write_text(json.dumps(out, indent=1))
