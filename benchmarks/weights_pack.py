@@ -165,8 +165,8 @@ def _excluded(record: dict[str, Any]) -> str | None:
     if recipe != default:
         return f"recipe {recipe!r}, not the default {default!r}"
     evaluation = config.get("evaluation", "validation")
-    if evaluation != "validation":
-        return f"evaluation {evaluation!r} (only epochs selected on validation count)"
+    if evaluation not in ("validation", "final"):
+        return f"evaluation {evaluation!r} (only honest cells count: selected on validation, or final)"
     if config.get("subset"):
         return "ran on a subset (--quick)"
     return _stale(record)

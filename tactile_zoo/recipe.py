@@ -29,6 +29,9 @@ model's settings beside the training keys, because a recipe tuned for a dataset 
 
     hparams: the model's constructor keywords (``{"dropout": 0.1}``);
     dataset_kwargs: the dataset's keyword arguments (``{"augment": ["time_warp"], "augment_factor": 2}``);
+    evaluation: how a cell of this recipe reaches its test figure, when the user names none (``"final"`` for a
+        recipe that trains on every training recording for a fixed number of epochs; see
+        :data:`tactile_zoo.engine.cell.EVALUATIONS`);
     datasets: per-dataset sections, ``{"biotac_dos": {"max_epochs": 30, "dataset_kwargs": {"window": 5}}}``, each
         holding training keys, ``hparams`` and ``dataset_kwargs`` that apply on that dataset only, on top of the rest.
 
@@ -264,7 +267,10 @@ def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Ma
 RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 DEFAULT_RECIPE = Recipe()
 #: the non-training sections a named recipe may carry (see the module docstring)
-RECIPE_SECTIONS = ("hparams", "dataset_kwargs", "datasets")
+RECIPE_SECTIONS = ("hparams", "dataset_kwargs", "datasets", "evaluation")
+#: the evaluations a named recipe may declare (the engine knows more: ``reference`` and ``tuning`` are chosen by the
+#: user for a run, never by a recipe)
+RECIPE_EVALUATIONS = ("validation", "final")
 
 
 def _mapping(where: str, key: str, value: Any) -> dict[str, Any]:
@@ -276,11 +282,16 @@ def _mapping(where: str, key: str, value: Any) -> dict[str, Any]:
 def check_named_recipe(recipe: Mapping[str, Any], where: str = "recipe") -> None:
     """Validate a named recipe: its training keys against the schema, its sections' shapes (at registration)."""
     named_recipe_for(recipe, None, where)
+    evaluation = recipe.get("evaluation")
+    if evaluation is not None and evaluation not in RECIPE_EVALUATIONS:
+        raise ConfigError(f"{where}: evaluation must be one of {', '.join(RECIPE_EVALUATIONS)}, got {evaluation!r}")
     for dataset, section in _mapping(where, "datasets", recipe.get("datasets") or {}).items():
         if not isinstance(section, Mapping):
             raise ConfigError(f"{where}: datasets.{dataset} must be a dict, got {section!r}")
         if "datasets" in section:
             raise ConfigError(f"{where}: datasets.{dataset} cannot nest another 'datasets' section")
+        if "evaluation" in section:
+            raise ConfigError(f"{where}: datasets.{dataset} cannot declare an evaluation (a recipe has one)")
         named_recipe_for(recipe, dataset, where)
 
 

@@ -23,7 +23,7 @@ import torch
 from .. import registry
 from ..engine.build import ModelCannotConsume
 from ..engine.cell import CellConfig, CellResult, train_cell
-from ..engine.runtime import cpu_model, flush_denormals, resolve_device, set_threads, versions
+from ..engine.runtime import cpu_isa, cpu_model, flush_denormals, resolve_device, set_threads, versions
 from .progress import ProgressWriter
 
 __all__ = ["CellTask", "run_cell", "setup_worker", "save_weights", "RECORD_FORMAT"]
@@ -94,7 +94,7 @@ def _base_record(task: CellTask) -> dict[str, Any]:
     return {"format": RECORD_FORMAT, "cell_id": task.cell_id, "model": task.model, "dataset": task.dataset,
             "fold": task.fold, "seed": task.seed, "config_hash": task.config_hash, "protocol": task.protocol,
             "status": "failed", "error": None, "config": task.config, "host": socket.gethostname(), "cpu": cpu_model(),
-            "versions": versions(), "commit": task.commit, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+            "cpu_isa": cpu_isa(), "versions": versions(), "commit": task.commit, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
 #: decimals kept of each stored class probability: enough to average seeds into an ensemble, a third of the bytes

@@ -26,7 +26,7 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     save_weights: false             # write each computed cell's trained weights to OUT/weights/<cell id>.safetensors
     prefixes: [0.1, 0.25, 0.5, 0.75, 1.0]
     recipe_name: source             # which named recipe every model starts from (default: each model's default)
-    evaluation: validation          # or reference: the sources' protocol (tactile_zoo.engine.cell.EVALUATIONS)
+    evaluation: validation          # or reference, tuning, final (engine.cell.EVALUATIONS); default: the recipe's
     recipe: {lr: 0.001}             # every model
     hparams: {}                     # every model's constructor keywords
     model_overrides:
@@ -85,7 +85,7 @@ class BenchConfig:
     plugin_modules: list[str] = field(default_factory=list)
     prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))
     recipe_name: str | None = None
-    evaluation: str = "validation"
+    evaluation: str | None = None  # None: the evaluation the recipe declares, else validation
     recipe: dict[str, Any] = field(default_factory=dict)
     hparams: dict[str, Any] = field(default_factory=dict)
     model_overrides: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)

@@ -266,12 +266,14 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
 
 
 def _intervals(records: list[dict[str, Any]]) -> dict[tuple[str, str], tuple[float, float] | None]:
-    """(model, dataset) -> the 95 % interval of the mean test accuracy of its ok cells selected on validation."""
+    """(model, dataset) -> the 95 % interval of the mean test accuracy of its ok honest cells (selected on validation,
+    or ``final``: nothing selected, the test split read once)."""
     from .intervals import records_interval
 
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for rec in _ok(records):
-        if (rec.get("config") or {}).get("evaluation", "validation") == "validation" and rec.get("predictions"):
+        if (rec.get("config") or {}).get("evaluation", "validation") in ("validation", "final") \
+                and rec.get("predictions"):
             groups.setdefault((rec["model"], rec["dataset"]), []).append(rec)
     return {key: records_interval(recs) for key, recs in groups.items()}
 

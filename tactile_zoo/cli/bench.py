@@ -40,9 +40,11 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", default=None, help="torch threads per cell, under every executor (default 1, so "
                                                    "local and distributed runs give identical numbers; run cells "
                                                    "side by side with --executor process --workers N)")
-    p.add_argument("--evaluation", choices=["validation", "reference", "tuning"], default=None,
-                   help="validation (default): the epoch is selected on the validation split and the test split is "
-                        "read once. reference: the sources' protocol: train on train+val for the recipe's fixed "
+    p.add_argument("--evaluation", choices=["validation", "reference", "tuning", "final"], default=None,
+                   help="default: the one the recipe declares (`full`: final), else validation. validation: the "
+                        "epoch is selected on the validation split and the test split is read once. final: train "
+                        "on train+val for the recipe's fixed epochs, nothing selected, the test split read once. "
+                        "reference: the sources' protocol: train on train+val for the recipe's fixed "
                         "epochs, test after every epoch, keep the final epoch's accuracy (honest) and the best "
                         "epoch's (chosen on test: optimistic, labelled so). tuning: as validation, but the test "
                         "split is never read (loading it raises); the cells record the validation score, for "

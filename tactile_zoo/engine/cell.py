@@ -29,8 +29,8 @@ from .runtime import PeakMemory, flush_denormals, resolve_device
 from .tensors import concat, take
 from .train import FitResult, train_model
 
-__all__ = ["CellConfig", "CellResult", "EVALUATIONS", "UNHASHED_KEYS", "resolve_cell", "train_cell",
-           "recipe_name_of"]
+__all__ = ["CellConfig", "CellResult", "EVALUATIONS", "MERGED_EVALUATIONS", "UNHASHED_KEYS", "resolve_cell",
+           "train_cell", "recipe_name_of"]
 
 #: Keys of a stored cell configuration that are labels, not settings: the cell hash leaves them out.
 UNHASHED_KEYS = ("causal", "recipe_name")
@@ -42,8 +42,12 @@ UNHASHED_KEYS = ("causal", "recipe_name")
 #: (optimistic: chosen on the test set itself, reported only as the sources' figure). No per-epoch test curve is
 #: stored, so it can never steer a later choice. ``tuning`` (for choosing a recipe): train and select on validation
 #: exactly as ``validation`` does, but never read a test split: the cell runs in tuning mode
-#: (:mod:`tactile_zoo.data.guard`), where loading one raises, and records the validation score only.
-EVALUATIONS = ("validation", "reference", "tuning")
+#: (:mod:`tactile_zoo.data.guard`), where loading one raises, and records the validation score only. ``final``
+#: (honest, for a recipe whose epoch count was declared beforehand from validation evidence, such as ``full``):
+#: train on train + val for the recipe's fixed epochs, nothing selected, and read the test split once, at the end.
+EVALUATIONS = ("validation", "reference", "tuning", "final")
+#: the evaluations that train on every training recording (train + val) and select nothing
+MERGED_EVALUATIONS = ("reference", "final")
 
 
 @dataclass(frozen=True)
@@ -109,7 +113,7 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
                  hparams: Mapping[str, Any] | None = None, epochs: int | None = None,
                  dataset_kwargs: Mapping[str, Any] | None = None, refit: bool = False,
                  subset: Mapping[str, int] | None = None, prefixes: Sequence[float] = DEFAULT_PREFIXES,
-                 evaluation: str = "validation") -> CellConfig:
+                 evaluation: str | None = None) -> CellConfig:
     """The configuration of ``model`` on ``dataset``.
 
     Args:
@@ -126,12 +130,10 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
         refit: retrain on train + val for the selected epoch count.
         subset: at most this many (class-balanced) samples per split, keyed ``train``/``val``/``test``.
         prefixes: early-classification prefix fractions evaluated on the test split.
-        evaluation: ``"validation"``, ``"reference"`` or ``"tuning"`` (:data:`EVALUATIONS`).
+        evaluation: one of :data:`EVALUATIONS`; default: the one the named recipe declares, else ``"validation"``.
     """
-    if evaluation not in EVALUATIONS:
+    if evaluation is not None and evaluation not in EVALUATIONS:
         raise ConfigError(f"--evaluation must be one of {', '.join(EVALUATIONS)}, got {evaluation!r}")
-    if evaluation == "reference" and refit:
-        raise ConfigError("--evaluation reference already trains on train + val; it does not combine with --refit")
     entry = registry.get_model_entry(model)
     data_entry = registry.get_dataset_entry(dataset)
     if isinstance(recipe, str):
@@ -140,6 +142,9 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
     named = registry.resolve_model_recipe(entry.meta, recipe_name, dataset, None if custom else recipe, epochs,
                                           owner=f"model {model!r}")
     # a named recipe may carry the model's and the dataset's settings; the user's own (hparams, dataset_kwargs) win
+    evaluation = evaluation or named.evaluation or "validation"
+    if evaluation in MERGED_EVALUATIONS and refit:
+        raise ConfigError(f"--evaluation {evaluation} already trains on train + val; it does not combine with --refit")
     hparams = {**named.hparams, **dict(hparams or {})}
     dataset_kwargs = {**named.dataset_kwargs, **dict(dataset_kwargs or {})}
     if custom:
@@ -219,6 +224,9 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         model = build_model(config.model, train.spec, config.hparams, seed)
         if config.evaluation == "reference":
             result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback)
+        elif config.evaluation == "final":
+            result = train_model(model, concat(train, val), recipe=rec.replace(patience=None), seed=seed, device=dev,
+                                 progress=progress, callback=callback)
         else:
             result = train_model(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev,
                                  refit=config.refit, progress=progress, callback=callback)
@@ -231,14 +239,14 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
     result.test = evals["test"]
     if reference is not None:
         reference["final_epoch_accuracy"] = evals["test"].metrics["accuracy"]
-    merged = config.evaluation == "reference"  # trained on train + val, selected nothing
+    merged = config.evaluation in MERGED_EVALUATIONS  # trained on train + val, selected nothing
     return CellResult(config=config, fold=fold, seed=seed, fit=result, tests=evals, spec=train.spec,
                       n_train=len(train) + (len(val) if merged else 0), n_val=0 if merged else len(val),
                       n_test=len(tests["test"]), device=str(dev), prefix=prefix,
                       infer_ms_per_sample=infer_ms, peak_memory_mb=peak.mb, peak_memory_source=peak.source,
                       peak_gpu_memory_mb=peak.gpu_mb, reference=reference,
                       test_groups={name: split.unit_ids() for name, split in tests.items()},
-                      test_reads=result.epochs_run if merged else 1)
+                      test_reads=result.epochs_run if config.evaluation == "reference" else 1)
 
 
 def _tune_cell(config: CellConfig, fold: int, seed: int, root: Any, download: bool, dev: torch.device,

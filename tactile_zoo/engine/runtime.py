@@ -36,7 +36,7 @@ import torch
 from ..errors import ConfigError
 
 __all__ = ["resolve_device", "seed_everything", "PeakMemory", "count_parameters", "versions", "set_threads",
-           "flush_denormals"]
+           "flush_denormals", "cpu_isa"]
 
 
 def resolve_device(device: str | torch.device | None = "auto") -> torch.device:
@@ -174,6 +174,24 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine()
+
+
+#: the instruction-set flags that decide which kernels torch, oneDNN and MKL run, and so a cell's rounding
+_ISA_FLAG = re.compile(r"^(sse\w*|ssse3|avx\w*|fma\w*|f16c|amx\w*)$")
+
+
+def cpu_isa() -> dict[str, Any]:
+    """What decides which CPU kernels ran: torch's dispatch level (``get_cpu_capability()``, e.g. ``AVX512``) and the
+    processor's vector and matrix instruction-set flags. The same seed can train differently where these differ."""
+    flags: list[str] = []
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "Features")):
+                flags = sorted(f for f in line.split(":", 1)[1].split() if _ISA_FLAG.match(f))
+                break
+    except OSError:
+        pass
+    return {"capability": torch.backends.cpu.get_cpu_capability(), "flags": flags}
 
 
 def cpu_count() -> int:

@@ -225,6 +225,7 @@ class ModelRecipe:
     recipe: Recipe
     hparams: dict[str, Any]
     dataset_kwargs: dict[str, Any]
+    evaluation: str | None = None  # the evaluation the recipe declares (``None``: the caller's choice)
 
 
 def resolve_model_recipe(meta: Mapping[str, Any], name: str | None = None, dataset: str | None = None,
@@ -237,7 +238,8 @@ def resolve_model_recipe(meta: Mapping[str, Any], name: str | None = None, datas
     except ConfigError as exc:
         raise ConfigError(f"{owner}: {exc}") from None
     training, hparams, kwargs = named_recipe_for(base, dataset, where=f"recipe {name!r} of {owner}")
-    return ModelRecipe(name, resolve_recipe(training, overrides, epochs, where=f"recipe of {owner}"), hparams, kwargs)
+    return ModelRecipe(name, resolve_recipe(training, overrides, epochs, where=f"recipe of {owner}"), hparams, kwargs,
+                       (base or {}).get("evaluation"))
 
 
 def _register(kind: str, obj: Any, name: str | None, meta: Mapping[str, Any]) -> Entry:

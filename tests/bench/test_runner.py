@@ -5,6 +5,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+import torch
 from conftest import SMALL, read_board, run_cli
 
 from tactile_zoo.bench import executors, results
@@ -44,6 +45,9 @@ def test_a_run_writes_every_output_and_cell_records_hold_everything(reference_ru
         sum(p == t for p, t in zip(cell["predictions"]["test"]["predictions"], cell["predictions"]["test"]["targets"]))
         / cell["n_test"])
     assert cell["config"]["recipe"]["loss"] == "mse_rate" and cell["config"]["dataset"] == "tiny_blobs"
+    # the CPU's kernel level and vector flags: the same seed can round differently on another CPU type
+    assert cell["cpu_isa"]["capability"] == torch.backends.cpu.get_cpu_capability()
+    assert isinstance(cell["cpu_isa"]["flags"], list)
     assert cell["prefix"]["causal"] is True and cell["prefix"]["input"] == "causal"
     mlp = next(c for c in cells if c["model"] == "tiny_mlp")
     assert mlp["prefix"]["causal"] is False and mlp["prefix"]["input"] == "truncated"
