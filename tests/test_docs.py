@@ -82,7 +82,13 @@ def test_the_site_builds_strictly_with_every_nav_page_and_the_api_reference(site
         assert qualified in api[page], (page, qualified)
     assert "<summary>Shapes</summary>" in _page_html(site, "api/nn.md").read_text()
     for page in pages:
-        assert ":::" not in _page_html(site, page).read_text(), f"an unrendered mkdocstrings block in {page}"
+        text = _page_html(site, page).read_text()
+        assert ":::" not in text, f"an unrendered mkdocstrings block in {page}"
+        # docs/hooks/sphinx_roles.py turns the docstrings' :class:`...` into code, or links
+        assert not re.search(r":(class|func|meth|attr|data|mod|exc):<code>", text), f"a raw Sphinx role in {page}"
+    # a role naming a documented object links to it: XTacformer's docstring names Tacformer
+    xtacformer = _page_html(site, "api/registry.md").read_text().split('id="tactile_zoo.models.x_tacformer"')[1]
+    assert 'href="#tactile_zoo.models.tacformer.Tacformer"' in xtacformer
 
 
 def _copy_without_api_plugin(tmp_path: Path) -> Path:
