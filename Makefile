@@ -5,15 +5,16 @@ BIN := $(VENV)/bin
 TORCH ?= torch==2.13.0
 TGT ?= torch-geometric-temporal==0.56.2
 
-.PHONY: install bench test lint benchmarks tables clean
+.PHONY: install bench test lint benchmarks tables docs clean
 
 $(BIN)/tactile-zoo: setup.cfg pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	# torch first: the CPU build on disk; a looser requirement would drag in several GB of CUDA packages
 	$(BIN)/python -m pip install -q "$(TORCH)"
-	# [export]: onnx, onnxscript and onnxruntime, so that the suite checks every ONNX export under onnxruntime
-	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test,export]"
+	# [export]: onnx, onnxscript and onnxruntime, so that the suite checks every ONNX export under onnxruntime;
+	# [docs]: mkdocs, mkdocs-material and mkdocstrings, so that the suite builds the docs site (tests/test_docs.py)
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test,export,docs]"
 	# x_tacformer's temporal_backend="tgt": --no-deps, its release requires torch-sparse (source-only, does not build
 	# against this torch); the one module we load (TGCN2) needs only torch and torch-geometric, installed above
 	$(BIN)/python -m pip install -q --no-deps "$(TGT)"
@@ -39,5 +40,9 @@ tables: install
 	$(BIN)/python -m benchmarks.fidelity
 	$(BIN)/python -m benchmarks.paper_table1 --readme
 
+# the docs site, into site/ (gitignored); --strict: a broken link or anchor, or a page left out of the nav, fails
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build site *.egg-info

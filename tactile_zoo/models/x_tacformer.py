@@ -65,10 +65,12 @@ class XTacformer(Tacformer):
     the mean of the taxel states and ``hidden=16`` (ours). Model card: docs/models.md, section "`x_tacformer`:
     X-Tacformer".
 
+    It takes every argument of :class:`~tactile_zoo.models.tacformer.Tacformer`, with the same meaning (``spec``,
+    ``dim``, ``heads``, ``depth``, ``mlp_ratio``, ``hops``, ``tau``, ``v_th``, ``surrogate``, ``detach_reset``,
+    ``bin_size``, ``taxel_embedding``, ``pool``, ``readout_norm``, ``attn_dropout``, ``graph``, ``graph_backend``,
+    ``lif_backend``), and these:
+
     Args:
-        spec, dim, heads, depth, mlp_ratio, hops, tau, v_th, surrogate, detach_reset, bin_size, taxel_embedding,
-            pool, readout_norm, attn_dropout, graph, graph_backend, lif_backend: as
-            :class:`~tactile_zoo.models.tacformer.Tacformer`.
         hidden: T-GCN state width per taxel ``H``.
         temporal_pool: frame feature of the temporal branch: ``"mean"`` over taxels (``H``) or ``"flatten"``
             (``N * H``; on Ev-Objects it over-fitted: val loss 0.50 against 0.24, see docs/models.md).
