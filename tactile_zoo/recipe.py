@@ -52,7 +52,7 @@ from typing import Any
 from .errors import ConfigError
 
 __all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "RECIPE_SECTIONS", "resolve_recipe", "named_recipe_for",
-           "check_named_recipe", "lr_factor", "cap_epochs"]
+           "check_named_recipe", "lr_factor", "cap_epochs", "full_recipe"]
 
 LOSSES = ("ce", "mse_rate")
 OPTIMIZERS = ("adam", "adamw", "sgd")
@@ -314,6 +314,38 @@ def named_recipe_for(recipe: Mapping[str, Any] | None, dataset: str | None, wher
         kwargs.update(_mapping(f"{where}: datasets.{dataset}", "dataset_kwargs", section.get("dataset_kwargs") or {}))
     resolve_recipe(training, where=where if not section else f"{where} on {dataset}")  # the schema's check
     return training, hparams, kwargs
+
+
+def full_recipe(recipe: Mapping[str, Any], epochs: Mapping[str, int]) -> dict[str, Any]:
+    """The ``full`` variant of a named recipe: every training recording, a fixed epoch count per dataset.
+
+    ``epochs`` maps a dataset to the epoch count declared for it beforehand from validation evidence alone (the rule
+    is in ``benchmarks/results/paper-table1-full/PLAN.md``). The variant declares ``evaluation: final`` (train on
+    train + val, select nothing, read the test split once) and turns early stopping off. Everything else is the
+    recipe's own, the learning-rate schedule included: a cosine schedule keeps the period of the recipe's full
+    budget (``t_max``), so the first ``N`` epochs follow the same learning rates as the runs the count came from.
+    """
+    default_period = int(recipe.get("max_epochs", DEFAULT_RECIPE.max_epochs))
+    out: dict[str, Any] = {**recipe, "patience": None, "evaluation": "final",
+                           "schedule": _fixed_period(recipe.get("schedule"), default_period)}
+    sections = {name: dict(section) for name, section in (recipe.get("datasets") or {}).items()}
+    for dataset, count in epochs.items():
+        section = sections.setdefault(dataset, {})
+        if "schedule" in section or "max_epochs" in section:  # the section's own budget set its schedule's period
+            period = int(section.get("max_epochs", default_period))
+            section["schedule"] = _fixed_period(section.get("schedule", recipe.get("schedule")), period)
+        section.update(max_epochs=int(count), patience=None)
+    out["datasets"] = sections
+    return out
+
+
+def _fixed_period(schedule: Any, period: int) -> Any:
+    """A cosine schedule whose period follows ``max_epochs`` (``t_max`` unset), pinned to ``period`` epochs."""
+    if isinstance(schedule, str):
+        schedule = {"type": schedule}
+    if isinstance(schedule, Mapping) and schedule.get("type") == "cosine" and schedule.get("t_max") is None:
+        return {**schedule, "t_max": period}
+    return schedule
 
 
 def cap_epochs(recipe: Recipe, budget: int | None) -> Recipe:

@@ -94,7 +94,8 @@ def _base_record(task: CellTask) -> dict[str, Any]:
     return {"format": RECORD_FORMAT, "cell_id": task.cell_id, "model": task.model, "dataset": task.dataset,
             "fold": task.fold, "seed": task.seed, "config_hash": task.config_hash, "protocol": task.protocol,
             "status": "failed", "error": None, "config": task.config, "host": socket.gethostname(), "cpu": cpu_model(),
-            "cpu_isa": cpu_isa(), "versions": versions(), "commit": task.commit, "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+            "cpu_isa": cpu_isa(), "versions": versions(), "commit": task.commit,
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
 #: decimals kept of each stored class probability: enough to average seeds into an ensemble, a third of the bytes

@@ -139,3 +139,21 @@ def test_bench_records_the_recipe_name_in_cell_leaderboard_and_report(two_recipe
     capsys.readouterr()
     assert main([*args[:-4], "--recipe", "slow", "--out", str(tmp_path / "x"), "--no-plots"]) == 2
     assert "no recipe named 'slow'" in capsys.readouterr().err
+
+
+def test_full_recipe_fixes_the_epochs_and_keeps_the_learning_rates() -> None:
+    from tactile_zoo.recipe import full_recipe, resolve_recipe
+
+    zoo = {"loss": "ce", "lr": 0.002, "schedule": {"type": "cosine"}, "max_epochs": 30, "patience": 10,
+           "datasets": {"b": {"max_epochs": 20, "dataset_kwargs": {"window": 5}}}}
+    full = full_recipe(zoo, {"a": 12, "b": 7})
+    assert full["evaluation"] == "final" and full["patience"] is None
+    assert full["schedule"] == {"type": "cosine", "t_max": 30}  # the period of the budget the count came from
+    assert full["datasets"]["a"] == {"max_epochs": 12, "patience": None}
+    # a section with its own budget had its own period, and keeps its other settings
+    assert full["datasets"]["b"] == {"max_epochs": 7, "patience": None, "dataset_kwargs": {"window": 5},
+                                     "schedule": {"type": "cosine", "t_max": 20}}
+    multistep = {"schedule": {"type": "multistep", "milestones": [5]}, "max_epochs": 10}
+    assert full_recipe(multistep, {"a": 4})["schedule"] == multistep["schedule"]  # absolute epochs: unchanged
+    resolve_recipe({k: v for k, v in full.items() if k not in ("datasets", "evaluation")})  # valid keys
+    assert zoo["patience"] == 10 and "evaluation" not in zoo  # the zoo recipe itself is untouched

@@ -1,0 +1,51 @@
+"""The ``full`` recipes' epoch counts are the rule of ``benchmarks/results/paper-table1-full/PLAN.md`` applied to the
+committed ``zoo`` cells' validation choices, and nothing else: recomputed here from the cell records."""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+from pathlib import Path
+
+import pytest
+
+from tactile_zoo.registry import get_model_entry, list_models, resolve_model_recipe
+
+RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+DATASETS = ("ev_objects", "ev_containers", "biotac_dos")
+BUILT_IN = [m for m in list_models() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")]
+
+
+def declared_epochs(folder: Path) -> dict[tuple[str, str], int]:
+    """(model, dataset) -> the median epoch validation selected over the folder's ok cells, halves rounded up."""
+    chosen: dict[tuple[str, str], list[int]] = {}
+    for path in sorted((folder / "cells").glob("*.json")):
+        record = json.loads(path.read_text())
+        if record.get("status") == "ok" and record["config"].get("recipe_name") == "zoo":
+            chosen.setdefault((record["model"], record["dataset"]), []).append(int(record["best_epoch"]))
+    return {key: math.floor(statistics.median(epochs) + 0.5) for key, epochs in chosen.items()}
+
+
+@pytest.mark.parametrize("model", BUILT_IN)
+def test_full_trains_the_declared_epochs(model: str) -> None:
+    rule = declared_epochs(RESULTS / "paper-table1-zoo")
+    meta = get_model_entry(model).meta
+    for dataset in DATASETS:
+        full = resolve_model_recipe(meta, "full", dataset)
+        zoo = resolve_model_recipe(meta, "zoo", dataset)
+        assert full.recipe.max_epochs == rule[model, dataset], dataset
+        assert full.evaluation == "final" and full.recipe.patience is None
+        # everything else is the zoo recipe's: the model's and the dataset's settings, the optimiser
+        assert (full.hparams, full.dataset_kwargs) == (zoo.hparams, zoo.dataset_kwargs)
+        assert (full.recipe.lr, full.recipe.batch_size, full.recipe.optimizer) == \
+            (zoo.recipe.lr, zoo.recipe.batch_size, zoo.recipe.optimizer)
+
+
+def test_the_rule_uses_several_seeds_never_one() -> None:
+    counts: dict[tuple[str, str], int] = {}
+    for path in (RESULTS / "paper-table1-zoo" / "cells").glob("*.json"):
+        record = json.loads(path.read_text())
+        if record.get("status") == "ok":
+            counts[record["model"], record["dataset"]] = counts.get((record["model"], record["dataset"]), 0) + 1
+    assert counts and min(counts.values()) >= 4
