@@ -17,6 +17,9 @@ Keys:
     max_epochs: the epoch budget. patience: early stopping after this many epochs without improvement on the
         validation split (``None``: off). monitor: what "improvement" means, see below.
     batch_size, eval_batch_size, grad_clip (max gradient norm, ``None``: off), label_smoothing (``ce`` only).
+    ema_decay: ``None`` (off, the default) or a decay in (0, 1): keep an exponential moving average of the weights
+        (buffers included), updated after every optimiser step; validation, selection and the returned model use the
+        averaged weights. Left out of the cell hash while off, so the hashes of cells from before it still hold.
 
 Model selection (the one documented choice the harness makes): with ``monitor="val_accuracy"`` (the default) the
 selected epoch is the one with the highest validation accuracy, ties going to the lower validation loss; with
@@ -85,6 +88,7 @@ class Recipe:
     grad_clip: float | None = None
     label_smoothing: float = 0.0
     rate_targets: tuple[float, float] = field(default=(1.0, 0.0))
+    ema_decay: float | None = None
 
     def __post_init__(self) -> None:
         where = "recipe"
@@ -106,6 +110,8 @@ class Recipe:
             raise ConfigError(f"{where}: grad_clip must be > 0 or null, got {self.grad_clip!r}")
         if not 0.0 <= self.label_smoothing < 1.0:
             raise ConfigError(f"{where}: label_smoothing must be in [0, 1), got {self.label_smoothing!r}")
+        if self.ema_decay is not None and not 0.0 < self.ema_decay < 1.0:
+            raise ConfigError(f"{where}: ema_decay must be in (0, 1) or null, got {self.ema_decay!r}")
         _check_schedule(self.schedule)
 
     @classmethod
@@ -114,9 +120,13 @@ class Recipe:
         return resolve_recipe(None, values, where=where)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able values (lists, not tuples), every key present: what the config hash covers."""
+        """Plain JSON-able values (lists, not tuples): what the config hash covers. Every key is present except the
+        optional ones added after cells were first recorded (:data:`HASH_NEUTRAL_KEYS`), which appear only when set."""
         out = asdict(self)
         out["rate_targets"] = list(self.rate_targets)
+        for key, off in HASH_NEUTRAL_KEYS.items():
+            if out[key] == off:
+                del out[key]
         return out
 
     def replace(self, **changes: Any) -> Recipe:
@@ -220,7 +230,7 @@ def _coerce(where: str, key: str, value: Any) -> Any:
         return _as_bool(where, key, value)
     if key == "patience":
         return None if value is None or value is False else _as_int(where, key, value)
-    if key == "grad_clip":
+    if key in ("grad_clip", "ema_decay"):
         return None if value is None or value is False else _as_float(where, key, value)
     if key == "schedule":
         return _normalise_schedule(where, value)
@@ -265,6 +275,9 @@ def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Ma
 
 
 RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
+#: keys added after cells were first recorded, and their "off" value: left out of :meth:`Recipe.to_dict` while off,
+#: so that adding a capability never moves an existing cell's hash
+HASH_NEUTRAL_KEYS: dict[str, Any] = {"ema_decay": None}
 DEFAULT_RECIPE = Recipe()
 #: the non-training sections a named recipe may carry (see the module docstring)
 RECIPE_SECTIONS = ("hparams", "dataset_kwargs", "datasets", "evaluation")

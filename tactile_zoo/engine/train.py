@@ -128,6 +128,14 @@ class _Trainer:
         self.num_classes = train.spec.num_classes
         self.optimizer = build_optimizer(model, recipe)
         self.generator = torch.Generator().manual_seed(seed)
+        # the recipe's weight average (EMA), buffers included so BatchNorm statistics follow the averaged weights
+        self.average = None if recipe.ema_decay is None else torch.optim.swa_utils.AveragedModel(
+            model, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(recipe.ema_decay), use_buffers=True)
+
+    @property
+    def evaluated(self) -> torch.nn.Module:
+        """The weights that validation, selection and the caller see: the average when the recipe keeps one."""
+        return self.model if self.average is None else self.average.module
 
     def epoch(self, epoch: int) -> float:
         """Train one (0-based) epoch; returns the mean training loss."""
@@ -150,6 +158,8 @@ class _Trainer:
             if self.recipe.grad_clip is not None:
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.recipe.grad_clip)
             self.optimizer.step()
+            if self.average is not None:
+                self.average.update_parameters(self.model)
             total += loss.detach() * idx.shape[0]
         mean = float(total) / self.x.shape[0]  # one host sync per epoch, not per batch
         if mean != mean or mean in (float("inf"), float("-inf")):
@@ -240,10 +250,11 @@ def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dic
             row: dict[str, Any] = {"epoch": epoch + 1, "train_loss": train_loss, "val_loss": None,
                                    "val_accuracy": None, "lr": trainer.optimizer.param_groups[0]["lr"]}
             if val is not None:
-                val_loss, val_acc = _val_step(module, val, rec, dev)
+                val_loss, val_acc = _val_step(trainer.evaluated, val, rec, dev)
                 row.update(val_loss=val_loss, val_accuracy=val_acc)
                 if _better(rec, val_loss, val_acc, best):
-                    best, best_state, best_epoch, waited = (val_loss, val_acc), _clone_state(module), epoch + 1, 0
+                    best, best_state = (val_loss, val_acc), _clone_state(trainer.evaluated)
+                    best_epoch, waited = epoch + 1, 0
                 else:
                     waited += 1
             else:
@@ -264,6 +275,8 @@ def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dic
         module.load_state_dict(best_state)
     elif val is not None:
         raise TrainingError("no epoch produced a finite validation loss")
+    elif trainer.average is not None:  # nothing selected: the last epoch's average is the model
+        module.load_state_dict(trainer.evaluated.state_dict())
     val_result = evaluate(module, val, loss=rec.loss, batch_size=rec.eval_batch_size) if val is not None else None
 
     refit_curve: list[dict[str, Any]] = []
@@ -278,6 +291,8 @@ def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dic
             loss = trainer.epoch(epoch)
             refit_curve.append({"epoch": epoch + 1, "train_loss": loss, "lr": trainer.optimizer.param_groups[0]["lr"],
                                 "seconds": time.perf_counter() - t0})
+        if trainer.average is not None:
+            module.load_state_dict(trainer.evaluated.state_dict())
     train_seconds = time.perf_counter() - start
     test_result = None
     if test_dataset is not None:

@@ -142,3 +142,24 @@ def test_evaluate_repeats_the_fit_test_numbers() -> None:
 def test_cuda_without_a_gpu_is_a_config_error() -> None:
     with pytest.raises(ConfigError, match="CUDA is not available"):
         _fit(device="cuda")
+
+
+def test_ema_returns_the_moving_average_of_the_weights_and_leaves_training_alone() -> None:
+    """``ema_decay``: the model returned is the exponential moving average of the weights after every step, over the
+    very trajectory training takes without it (one step per epoch here, so each epoch's weights are one step's)."""
+    splits = _splits()
+    train, spec = splits["train"], splits["train"].spec
+    one_step = {"batch_size": len(train), "max_epochs": 3, "patience": None, "lr": 0.05}
+    seen: list[dict[str, torch.Tensor]] = []
+    plain_model = tz.create_model("tiny_mlp", spec)
+    start = {k: v.clone() for k, v in plain_model.state_dict().items()}
+    fit(plain_model, train, recipe=one_step, seed=1,
+        callback=lambda row: seen.append({k: v.clone() for k, v in plain_model.state_dict().items()}))
+    averaged_model = tz.create_model("tiny_mlp", spec)
+    averaged_model.load_state_dict(start)
+    fit(averaged_model, train, recipe={**one_step, "ema_decay": 0.9}, seed=1)
+    for key, value in averaged_model.state_dict().items():
+        w1, w2, w3 = (step[key] for step in seen)
+        expected = 0.9 * (0.9 * w1 + 0.1 * w2) + 0.1 * w3  # the first update copies, the next ones average
+        assert torch.allclose(value, expected, atol=1e-6), key
+        assert not torch.allclose(value, w3), key  # the raw last weights are not what came back

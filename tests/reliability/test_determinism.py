@@ -56,6 +56,7 @@ RECIPE_VALUES: dict[str, st.SearchStrategy] = {
     "grad_clip": st.none() | st.floats(0.01, 10.0),
     "label_smoothing": _nonneg(st.floats(0, 0.5)),
     "rate_targets": st.tuples(st.floats(0.5, 1.0), _nonneg(st.floats(0, 0.4))).map(list),
+    "ema_decay": st.none() | st.floats(0.5, 0.999),
 }
 HPARAMS = st.dictionaries(st.sampled_from(["hidden", "dropout"]),
                           st.one_of(st.integers(1, 64), _nonneg(st.floats(0, 0.9))), min_size=1)
