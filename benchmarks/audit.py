@@ -4,6 +4,7 @@ final cell's test split read exactly once? A script checks it from committed fil
     python -m benchmarks.audit                     # tuning trials, the frozen recipes, the final zoo cells
     python -m benchmarks.audit --final DIR --recipe zoo --tuning DIR
     python -m benchmarks.audit --freeze zoo-biotac zoo-ev   # write tuning/freeze.json from the registered recipes
+    python -m benchmarks.audit --plan DIR --plan-recipe full  # only the planned round in DIR (PLAN.md)
 
 What it reads:
 
@@ -28,6 +29,12 @@ What it checks (each failure is one line; the exit status is 1 if there is any):
 4. every final cell: its recipe name is ``--recipe``, its resolved recipe is the frozen one, it read its test split
    exactly once (``test_reads == 1``), and its recorded ``commit`` is clean and is the freeze commit or a descendant
    (``git merge-base --is-ancestor``): it was computed after the recipes were frozen.
+
+**A planned round** (``--plan``, default ``benchmarks/results/paper-table1-full`` with recipe ``full``): its
+``PLAN.md`` declares the recipe before any cell ran, so the commit that first added ``PLAN.md`` plays the freeze's
+part. Every ok cell of the round's recipe there must have trained with the registered recipe as the harness resolves
+it, under the evaluation the recipe declares, read its test split once, carry a clean commit that descends from the
+plan's, and share one CPU type (``cpu_isa.capability`` and the processor's name) with every other cell of the round.
 """
 
 from __future__ import annotations
@@ -177,6 +184,49 @@ def audit(tuning: Path, final: Path, recipe: str, max_trials: int = 8, repo: Pat
     return lines, failures
 
 
+def plan_commit(plan: Path, repo: Path = REPO) -> str | None:
+    """The commit that first added ``plan``: later commits only append outcomes to it."""
+    out = _git(repo, "log", "--diff-filter=A", "--format=%H", "--", str(plan.resolve())).stdout.split()
+    return out[-1] if out else None
+
+
+def audit_plan(folder: Path, recipe: str, repo: Path = REPO) -> tuple[list[str], list[str]]:
+    """``(report lines, failures)`` of a planned round: ``folder/PLAN.md`` committed before every cell of ``recipe``
+    in ``folder``, each cell trained as planned, its test split read once, all on one CPU type."""
+    plan = folder / "PLAN.md"
+    lines, failures = [f"## Planned `{recipe}` cells ({folder.name})", ""], []
+    commit = plan_commit(plan, repo) if plan.is_file() else None
+    if commit is None:
+        failures.append(f"{plan}: {'not committed' if plan.is_file() else 'missing'}; a plan is declared by a commit")
+        return lines, failures
+    records = [r for r in _records(folder) if r.get("status") == "ok"
+               and recipe_name_of(r.get("config") or {}) == recipe]
+    lines.append(f"Plan committed in {commit[:12]}; {len(records)} cell(s) so far.")
+    cpus: dict[tuple[str, str], list[str]] = defaultdict(list)
+    for rec in records:
+        cfg, cell_commit = rec["config"], str(rec.get("commit") or "")
+        where = rec["cell_id"]
+        planned = resolve_cell(rec["model"], rec["dataset"], recipe_name=recipe, hparams=cfg.get("hparams"),
+                               dataset_kwargs=cfg.get("dataset_kwargs"))
+        if cfg["recipe"] != planned.recipe.to_dict():
+            failures.append(f"{where}: trained with another recipe than the planned {recipe!r}")
+        if cfg.get("evaluation", "validation") != planned.evaluation:
+            failures.append(f"{where}: evaluation {cfg.get('evaluation', 'validation')}, the recipe declares "
+                            f"{planned.evaluation}")
+        if rec.get("test_reads") != 1:
+            failures.append(f"{where}: test split read {rec.get('test_reads')} time(s), not once")
+        if not cell_commit or cell_commit.endswith("+dirty") or not descends(cell_commit, commit, repo):
+            failures.append(f"{where}: commit {cell_commit or 'unrecorded'} is not a clean descendant of the plan "
+                            f"commit {commit[:12]}")
+        cpus[(str((rec.get("cpu_isa") or {}).get("capability")), str(rec.get("cpu")))].append(where)
+    for (capability, name), cells in sorted(cpus.items()):
+        lines.append(f"- {len(cells)} cell(s) on {name} (torch kernels {capability})")
+    if len(cpus) > 1:
+        failures.append(f"{folder.name}: cells on {len(cpus)} CPU types; a round runs on one "
+                        f"({'; '.join(f'{n} {c}' for c, n in sorted(cpus))})")
+    return lines, failures
+
+
 def write_freeze(tuning: Path, recipe: str, trial_folders: list[str]) -> Path:
     """Write ``tuning/freeze.json``: every built-in model's registered ``recipe`` as it stands, and the zoo's trial
     folders. Committing the file is the freeze."""
@@ -197,6 +247,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--final", type=Path, default=RESULTS / "paper-table1-zoo")
     p.add_argument("--recipe", default="zoo")
     p.add_argument("--max-trials", type=int, default=8)
+    p.add_argument("--plan", type=Path, default=RESULTS / "paper-table1-full",
+                   help="a planned round's folder (its PLAN.md declares the recipe before any cell)")
+    p.add_argument("--plan-recipe", default="full")
     p.add_argument("--freeze", nargs="+", metavar="FOLDER", default=None,
                    help="write --tuning/freeze.json from the registered --recipe recipes, naming the zoo's trial "
                         "folders (relative to --tuning), and stop; commit the file to freeze")
@@ -205,6 +258,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {write_freeze(args.tuning, args.recipe, args.freeze)}; commit it to freeze the recipes")
         return 0
     lines, failures = audit(args.tuning, args.final, args.recipe, args.max_trials)
+    plan_lines, plan_failures = audit_plan(args.plan, args.plan_recipe)
+    lines, failures = [*lines, "", *plan_lines], [*failures, *plan_failures]
     print("\n".join(lines))
     print("\n## Verdict\n")
     print("\n".join(f"- FAIL {f}" for f in failures) if failures else "every check holds")

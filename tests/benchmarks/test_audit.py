@@ -10,16 +10,21 @@ from pathlib import Path
 import pytest
 import tiny_zoo
 
-from benchmarks.audit import audit
+from benchmarks.audit import audit, audit_plan
 from tactile_zoo import registry
 from tactile_zoo.engine.cell import resolve_cell
+from tactile_zoo.recipe import full_recipe
 
 ZOO = {**tiny_zoo.TINY_RECIPE, "lr": 0.02, "label_smoothing": 0.1}
+FULL = full_recipe(ZOO, {"tiny_blobs": 3})
+#: a subclass of its own: registering sets the class's metadata, which tiny_mlp's class must keep
+AuditMLP = type("AuditMLP", (tiny_zoo.TinyMLP,), {})
 
 
 @pytest.fixture(autouse=True)
 def audited_model() -> Iterator[None]:
-    registry.register_model("audit_mlp", recipes={"source": tiny_zoo.TINY_RECIPE, "zoo": ZOO})(tiny_zoo.TinyMLP)
+    registry.register_model("audit_mlp", recipes={"source": tiny_zoo.TINY_RECIPE, "zoo": ZOO, "full": FULL}
+                            )(AuditMLP)
     tiny_zoo.register()
     yield
     registry._TABLES["model"].builtin.pop("audit_mlp", None)
@@ -85,7 +90,7 @@ def test_trials_outside_tuning_mode_over_budget_or_off_seed_fail(repo: Path) -> 
 
 def test_a_recipe_changed_after_the_freeze_or_a_missing_freeze_fails(repo: Path) -> None:
     changed = {"source": tiny_zoo.TINY_RECIPE, "zoo": {**ZOO, "lr": 0.05}}
-    registry.register_model("audit_mlp", recipes=changed)(tiny_zoo.TinyMLP)
+    registry.register_model("audit_mlp", recipes=changed)(AuditMLP)
     _, failures = audit(repo / "tuning", repo / "empty", "zoo", repo=repo)
     assert "audit_mlp: the registered 'zoo' recipe differs from the frozen one" in failures
     (repo / "tuning" / "freeze.json").unlink()
@@ -127,3 +132,35 @@ def test_the_audit_prints_what_each_frozen_recipe_changes(repo: Path) -> None:
     assert recipe_changes("audit_mlp", sectioned) == ("everywhere: label_smoothing None -> 0.1, lr 0.03 -> 0.02; "
                                                        "tiny_blobs: dataset_kwargs.window None -> 5, lr 0.03 -> 0.5")
     assert recipe_changes("audit_mlp", dict(tiny_zoo.TINY_RECIPE)) == "the source recipe"
+
+
+def _full_cell(folder: Path, name: str, commit: str, cpu: str = "EPYC", **config: object) -> None:
+    cfg = {**resolve_cell("audit_mlp", "tiny_blobs", recipe_name="full").to_dict(), **config}
+    record = {"cell_id": name, "model": "audit_mlp", "dataset": "tiny_blobs", "fold": 0, "seed": 0, "status": "ok",
+              "config": cfg, "test_reads": 1, "commit": commit, "cpu": cpu, "cpu_isa": {"capability": "AVX512"}}
+    (folder / "cells").mkdir(parents=True, exist_ok=True)
+    (folder / "cells" / f"{name}.json").write_text(json.dumps(record))
+
+
+def test_a_planned_round_needs_its_plan_first_the_planned_recipe_and_one_cpu(tmp_path: Path) -> None:
+    _git(tmp_path, "init", "-q")
+    round_ = tmp_path / "full"
+    round_.mkdir()
+    (round_ / "README.md").write_text("a round")
+    before = _commit(tmp_path, "before the plan")
+    lines, failures = audit_plan(round_, "full", repo=tmp_path)
+    assert failures == [f"{round_ / 'PLAN.md'}: missing; a plan is declared by a commit"]
+    (round_ / "PLAN.md").write_text("the plan")
+    plan = _commit(tmp_path, "the plan")
+    (round_ / "PLAN.md").write_text("the plan\n\n## Outcomes\n")
+    _commit(tmp_path, "an outcome appended: the plan's commit is still the first")
+    _full_cell(round_, "ok", plan)
+    _full_cell(round_, "early", before)
+    _full_cell(round_, "selected", plan, evaluation="validation")
+    _full_cell(round_, "longer", plan, recipe={**resolve_cell("audit_mlp", "tiny_blobs", recipe_name="full")
+                                                 .recipe.to_dict(), "max_epochs": 9})
+    lines, failures = audit_plan(round_, "full", repo=tmp_path)
+    assert f"Plan committed in {plan[:12]}; 4 cell(s) so far." in lines
+    assert sorted(f.split(":")[0] for f in failures) == ["early", "longer", "selected"]
+    _full_cell(round_, "elsewhere", plan, cpu="Xeon")
+    assert any("cells on 2 CPU types" in f for f in audit_plan(round_, "full", repo=tmp_path)[1])
