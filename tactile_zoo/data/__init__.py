@@ -4,8 +4,9 @@
 # ``simulated`` is the compatibility module that re-exports the simulators
 from . import datasets, simulated  # noqa: F401
 from .base import TactileDataset, TensorData, cache_home, data_home
+from .pyg import to_pyg
 from .sensors import Sensor
-from .spec import DatasetSpec, TactileSample, collate
+from .spec import DatasetSpec, TactileBatch, TactileSample, collate
 
 __all__ = ["TactileDataset", "TensorData", "cache_home", "data_home", "Sensor", "DatasetSpec", "TactileSample",
-           "collate"]
+           "TactileBatch", "collate", "to_pyg"]
