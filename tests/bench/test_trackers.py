@@ -89,6 +89,7 @@ def _untimed(curve: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def test_bench_logs_each_cell_to_tensorboard(tmp_path: Path) -> None:
+    pytest.importorskip("tensorboard")
     out = tmp_path / "run"
     assert run_cli([*ONE, "--tracker", "tensorboard", "--out", str(out)]) == 0
     [record] = _cells(out).values()
@@ -97,6 +98,7 @@ def test_bench_logs_each_cell_to_tensorboard(tmp_path: Path) -> None:
 
 
 def test_process_workers_log_to_the_mlflow_file_store(tmp_path: Path) -> None:
+    pytest.importorskip("mlflow")
     out = tmp_path / "run"
     assert run_cli([*TWO, "--executor", "process", "--workers", "2", "--tracker", "mlflow", "--out", str(out)]) == 0
     records = _cells(out)
@@ -106,6 +108,7 @@ def test_process_workers_log_to_the_mlflow_file_store(tmp_path: Path) -> None:
 
 def test_dask_workers_log_tensorboard_event_files(tmp_path: Path) -> None:
     pytest.importorskip("distributed")
+    pytest.importorskip("tensorboard")
     out = tmp_path / "run"
     assert run_cli([*TWO, "--executor", "dask", "--workers", "2", "--tracker", "tensorboard", "--out", str(out)]) == 0
     records = _cells(out)
@@ -115,6 +118,7 @@ def test_dask_workers_log_tensorboard_event_files(tmp_path: Path) -> None:
 
 
 def test_a_failing_tracker_costs_a_warning_never_the_cell(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    pytest.importorskip("mlflow")
     out = tmp_path / "run"
     out.mkdir()
     (out / "mlruns").write_text("not a folder: the file store cannot be created here")
@@ -135,6 +139,8 @@ def test_a_missing_tracker_library_names_the_extra(tmp_path: Path, monkeypatch: 
 
 
 def test_train_logs_its_cell_to_both_trackers(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    pytest.importorskip("tensorboard")
+    pytest.importorskip("mlflow")
     for tracker in ("tensorboard", "mlflow"):
         assert main(["train", "tiny_mlp", "tiny_blobs", "--plugin-module", "tiny_zoo", "--tracker", tracker,
                      "--tracker-dir", str(tmp_path), "--json", "-q"]) == 0
