@@ -56,7 +56,10 @@ def forward_features(model: nn.Module, x: Tensor, g: Tensor | None = None) -> Te
     ``model(x, g)`` (the fallback for plugin models; see the module docstring)."""
     method = getattr(model, "forward_features", None)
     if callable(method):
-        return method(x, g)
+        try:
+            return method(x, g)
+        except NotImplementedError:  # the mixin's (or a base class's) placeholder: the fallback below serves it
+            pass
     layer = model.get_submodule(classifier_name(model))
     caught: list[Tensor] = []
     handle = layer.register_forward_pre_hook(lambda _module, args: caught.append(args[0]))

@@ -43,6 +43,8 @@ def test_reset_classifier_gives_a_fresh_head_and_keeps_the_rest(name: str) -> No
     model.reset_classifier(3)
     new = model.get_classifier()
     assert new is not old and new.out_features == 3 and new.in_features == old.in_features
+    if name == "dcnn":  # initialised as the constructor initialises it: Xavier weights, zero bias
+        assert not new.bias.any()
     head = classifier.classifier_name(model)
     after = model.state_dict()
     assert set(after) == set(before)
@@ -98,3 +100,17 @@ def test_the_fallbacks_serve_a_model_without_the_methods() -> None:
     assert model(x, g).shape == (4, 2) and model.spec.num_classes == 2
     with pytest.raises(tz.ConfigError, match="num_classes must be a positive integer"):
         classifier.reset_classifier(model, 0)
+
+
+class _MixinOnly(classifier.ClassifierMixin, _PluginNet):
+    """A plugin model that takes the mixin but defines neither forward_features nor forward_head."""
+
+
+def test_the_mixin_without_its_methods_falls_back_too() -> None:
+    spec = make_spec("neutouch")
+    model = _MixinOnly(spec)
+    x, g, _ = make_batch(spec, 3, seed=6)
+    assert torch.equal(classifier.forward_features(model, x, g), torch.tanh(model.body(x.mean(1).flatten(1))))
+    assert model.get_classifier() is model.out
+    model.reset_classifier(4)
+    assert model(x, g).shape == (3, 4)
