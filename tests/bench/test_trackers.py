@@ -6,6 +6,7 @@ costs a warning, never a cell; a missing tracker library is one line naming the 
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -115,6 +116,9 @@ def test_dask_workers_log_tensorboard_event_files(tmp_path: Path) -> None:
     assert len(records) == 2
     for record in records.values():
         _check_tensorboard(out, record)
+        # written by a Dask worker process: event files are named events.out.tfevents.<time>.<host>.<pid>.<n>
+        [events] = (out / "tensorboard" / record["cell_id"]).glob("events.out.tfevents.*")
+        assert int(events.name.split(".")[-2]) != os.getpid()
 
 
 def test_a_failing_tracker_costs_a_warning_never_the_cell(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
