@@ -4,7 +4,9 @@ Importing the package registers the built-in sensors, datasets and models; third
 pretrained weights) are discovered lazily through entry points on the first list/create/load call.
 
 ``create_model`` is the weights layer's (:func:`tactile_zoo.weights.create_model`): the registry's
-``Model(spec, **hparams)``, plus ``pretrained=`` weights and ``new_head=``.
+``Model(spec, **hparams)``, plus ``pretrained=`` weights (``True`` picks them), a weights tag in the name
+(``x_tacformer.zoo_ev_objects``), ``new_head=`` and ``num_classes=``; ``list_models`` is the weights layer's too
+(``pretrained=True`` lists weight tags).
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ from .errors import ConfigError, DatasetError, PluginError, TactileZooError, Unk
 from .registry import (  # noqa: E402
     get_sensor,
     list_datasets,
-    list_models,
     list_sensors,
     load_dataset,
     plugins,
@@ -26,7 +27,7 @@ from .registry import (  # noqa: E402
     register_model,
     register_sensor,
 )
-from .weights import create_model, list_weights, predict  # noqa: E402
+from .weights import create_model, list_models, list_weights, predict  # noqa: E402
 
 __all__ = [
     "__version__", "DatasetSpec", "Sensor", "TactileSample", "collate", "TactileZooError", "UnknownNameError",

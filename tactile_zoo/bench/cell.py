@@ -57,6 +57,9 @@ class CellTask:
     commit: str | None = field(default=None, compare=False)
     #: ``--save-weights``: the folder the worker writes the trained weights to (``<cell id>.safetensors``)
     weights_dir: str | None = field(default=None, compare=False)
+    #: ``--tracker``: log the finished cell to this tracker (tensorboard or mlflow) under ``tracker_dir``
+    tracker: str | None = field(default=None, compare=False)
+    tracker_dir: str | None = field(default=None, compare=False)
 
 
 # ----------------------------------------------------------------------------------------------- worker set-up
@@ -187,4 +190,9 @@ def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
             torch.cuda.empty_cache()
         record["seconds"] = round(time.perf_counter() - start, 3)
         record["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    if task.tracker is not None and record["status"] == "ok":
+        from .trackers import log_record
+
+        # here, in the process that ran the cell (a pool or Dask worker too); a failure only warns
+        log_record(task.tracker, record, task.tracker_dir or ".")
     return record

@@ -24,6 +24,8 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     download: false
     force: false
     save_weights: false             # write each computed cell's trained weights to OUT/weights/<cell id>.safetensors
+    tracker: null                   # tensorboard | mlflow: log every cell there too (tactile_zoo.bench.trackers)
+    tracker_dir: null               # where the tracker writes (default: the run folder, OUT)
     prefixes: [0.1, 0.25, 0.5, 0.75, 1.0]
     recipe_name: source             # which named recipe every model starts from (default: each model's default)
     evaluation: validation          # or reference, tuning, final (engine.cell.EVALUATIONS); default: the recipe's
@@ -81,6 +83,8 @@ class BenchConfig:
     retries: int | None = None
     dashboard: str | None = None
     save_weights: bool = False
+    tracker: str | None = None
+    tracker_dir: str | None = None
     threads: int | None = None
     plugin_modules: list[str] = field(default_factory=list)
     prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))
@@ -121,6 +125,9 @@ class BenchConfig:
             if not isinstance(self.dashboard, str) or not self.dashboard.strip():
                 raise ConfigError(f"--dashboard must be an address such as :8787, got {self.dashboard!r}")
         self.prefixes = parse_prefixes(self.prefixes)
+        from .trackers import check_tracker  # its optional library is imported only when a cell is logged
+
+        self.tracker = check_tracker(self.tracker)
         if isinstance(self.recipe, str):  # ``recipe: source`` in a YAML file names a recipe
             self.recipe_name, self.recipe = self.recipe, {}
         if self.recipe_name is not None and (not isinstance(self.recipe_name, str) or not self.recipe_name.strip()):

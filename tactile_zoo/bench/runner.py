@@ -106,7 +106,8 @@ def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
 
 
 def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Path | None = None,
-          weights_dir: Path | None = None) -> CellTask:
+          weights_dir: Path | None = None, run_dir: Path | None = None) -> CellTask:
+    tracker_dir = Path(config.tracker_dir) if config.tracker_dir else run_dir
     return CellTask(model=cell.model, dataset=cell.dataset, fold=cell.fold, seed=cell.seed,
                     config_hash=cell.config_hash, cell_id=cell.cell_id, config=cell.config, protocol=cell.protocol,
                     extra_splits=cell.extra_splits, root=config.root, download=config.download, device=config.device,
@@ -114,7 +115,9 @@ def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Pat
                     plugin_modules=tuple(config.plugin_modules), sys_path=tuple(sys.path),
                     progress_dir=str(progress_dir.resolve()) if progress_dir is not None else None,
                     commit=environment()["git_commit"],
-                    weights_dir=str(weights_dir.resolve()) if weights_dir is not None else None)
+                    weights_dir=str(weights_dir.resolve()) if weights_dir is not None else None,
+                    tracker=config.tracker,
+                    tracker_dir=str(tracker_dir.resolve()) if config.tracker and tracker_dir is not None else None)
 
 
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
@@ -341,7 +344,7 @@ def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, i
     remove_progress(run.path, cell.cell_id)  # a killed run's leftover: we hold the claim, nobody else runs it
     try:
         future = executor.submit(_task(cell, config, executor, run.progress_dir,
-                                       run.path / "weights" if config.save_weights else None))
+                                       run.path / "weights" if config.save_weights else None, run.path))
     except BaseException:  # Ctrl-C inside a local cell: its claim and progress must not outlive it
         remove_progress(run.path, cell.cell_id)
         claim.release()

@@ -8,7 +8,7 @@ from typing import Any
 from .. import registry
 from ..errors import ConfigError
 
-__all__ = ["echo", "add_recipe_flags", "fold_arg", "checkpoint_dataset"]
+__all__ = ["echo", "add_recipe_flags", "add_tracker_flags", "with_tracker", "fold_arg", "checkpoint_dataset"]
 
 
 def echo(*args: Any) -> None:
@@ -38,6 +38,23 @@ def add_recipe_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=None, metavar="MODULE",
                    help="import MODULE first (it registers models or datasets); repeatable")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or per-cell lines")
+
+
+def add_tracker_flags(p: argparse.ArgumentParser, where: str) -> None:
+    p.add_argument("--tracker", choices=["tensorboard", "mlflow"], default=None,
+                   help="also log each cell (config and hash, per-epoch curves, final metrics, the cell JSON) to "
+                        "TensorBoard event files or an MLflow file store; optional extras: pip install "
+                        "\"tactile-zoo[tensorboard]\" or \"tactile-zoo[mlflow]\"")
+    p.add_argument("--tracker-dir", default=None, metavar="DIR",
+                   help=f"where the tracker writes DIR/tensorboard/<cell id>/ or DIR/mlruns (default {where})")
+
+
+def with_tracker(config: Any, args: argparse.Namespace) -> Any:
+    """A bench config with ``--tracker`` / ``--tracker-dir`` applied (the flags win over a YAML file), checked."""
+    for key in ("tracker", "tracker_dir"):
+        if getattr(args, key, None) is not None:
+            setattr(config, key, getattr(args, key))
+    return config.validate()
 
 
 def fold_arg(value: Any) -> int:

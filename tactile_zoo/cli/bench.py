@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._common import add_recipe_flags, echo
+from ._common import add_recipe_flags, add_tracker_flags, echo, with_tracker
 
 __all__ = ["add_bench", "add_report"]
 
@@ -57,6 +57,7 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "
                                                            "(`tactile-zoo report DIR` draws them later)")
     add_recipe_flags(p)
+    add_tracker_flags(p, "the run folder, --out")
     p.set_defaults(handler=_cmd_bench)
 
 
@@ -74,7 +75,8 @@ def _bench_config(args: argparse.Namespace) -> Any:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from ..bench import run_bench
 
-    outcome = run_bench(_bench_config(args), dry_run=args.dry_run, quiet=args.quiet, plots=not args.no_plots)
+    outcome = run_bench(with_tracker(_bench_config(args), args), dry_run=args.dry_run, quiet=args.quiet,
+                        plots=not args.no_plots)
     return outcome.exit_code
 
 

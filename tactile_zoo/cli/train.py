@@ -9,7 +9,7 @@ from typing import Any
 
 from .. import registry
 from ..errors import ConfigError
-from ._common import add_recipe_flags, checkpoint_dataset, echo, fold_arg
+from ._common import add_recipe_flags, add_tracker_flags, checkpoint_dataset, echo, fold_arg
 
 __all__ = ["add_train", "add_evaluate"]
 
@@ -25,6 +25,7 @@ def add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", default="1", help="torch threads (default 1, as bench runs each cell, so the numbers "
                                                   "match the leaderboard's)")
     add_recipe_flags(p)
+    add_tracker_flags(p, "the current folder")
     p.set_defaults(handler=_cmd_train)
 
 
@@ -40,12 +41,14 @@ def _single_config(args: argparse.Namespace) -> Any:
 def _cmd_train(args: argparse.Namespace) -> int:
     from ..bench.config import parse_positive_int, parse_seeds
     from ..bench.grid import cell_config, resolve_datasets, resolve_models
+    from ..bench.trackers import check_tracker
     from ..engine import save_checkpoint
     from ..engine.cell import train_cell
     from ..engine.runtime import set_threads, versions
     from ..errors import ConfigError
 
     config = _single_config(args)
+    tracker = check_tracker(args.tracker)  # a missing extra fails now, not after the training
     registry.import_plugin_modules(config.plugin_modules)
     set_threads(parse_positive_int("--threads", args.threads))
     try:
@@ -72,6 +75,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
                 "spec": outcome.spec.to_dict(), "metrics": metrics, "best_epoch": result.best_epoch,
                 "versions": versions()}
         summary["saved"] = str(save_checkpoint(args.save, result.model, blob))
+    if tracker is not None:
+        _track(tracker, args.tracker_dir or ".", cell, outcome, summary)
     if args.json:
         echo(json.dumps(summary, indent=2))
     else:
@@ -81,6 +86,22 @@ def _cmd_train(args: argparse.Namespace) -> int:
         if args.save:
             echo(f"saved {summary['saved']}")
     return 0
+
+
+def _track(tracker: str, folder: str, cell: Any, outcome: Any, summary: dict[str, Any]) -> None:
+    """Log the trained cell as bench would log its record (the tracker module's keys: config and hash, curves,
+    final metrics, the record as cell.json)."""
+    from ..bench.cell import _ok_record
+    from ..bench.grid import cell_id, config_hash
+    from ..bench.trackers import log_record
+
+    digest = config_hash(cell)
+    record = {"cell_id": cell_id(summary["model"], summary["dataset"], summary["fold"], summary["seed"], digest),
+              "model": summary["model"], "dataset": summary["dataset"], "fold": summary["fold"],
+              "seed": summary["seed"], "config_hash": digest, "config": cell.to_dict(), **_ok_record(outcome)}
+    if log_record(tracker, record, folder):
+        where = Path(folder) / ("mlruns" if tracker == "mlflow" else f"tensorboard/{record['cell_id']}")
+        summary["tracker"] = {"name": tracker, "cell_id": record["cell_id"], "path": str(where)}
 
 
 #: checkpoint suffixes read as the source's released Keras models (D-CNN) instead of a `train --save` checkpoint

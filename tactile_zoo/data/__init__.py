@@ -3,8 +3,9 @@
 # importing the datasets package registers every built-in dataset, real and simulated (see its docstring)
 from . import datasets  # noqa: F401
 from .base import TactileDataset, TensorData, cache_home, data_home
+from .pyg import to_pyg
 from .sensors import Sensor
-from .spec import DatasetSpec, TactileSample, collate
+from .spec import DatasetSpec, TactileBatch, TactileSample, collate
 
 __all__ = ["TactileDataset", "TensorData", "cache_home", "data_home", "Sensor", "DatasetSpec", "TactileSample",
-           "collate"]
+           "TactileBatch", "collate", "to_pyg"]

@@ -98,6 +98,10 @@ class TactileDataset(torch.utils.data.Dataset):
         fold: the fold of a k-fold protocol, ``0 <= fold < num_folds``.
         download: fetch missing raw files into ``<root>/<name>/raw/`` first.
         transform: PyG-style ``f(TactileSample) -> TactileSample`` applied when a sample is read.
+        pre_transform: PyG-style ``f(TactileSample) -> TactileSample`` applied once per sample of the split when the
+            dataset is loaded, before augmentation and before ``transform``; its results are what the dataset holds
+            (``x``, ``g``, ``y``, the spec's shapes). Not part of the processed cache's key (a function has no
+            stable hash), so it runs at every load, never on a cached copy of another transform's output.
         augment: a training-only augmentation ``f(x, generator) -> x``, a name from :mod:`.augment` (``"jitter"``,
             ``"scaling"``, ``"magnitude_warp"``, ``"time_warp"``), or a sequence of them (applied in order); only
             the ``train`` split is expanded.
@@ -125,6 +129,7 @@ class TactileDataset(torch.utils.data.Dataset):
 
     def __init__(self, root: str | os.PathLike | None = None, split: str | None = None, fold: int = 0,
                  download: bool = False, *, transform: Callable[[TactileSample], TactileSample] | None = None,
+                 pre_transform: Callable[[TactileSample], TactileSample] | None = None,
                  augment: str | Augmentation | Sequence[str | Augmentation] | None = None, augment_factor: int = 1,
                  augment_seed: int = 0) -> None:
         super().__init__()
@@ -149,12 +154,16 @@ class TactileDataset(torch.utils.data.Dataset):
             idx = self.split_indices(data, self.fold)[split]
         idx_t = torch.as_tensor(idx, dtype=torch.long)
         self.x, self.g, self.y, self.groups = data.x[idx_t], data.g[idx_t], data.y[idx_t], data.groups[idx_t]
+        if pre_transform is not None:
+            self._pre_transform(pre_transform)
         if augment is not None and augment_factor > 1 and split == "train":
             self._expand(resolve_augmentations(augment, self.binary, self.name), augment_factor, augment_seed)
         elif augment_factor < 1:
             raise ConfigError(f"augment_factor must be >= 1, got {augment_factor}")
-        self.spec = DatasetSpec(self.name, len(self.class_names), tuple(self.class_names), int(data.x.shape[1]),
-                                int(data.x.shape[2]), int(data.x.shape[3]), int(data.g.shape[2]), self.sensor)
+        # the shapes of what the dataset holds (a pre_transform may change them; an empty split keeps the data's)
+        shape_x, shape_g = (self.x, self.g) if len(self.y) else (data.x, data.g)
+        self.spec = DatasetSpec(self.name, len(self.class_names), tuple(self.class_names), int(shape_x.shape[1]),
+                                int(shape_x.shape[2]), int(shape_x.shape[3]), int(shape_g.shape[2]), self.sensor)
 
     # ------------------------------------------------------------------------------------------- subclass hooks
     @classmethod
@@ -253,6 +262,19 @@ class TactileDataset(torch.utils.data.Dataset):
             except OSError:  # an unwritable cache costs time, never correctness
                 pass
         return data
+
+    def _pre_transform(self, fn: Callable[[TactileSample], TactileSample]) -> None:
+        """Apply ``pre_transform`` to every sample of the split, once."""
+        if not len(self.y):
+            return
+        out = [fn(TactileSample(x, g, int(y))) for x, g, y in zip(self.x, self.g, self.y)]
+        try:
+            self.x = torch.stack([torch.as_tensor(s.x) for s in out])
+            self.g = torch.stack([torch.as_tensor(s.g) for s in out])
+            self.y = torch.as_tensor([int(s.y) for s in out], dtype=torch.long)
+        except (AttributeError, TypeError, RuntimeError) as exc:
+            raise ConfigError(f"{self.name}: pre_transform must return TactileSample(x [T, N, C], g [T, G], y) of "
+                              f"one shape for every sample ({type(exc).__name__}: {exc})") from None
 
     # ------------------------------------------------------------------------------------------- augmentation
     def _expand(self, augment: Augmentation | Sequence[Augmentation], factor: int, seed: int) -> None:

@@ -2,7 +2,8 @@
 
 A sample is ``x: float32 [T, N, C]`` (time x taxels/electrodes x channels), ``g: float32 [T, G]`` global or
 proprioceptive features (``G`` may be 0, then ``g`` is ``[T, 0]``) and an integer label ``y``. A batch stacks them to
-``x [B, T, N, C]``, ``g [B, T, G]``, ``y [B]``.
+``x [B, T, N, C]``, ``g [B, T, G]``, ``y [B]``. ``to_pyg(spec)`` on either gives PyTorch Geometric data over the
+sensor graph (:mod:`tactile_zoo.data.pyg`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import torch
 if TYPE_CHECKING:
     from .sensors import Sensor
 
-__all__ = ["TactileSample", "DatasetSpec", "collate"]
+__all__ = ["TactileSample", "TactileBatch", "DatasetSpec", "collate"]
 
 
 class TactileSample(NamedTuple):
@@ -25,6 +26,28 @@ class TactileSample(NamedTuple):
     x: torch.Tensor
     g: torch.Tensor
     y: int
+
+    def to_pyg(self, spec: DatasetSpec | Sensor, graph: str = "default") -> Any:
+        """This sample as a ``torch_geometric.data.Data`` over the sensor graph (:func:`tactile_zoo.data.pyg.to_pyg`;
+        the sample does not carry its sensor, so pass the dataset's ``spec``)."""
+        from .pyg import to_pyg
+
+        return to_pyg(self, spec, graph)
+
+
+class TactileBatch(NamedTuple):
+    """A batch as :func:`collate` returns it: ``x [B, T, N, C]``, ``g [B, T, G]``, ``y [B]`` (a tuple, so ``x, g, y =
+    batch`` works as before)."""
+
+    x: torch.Tensor
+    g: torch.Tensor
+    y: torch.Tensor
+
+    def to_pyg(self, spec: DatasetSpec | Sensor, graph: str = "default") -> Any:
+        """This batch as a ``torch_geometric.data.Batch`` of sensor graphs (:func:`tactile_zoo.data.pyg.to_pyg`)."""
+        from .pyg import to_pyg
+
+        return to_pyg(self, spec, graph)
 
 
 @dataclass(frozen=True)
@@ -90,9 +113,9 @@ class DatasetSpec:
 _SPEC_KEYS = ("name", "num_classes", "class_names", "num_steps", "num_nodes", "num_channels", "num_globals", "sensor")
 
 
-def collate(samples: Sequence[TactileSample]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def collate(samples: Sequence[TactileSample]) -> TactileBatch:
     """Stack samples into ``x [B, T, N, C]``, ``g [B, T, G]``, ``y [B]`` (a ``DataLoader`` ``collate_fn``)."""
     x = torch.stack([s.x for s in samples])
     g = torch.stack([s.g for s in samples])
     y = torch.as_tensor([int(s.y) for s in samples], dtype=torch.long)
-    return x, g, y
+    return TactileBatch(x, g, y)

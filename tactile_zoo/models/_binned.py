@@ -15,6 +15,7 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
+from ..nn.classifier import ClassifierMixin
 from ._inputs import check_inputs
 
 __all__ = ["bin_frames", "bins_for", "BinnedStreamer", "StreamState"]
@@ -61,9 +62,11 @@ class StreamState:
     pending: int  # frames in the open bin
 
 
-class BinnedStreamer(nn.Module):
+class BinnedStreamer(ClassifierMixin, nn.Module):
     """Streaming for a model whose per-bin computation is causal: ``_advance(xb (T', B, N, C), gb (T', B, G),
-    core_state) -> (scores, core_state)`` must fold bins into a state and score everything folded so far.
+    core_state) -> (scores, core_state)`` must fold bins into a state and score everything folded so far. A model
+    defines it, or (the built-ins) ``_features`` with the same arguments, returning the classifier's input
+    ``(B, F)`` instead of the scores, and ``forward_head``: then ``forward_features`` comes with it.
 
     :meth:`forward` folds all bins from rest. :meth:`step` feeds one frame: it re-scores the open (partial) bin from
     the state after the last complete bin, and commits the new state only when the bin is full, so the scores at
@@ -74,14 +77,25 @@ class BinnedStreamer(nn.Module):
     spec: DatasetSpec
     bin_size: int
 
-    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+    def _features(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
         raise NotImplementedError
 
-    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+        features, core = self._features(xb, gb, core)
+        return self.forward_head(features), core
+
+    def _bins(self, x: Tensor, g: Tensor | None) -> tuple[Tensor, Tensor | None]:
         g = check_inputs(self.name, self.spec, x, g)
         xb = bin_frames(x, self.bin_size, "sum").transpose(0, 1)  # (T', B, N, C), time-major
         gb = None if g is None else bin_frames(g, self.bin_size, "mean").transpose(0, 1)  # (T', B, G)
-        return self._advance(xb, gb, None)[0]
+        return xb, gb
+
+    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+        return self._advance(*self._bins(x, g), None)[0]
+
+    def forward_features(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+        """What the classifier reads after all frames, ``(B, F)``."""
+        return self._features(*self._bins(x, g), None)[0]
 
     def init_state(self, batch_size: int) -> StreamState:
         p = next(self.parameters())

@@ -125,11 +125,11 @@ class CNNLSTM(BinnedStreamer):
         self.lstm = nn.LSTM(frame_features + spec.num_globals, hidden, batch_first=True)
         self.head = nn.Linear(hidden, spec.num_classes)
 
-    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+    def _features(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
         # bins arrive summed, (T', B, N, C); their mean is the frame, an open bin's missing frames count as zeros
         codes = self.encoder(self.grid((xb / self.bin_size).flatten(0, 1)))  # (T' * B, features): one call
         codes = codes.view(*xb.shape[:2], -1)  # (T', B, features)
         if gb is not None:  # globals join every step's code (a bin's mean globals)
             codes = torch.cat([codes, gb], dim=-1)  # (T', B, features + G)
         _, (h, c) = self.lstm(codes.transpose(0, 1), core)  # h: (1, B, hidden), the last step's hidden state
-        return self.head(h[-1]), (h, c)
+        return h[-1], (h, c)  # the classifier (forward_head) reads the last hidden state

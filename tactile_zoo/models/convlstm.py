@@ -138,7 +138,7 @@ class ConvLSTMNet(BinnedStreamer):
         self.drop = nn.Dropout(dropout)
         self.head = nn.Linear(fc_units, spec.num_classes)
 
-    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+    def _features(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
         # bins arrive summed, (T', B, N, C); their mean is the image, and an open bin's missing frames count as zeros
         frames = self.grid(xb / self.bin_size).transpose(0, 1)  # (B, T', C, H, W)
         if self.frame_norm == "minmax":  # every image to [0, 1] by its own range (the source's feature scaling)
@@ -152,7 +152,9 @@ class ConvLSTMNet(BinnedStreamer):
             feats = top.mean(dim=(-2, -1))  # (B, hidden): global average pooling
         if gb is not None:  # globals join after pooling: the last bin's mean (the last step's values when unbinned)
             feats = torch.cat([feats, gb[-1]], dim=-1)  # (B, hidden + G)
-        hidden = torch.relu(self.fc(feats))
+        return torch.relu(self.fc(feats)), states
+
+    def forward_head(self, features: Tensor) -> Tensor:
         if self.drop.p > 0:  # skipped at 0, so the default draws nothing from the RNG
-            hidden = self.drop(hidden)
-        return self.head(hidden), states
+            features = self.drop(features)
+        return self.head(features)

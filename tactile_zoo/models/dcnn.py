@@ -33,6 +33,7 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
+from ..nn.classifier import ClassifierMixin
 from ..recipe import full_recipe
 from ..registry import register_model
 from ._inputs import check_inputs
@@ -165,7 +166,7 @@ _FULL = full_recipe(_ZOO, {"ev_objects": 14, "ev_containers": 31, "biotac_dos": 
     streaming=False,
     revision=1,
 )
-class DCNN(nn.Module):
+class DCNN(ClassifierMixin, nn.Module):
     """D-CNN of Maus et al.: three conv blocks and two dense layers over the time x feature image.
 
     Departure (ours): batch-norm running statistics start from the first training batch and then average with
@@ -230,6 +231,17 @@ class DCNN(nn.Module):
 
     def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
         return self.classifier(self.features(self.image(x, g)))
+
+    def forward_features(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+        """The last hidden dense layer's output ``(B, dense[1])``, which the classifier layer reads."""
+        return self.classifier[:-1](self.features(self.image(x, g)))
+
+    def forward_head(self, features: Tensor) -> Tensor:
+        return self.classifier[-1](features)
+
+    def _init_classifier(self, layer: nn.Linear) -> None:
+        nn.init.xavier_uniform_(layer.weight)  # as the constructor initialises every layer
+        nn.init.zeros_(layer.bias)
 
     @classmethod
     def from_keras(cls, path: str | os.PathLike, spec: DatasetSpec) -> DCNN:

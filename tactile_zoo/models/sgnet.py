@@ -21,6 +21,7 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
+from ..nn.classifier import ClassifierMixin
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import MultiStepLIF
 from ..recipe import full_recipe
@@ -75,7 +76,7 @@ _FULL = full_recipe(_ZOO, {"ev_objects": 40, "ev_containers": 56, "biotac_dos": 
     streaming=True,
     revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list
 )
-class SGNet(nn.Module):
+class SGNet(ClassifierMixin, nn.Module):
     """TactileSGNet (Gu et al., IROS 2020): TAGConv on every frame's taxel graph, then a spiking MLP; scores are
     output spike rates.
 
@@ -118,7 +119,7 @@ class SGNet(nn.Module):
         hidden = tuple(int(h) for h in hidden)
         if not hidden or min(hidden) < 1 or graph_channels < 1:
             raise ConfigError(f"sgnet: widths must be positive, got graph_channels={graph_channels}, hidden={hidden}")
-        self.spec = spec
+        self.spec, self.init = spec, init
         n = spec.num_nodes
         edge_index = spec.sensor.edge_index(graph, **(graph_kwargs or {}))
         self.gc = FrameGraphConv(spec.num_channels, graph_channels, edge_index, n, kind="tag", K=hops,
@@ -133,16 +134,40 @@ class SGNet(nn.Module):
         self.lifs = nn.ModuleList(MultiStepLIF(**lif_kw) for _ in range(len(widths)))
         self._widths = (n * graph_channels, *widths[1:])  # the width of each LIF layer
 
-    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+    def _spikes(self, x: Tensor, g: Tensor | None) -> Tensor:
+        """The spike trains the classifier layer reads, time-major ``(T, B, width)``."""
         g = check_inputs("sgnet", self.spec, x, g)
         steps, batch = x.shape[1], x.shape[0]
         h = self.gc(x.transpose(0, 1))  # (T, B, N, F): time-major before the convolution, where C is small
         s = self.lifs[0](h.reshape(steps, batch, -1))  # (T, B, N * F)
         if g is not None:
             s = torch.cat([s, g.transpose(0, 1).to(s.dtype)], dim=-1)  # (T, B, N * F + G)
-        for fc, lif in zip(self.fcs, self.lifs[1:]):
+        for fc, lif in zip(self.fcs[:-1], self.lifs[1:-1]):
             s = lif(fc(s))  # (T, B, width)
-        return s.mean(dim=0)  # (B, K) output spike count / T
+        return s
+
+    def _rates(self, s: Tensor) -> Tensor:
+        """The spiking classifier: the last layer and its LIF on ``s (T, B, width)``, then the output spike rates."""
+        return self.lifs[-1](self.fcs[-1](s)).mean(dim=0)  # (B, K) output spike count / T
+
+    def forward(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+        return self._rates(self._spikes(x, g))
+
+    def forward_features(self, x: Tensor, g: Tensor | None = None) -> Tensor:
+        """The spike trains the classifier reads, ``(B, T, width)`` (no pooled vector: the scores are spike rates)."""
+        return self._spikes(x, g).transpose(0, 1)
+
+    def forward_head(self, features: Tensor) -> Tensor:
+        """Spike rates ``(B, K)`` from :meth:`forward_features`'s ``(B, T, width)``."""
+        return self._rates(features.transpose(0, 1))
+
+    def reset_classifier(self, num_classes: int) -> None:
+        super().reset_classifier(num_classes)
+        self._widths = (*self._widths[:-1], num_classes)  # the output LIF's membrane width, for streaming
+
+    def _init_classifier(self, layer: nn.Linear) -> None:
+        if self.init == "he":
+            nn.init.kaiming_normal_(layer.weight)
 
     def init_state(self, batch_size: int) -> SGNetState:
         """Membranes at rest and no output spikes yet, on the model's device and dtype."""

@@ -192,6 +192,8 @@ class Tacformer(BinnedStreamer):
         bins = bins + s.shape[0]
         return self.rate_norm(spike_sum / bins), (sp_state, mem, spike_sum, bins)
 
-    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
-        rate, core = self._spatial_rate(xb, gb, core)
-        return self.head(self.dropout(rate)), core
+    def _features(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+        return self._spatial_rate(xb, gb, core)
+
+    def forward_head(self, features: Tensor) -> Tensor:
+        return self.head(self.dropout(features))

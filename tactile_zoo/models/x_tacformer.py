@@ -109,9 +109,9 @@ class XTacformer(Tacformer):
         self.temporal_norm = nn.LayerNorm(self.temporal.out_features)
         self.head = nn.Linear(self.rate_width + self.temporal.out_features, spec.num_classes)
 
-    def _advance(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
+    def _features(self, xb: Tensor, gb: Tensor | None, core: Any) -> tuple[Tensor, Any]:
         sp_core, tg_state = core if core is not None else (None, None)
         rate, sp_core = self._spatial_rate(xb, gb, sp_core)  # (B, W)
         tg, tg_state = self.temporal.run(xb, tg_state)  # (B, F): attention-weighted frame features so far
         fused = torch.cat([rate, self.temporal_norm(tg)], dim=-1)  # fusion by concatenation, (B, W + F)
-        return self.head(self.dropout(fused)), (sp_core, tg_state)
+        return fused, (sp_core, tg_state)  # Tacformer's forward_head: dropout, then the classifier

@@ -27,7 +27,7 @@ from .discovery import WEIGHTS_GROUP, WeightSource, find_weights, list_weights, 
 from .entry import ENTRY_KEYS, MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
 from .files import locate, weights_cache
 from .heads import head_keys, head_name
-from .load import check_fit, create_model, load_pretrained, local_weights, resolve_weights
+from .load import check_fit, create_model, list_models, load_pretrained, local_weights, resolve_weights
 from .manifest import (
     DEFAULT_LICENCE,
     entry_from_record,
@@ -42,6 +42,6 @@ __all__ = [
     "WeightEntry", "MANIFEST_FORMAT", "ENTRY_KEYS", "make_tag", "tag_key", "read_manifest", "parse_manifest",
     "write_manifest", "entry_from_record", "preprocessing_of", "DEFAULT_LICENCE", "WEIGHTS_GROUP", "WeightSource",
     "weight_sources", "list_weights", "find_weights", "reset_weights", "locate", "weights_cache", "head_name",
-    "head_keys", "create_model", "load_pretrained", "resolve_weights", "local_weights", "check_fit", "predict",
-    "read_recording", "Prediction", "Recording", "LENGTHS",
+    "head_keys", "create_model", "list_models", "load_pretrained", "resolve_weights", "local_weights", "check_fit",
+    "predict", "read_recording", "Prediction", "Recording", "LENGTHS",
 ]

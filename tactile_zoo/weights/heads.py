@@ -11,30 +11,16 @@ from __future__ import annotations
 
 from torch import nn
 
-from ..errors import ConfigError
+from ..nn.classifier import classifier_name
 
 __all__ = ["head_name", "head_keys"]
 
 
 def head_name(model: nn.Module, num_classes: int | None = None) -> str:
     """The dotted name of ``model``'s final classifier layer (its ``zoo_head``, else the last ``nn.Linear`` with
-    ``num_classes`` outputs)."""
-    name = getattr(model, "zoo_head", None)
-    if name is not None:
-        if not isinstance(name, str) or not name:
-            raise ConfigError(f"{type(model).__name__}.zoo_head must name a submodule, got {name!r}")
-        try:
-            model.get_submodule(name)
-        except AttributeError:
-            raise ConfigError(f"{type(model).__name__}.zoo_head names {name!r}, which is not one of its "
-                              f"submodules") from None
-        return name
-    linear = [n for n, m in model.named_modules() if isinstance(m, nn.Linear)
-              and (num_classes is None or m.out_features == num_classes)]
-    if not linear:
-        raise ConfigError(f"cannot find the classifier head of {type(model).__name__}: it has no zoo_head attribute "
-                          f"and no nn.Linear layer with {num_classes} outputs; set zoo_head = '<submodule name>'")
-    return linear[-1]
+    ``num_classes`` outputs): :func:`tactile_zoo.nn.classifier.classifier_name`, which ``reset_classifier`` uses
+    too."""
+    return classifier_name(model, num_classes)
 
 
 def head_keys(model: nn.Module, name: str) -> list[str]:

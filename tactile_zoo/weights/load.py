@@ -18,8 +18,10 @@ a causal model that reads any length, such as SGnet, accepts another length).
 
 from __future__ import annotations
 
+import fnmatch
 import os
 import re
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -29,14 +31,15 @@ from torch import nn
 
 from .. import registry
 from ..data.base import file_sha256
-from ..errors import ConfigError, DatasetError, UnknownNameError
+from ..errors import ConfigError, DatasetError, PluginError, UnknownNameError
 from .discovery import find_weights, list_weights
 from .entry import WeightEntry, make_tag, tag_key
 from .files import locate
 from .heads import head_keys, head_name
 from .manifest import read_manifest
 
-__all__ = ["create_model", "load_pretrained", "resolve_weights", "local_weights", "check_fit", "load_state"]
+__all__ = ["create_model", "list_models", "load_pretrained", "resolve_weights", "local_weights", "check_fit",
+           "load_state"]
 
 _LOCAL_SUFFIXES = (".json", ".safetensors")
 
@@ -255,27 +258,139 @@ def load_pretrained(name: str, pretrained: Any, spec: Any = None, *, new_head: b
     return model
 
 
-def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: bool = False, **hparams: Any
-                 ) -> nn.Module:
-    """Build model ``name`` for a dataset ``spec``, optionally with pretrained weights.
+def _split_tag(name: str) -> tuple[str, str | None]:
+    """``"x_tacformer.zoo_ev_objects"`` -> ``("x_tacformer", "x_tacformer.zoo_ev_objects")``: the model, and the
+    weights tag when the name carries one (timm's ``model.tag``; a ``dist:`` model qualifier stays on the model)."""
+    qualifier, colon, bare = name.rpartition(":")
+    model, dot, tag = bare.partition(".")
+    if not dot:
+        return name, None
+    if not model or not tag.strip():
+        raise ConfigError(f"model name {name!r}: a tag reads <model>.<tag>, e.g. 'x_tacformer.zoo_ev_objects'")
+    return f"{qualifier}{colon}{model}", f"{model}.{tag}"
+
+
+def _choices(entries: list[WeightEntry]) -> str:
+    return ", ".join(f"{e.qualified_tag} ({e.dataset})" for e in entries)
+
+
+def _pick(model: str, spec: Any, dataset: str | None, new_head: bool) -> WeightEntry:
+    """The installed weights of ``model`` that ``pretrained=True`` means: those for ``dataset``; else those trained on
+    ``spec``'s dataset, else the only ones whose spec ``spec`` fits; else the only ones installed. Every error names
+    the choices."""
+    if dataset is not None:
+        return _by_dataset(model, dataset)
+    mine = list_weights(model)
+    if not mine:
+        raise UnknownNameError(f"no installed weights of model {model!r}; `tactile-zoo weights` lists what is "
+                               f"installed (pip install ./plugins/tactile-zoo-weights ships the zoo's)")
+    if spec is None:
+        if len({registry.normalize_name(e.dataset) for e in mine}) == 1:
+            return _by_dataset(model, mine[0].dataset)
+        raise ConfigError(f"create_model({model!r}, pretrained=True): model {model!r} has weights for several "
+                          f"datasets; pass the spec of your data, dataset=, or a tag in the name. Choices: "
+                          f"{_choices(mine)}")
+    if any(registry.normalize_name(e.dataset) == registry.normalize_name(spec.name) for e in mine):
+        return _by_dataset(model, spec.name)
+    fitting = [e for e in mine if not _mismatches(e.dataset_spec(), spec, new_head)]
+    if len({registry.normalize_name(e.dataset) for e in fitting}) == 1:
+        return _by_dataset(model, fitting[0].dataset)
+    why = "none fits" if not fitting else "several fit"
+    raise ConfigError(f"create_model({model!r}, spec of {spec.name!r}, pretrained=True): no weights of model "
+                      f"{model!r} were trained on {spec.name!r}, and {why} its sensor, taxels, channels, globals"
+                      f"{'' if new_head else ' and classes'}; pass dataset= or a tag. Choices: {_choices(mine)}")
+
+
+def _with_classes(spec: Any, num_classes: int) -> Any:
+    """``spec`` with ``num_classes`` classes (names ``class_<i>`` when the count changes: the old names are another
+    task's)."""
+    if isinstance(num_classes, bool) or not isinstance(num_classes, int) or num_classes < 1:
+        raise ConfigError(f"num_classes must be a positive integer, got {num_classes!r}")
+    if num_classes == spec.num_classes:
+        return spec
+    return replace(spec, num_classes=num_classes, class_names=tuple(f"class_{i}" for i in range(num_classes)))
+
+
+def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: bool = False, *,
+                 num_classes: int | None = None, dataset: str | None = None, **hparams: Any) -> nn.Module:
+    """Build model ``name`` for a dataset ``spec``, optionally with pretrained weights (timm's calls).
 
     Without ``pretrained`` this is the registry's ``Model(spec, **hparams)``. With it, the weights are loaded (see
     :func:`load_pretrained`): ``spec`` may be omitted (the weights' own spec is used); given, the weights must fit it,
     and ``new_head=True`` keeps the trunk and starts a fresh classifier for ``spec``'s classes.
 
     Args:
-        name: a registered model name (normalised: ``X-Tacformer`` = ``x_tacformer``).
+        name: a registered model name (normalised: ``X-Tacformer`` = ``x_tacformer``), optionally with a weights tag,
+            timm style: ``"x_tacformer.zoo_ev_objects"``. With ``pretrained=True`` the tag names the weights; without,
+            the model is built for the tag's spec and hyper-parameters, freshly initialised (as timm does).
         spec: the :class:`~tactile_zoo.data.spec.DatasetSpec` of the data.
-        pretrained: ``None``, a dataset name (``"ev_objects"``), a tag (``"x_tacformer.source_ev_objects"``), a local
-            ``.json`` manifest or ``.safetensors`` file, or a :class:`~tactile_zoo.weights.entry.WeightEntry`.
+        pretrained: ``None``/``False``, ``True`` (the installed weights that match: the tag in ``name``, else those
+            for ``dataset``, else those trained on ``spec``'s dataset or the only ones that fit ``spec``, else the
+            model's only ones; an error lists the choices), a dataset name (``"ev_objects"``), a tag
+            (``"x_tacformer.source_ev_objects"``), a local ``.json`` manifest or ``.safetensors`` file, or a
+            :class:`~tactile_zoo.weights.entry.WeightEntry`.
         new_head: with ``pretrained``: a fresh classifier for ``spec``'s classes.
+        num_classes: a fresh classifier with this many outputs (the model's spec then has ``num_classes`` classes,
+            named ``class_<i>`` when the count changes). With ``pretrained``: every other layer is loaded; without
+            ``spec``, a count equal to the weights' keeps their classifier too (as timm).
+        dataset: with ``pretrained=True``: the dataset whose weights to load.
         **hparams: the model's constructor keywords.
     """
-    if pretrained is None:
+    model_name, tag = _split_tag(name)
+    if dataset is not None and pretrained is not True:
+        raise ConfigError(f"dataset={dataset!r} picks pretrained weights: pass pretrained=True (or "
+                          f"pretrained={dataset!r})")
+    if tag is not None:
+        if pretrained not in (None, False, True):
+            raise ConfigError(f"create_model({name!r}): the name's tag already names the weights; pass "
+                              f"pretrained=True or nothing, not pretrained={pretrained!r}")
+        entry = resolve_weights(model_name, tag)
+        if pretrained is True:
+            pretrained = entry
+        else:  # timm: the tag's configuration, random weights
+            hparams = {**entry.hparams, **hparams}
+            spec = entry.dataset_spec() if spec is None else spec
+    if pretrained is True:
+        pretrained = _pick(model_name, spec, dataset, new_head or num_classes is not None)
+    if pretrained is None or pretrained is False:
         if new_head:
             raise ConfigError("new_head=True replaces the classifier of pretrained weights: pass pretrained=")
         if spec is None:
             raise ConfigError(f"create_model({name!r}): pass the dataset spec, or pretrained= weights (whose spec is "
                               f"then used)")
-        return registry.create_model(name, spec, **hparams)
-    return load_pretrained(name, pretrained, spec, new_head=new_head, **hparams)
+        if num_classes is not None:
+            spec = _with_classes(spec, num_classes)
+        return registry.create_model(model_name, spec, **hparams)
+    if num_classes is not None:
+        entry = resolve_weights(model_name, pretrained)
+        base = entry.dataset_spec() if spec is None else spec
+        target = _with_classes(base, num_classes)
+        # a classifier of the weights' own size loads as it is (timm keeps it too); any other gets a fresh one
+        keep = spec is None and num_classes == entry.num_classes
+        return load_pretrained(model_name, entry, None if keep else target, new_head=not keep, **hparams)
+    return load_pretrained(model_name, pretrained, spec, new_head=new_head, **hparams)
+
+
+def list_models(pattern: str | Iterable[str] = "*", tags: Iterable[str] | None = None, pretrained: bool = False
+                ) -> list[str]:
+    """Registered model names matching fnmatch ``pattern`` and having all ``tags`` (the registry's
+    :func:`~tactile_zoo.registry.list_models`); with ``pretrained=True``, the tags of their installed weights
+    instead, timm style (``["x_tacformer.zoo_ev_objects", ...]``), which ``pattern`` may also match whole
+    (``"*ev_objects"``). A tag shipped by several distributions is listed as ``<distribution>:<tag>``."""
+    names = registry.list_models(pattern, tags)
+    if not pretrained:
+        return names
+    models = {registry.get_model_entry(n).qualified_name for n in names}
+    allowed = {registry.get_model_entry(n).qualified_name for n in registry.list_models("*", tags)}
+    patterns = [pattern] if isinstance(pattern, str) else list(pattern)
+    entries = []
+    for entry in list_weights():
+        try:
+            model = registry.get_model_entry(entry.model).qualified_name
+        except (UnknownNameError, PluginError):  # weights of a model whose plugin is absent: nothing to build
+            continue
+        if model in models or (model in allowed and any(fnmatch.fnmatchcase(entry.tag.lower(), p.lower())
+                                                        for p in patterns)):
+            entries.append(entry)
+    shared = {tag_key(e.tag) for e in entries if sum(tag_key(o.tag) == tag_key(e.tag) for o in entries) > 1}
+    return sorted({e.qualified_tag if tag_key(e.tag) in shared else e.tag for e in entries})

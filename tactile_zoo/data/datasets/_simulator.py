@@ -76,6 +76,7 @@ class _Simulator(TactileDataset):
                  download: bool = False, *, seed: int = 0, n_train_per_class: int | None = None,
                  n_test_per_class: int | None = None, num_steps: int | None = None,
                  transform: Callable[[TactileSample], TactileSample] | None = None,
+                 pre_transform: Callable[[TactileSample], TactileSample] | None = None,
                  augment: Augmentation | Sequence[Augmentation] | None = None, augment_factor: int = 1,
                  augment_seed: int = 0) -> None:
         self.seed = self._check_int("seed", seed, 0)
@@ -85,7 +86,7 @@ class _Simulator(TactileDataset):
             "n_test_per_class", self.default_test if n_test_per_class is None else n_test_per_class, 1)
         self.num_steps = self._check_int("num_steps", self.default_steps if num_steps is None else num_steps,
                                          self.min_steps)
-        super().__init__(root, split, fold, download, transform=transform, augment=augment,
+        super().__init__(root, split, fold, download, transform=transform, pre_transform=pre_transform, augment=augment,
                          augment_factor=augment_factor, augment_seed=augment_seed)
 
     @classmethod
