@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
+from .._files import atomic_path
 from ..engine.cell import recipe_name_of
 from ..errors import TactileZooError
 from .grid import safe_name
@@ -375,10 +376,11 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
     def save(fig: Any, rel: str) -> str:
         target = run.path / rel
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
-        plt.close(fig)
-        os.replace(tmp, target)
+        try:
+            with atomic_path(target) as tmp:
+                fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+        finally:
+            plt.close(fig)
         return rel
 
     models = sorted({s["model"] for s in summary})

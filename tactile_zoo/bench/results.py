@@ -25,12 +25,12 @@ import contextlib
 import json
 import os
 import socket
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from .._files import atomic_write_text, open_temporary, torn_temporaries
 from ..errors import ConfigError
 
 # The table maths lives in .tables; its names stay importable from here for code written against the old layout.
@@ -55,22 +55,6 @@ __all__ = ["atomic_write_text", "atomic_write_json", "RunDir", "Claim", "CellWri
 
 class CellWriteError(OSError):
     """A cell (or table) file could not be written (disk full, permissions)."""
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and ``os.replace`` (plus fsync)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 def _json_default(value: Any) -> Any:
@@ -127,9 +111,9 @@ class RunDir:
         try:
             for folder in (self.path, self.cells_dir, self.claims_dir, self.progress_dir):
                 folder.mkdir(parents=True, exist_ok=True)
-            fd, probe = tempfile.mkstemp(dir=self.cells_dir, prefix=".probe.")
+            fd, probe = open_temporary(self.cells_dir / "probe")
             os.close(fd)
-            os.unlink(probe)
+            probe.unlink()
         except OSError as exc:
             raise ConfigError(f"--out {self.path}: cannot write there ({exc.strerror or exc}); choose a writable "
                               f"folder") from None
@@ -204,7 +188,7 @@ class RunDir:
         """Delete temporary files a killed writer of ``folder/name`` left behind. Only call this while holding what
         serialises those writes (the cell's claim, or the table lock), so no live writer's file is touched."""
         removed = 0
-        for tmp in folder.glob(f".{name}.*.tmp"):
+        for tmp in torn_temporaries(folder, name):
             with contextlib.suppress(OSError):
                 tmp.unlink()
                 removed += 1
