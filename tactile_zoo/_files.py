@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -59,14 +60,19 @@ def atomic_path(path: str | os.PathLike, *, fsync: bool = True) -> Iterator[Path
     the block ends without an exception the file is flushed to disk (``fsync``) and renamed over ``path``,
     otherwise it is deleted and ``path`` is left as it was.
 
-    The temporary file already exists (empty, with the umask's permissions) when the block starts: writers that
-    truncate and rewrite it keep those permissions.
+    The temporary file already exists (empty, with the umask's permissions) when the block starts. A writer that
+    replaces it instead of rewriting it (safetensors creates its files 0o600) gets those permissions back.
     """
     target = Path(path)
     fd, tmp = open_temporary(target)
-    os.close(fd)
+    try:
+        wanted = stat.S_IMODE(os.fstat(fd).st_mode)  # what the kernel made of 0o666 under the umask
+    finally:
+        os.close(fd)
     try:
         yield tmp
+        if stat.S_IMODE(os.stat(tmp).st_mode) != wanted:
+            os.chmod(tmp, wanted)
         if fsync:
             _fsync(tmp)
         os.replace(tmp, target)
