@@ -201,9 +201,12 @@ def check_record(record: Any) -> list[str]:
 
 # ----------------------------------------------------------------------------------------------- reading
 def read_record(path: str | os.PathLike) -> dict[str, Any] | InvalidCell:
-    """The valid record in ``path``, or an :class:`InvalidCell` saying why not. A missing file raises
-    ``FileNotFoundError`` (absent is not damaged: the cell has simply not run)."""
+    """The valid record in ``path``, or an :class:`InvalidCell` saying why not. A missing file, or something that
+    is not a file (a folder named like one), raises ``FileNotFoundError``: absent is not damaged, the cell has
+    simply not run (and writing it will say what is in the way)."""
     path = Path(path)
+    if path.exists() and not path.is_file():
+        raise FileNotFoundError(f"{path} is not a file")
     try:
         data = path.read_bytes()
     except FileNotFoundError:

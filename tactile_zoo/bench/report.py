@@ -57,6 +57,8 @@ def load_run(path: str | os.PathLike, all_cells: bool = False, scan: CellScan | 
         info = json.loads((run.path / "run.json").read_text())
     except (OSError, ValueError):
         pass
+    if not isinstance(info, dict):  # a damaged run.json: the cells alone still make the tables
+        info = {}
     grid = info.get("grid") or {}
     wanted = None if all_cells else grid.get("cells")
     if wanted is not None:

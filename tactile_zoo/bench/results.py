@@ -153,8 +153,6 @@ class RunDir:
         """Check that ``--out`` is new, empty or a bench folder, mark it as one (``run.json``), create its folders
         and prove the location is writable. A folder holding anything else is refused before a byte is written, so
         a bench run never overwrites files it did not write; that and an unwritable ``--out`` are ConfigErrors."""
-        if self.path.exists() and not self.path.is_dir():
-            raise ConfigError(f"--out {self.path}: exists and is not a folder; choose a new or empty folder")
         try:
             foreign = self._foreign_entries()
         except OSError:  # e.g. a path under a file: creating the folder below says so
