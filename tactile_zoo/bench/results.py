@@ -119,25 +119,24 @@ class RunDir:
         self.progress_dir = self.path / "progress"
 
     # ------------------------------------------------------------------------------------------- set-up
+    def _run_info(self) -> Any:
+        try:
+            return json.loads((self.path / RUN_JSON).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+
     def marked(self) -> bool:
         """Whether ``run.json`` carries the bench folder marker (``"format": "tactile-zoo-bench/N"``)."""
-        try:
-            info = json.loads((self.path / RUN_JSON).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return False
+        info = self._run_info()
         return isinstance(info, dict) and str(info.get("format", "")).startswith(BENCH_FORMAT_PREFIX)
 
     def is_bench_folder(self) -> bool:
         """Whether the folder was written by tactile-zoo bench: the marker, or a folder of a version before it (a
         ``run.json`` with the ``command`` and ``grid`` only bench writes, or a ``cells/`` folder with a valid cell
         record, as the committed benchmarks/results folders that have no run.json)."""
-        if self.marked():
-            return True
-        try:
-            info = json.loads((self.path / RUN_JSON).read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            info = None
-        if isinstance(info, dict) and {"command", "grid"} <= set(info):
+        info = self._run_info()
+        if isinstance(info, dict) and (str(info.get("format", "")).startswith(BENCH_FORMAT_PREFIX)
+                                       or {"command", "grid"} <= set(info)):
             return True
         return bool(self.scan().records)
 
