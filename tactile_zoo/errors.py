@@ -7,7 +7,7 @@ as one line (exit code 2) and shows a traceback only with ``--debug``.
 from __future__ import annotations
 
 __all__ = ["TactileZooError", "UnknownNameError", "DatasetError", "PluginError", "ConfigError", "TestSplitForbidden",
-           "ExportError"]
+           "ExportError", "ResultsError"]
 
 
 class TactileZooError(Exception):
@@ -38,6 +38,11 @@ class TestSplitForbidden(ConfigError):
     validation data may be read."""
 
     __test__ = False  # not a pytest test class, despite the name
+
+
+class ResultsError(TactileZooError):
+    """A bench results folder that cannot be used as asked: damaged cell files, a folder that is not a bench folder,
+    tables that cannot be written there. The message names the folder or the files."""
 
 
 class ExportError(TactileZooError):

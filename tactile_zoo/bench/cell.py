@@ -9,7 +9,6 @@ out-of-memory error become a record with ``status="failed"``, the error and its 
 from __future__ import annotations
 
 import gc
-import os
 import socket
 import sys
 import time
@@ -21,6 +20,7 @@ from typing import Any
 import torch
 
 from .. import registry
+from .._files import atomic_path
 from ..engine.build import ModelCannotConsume
 from ..engine.cell import CellConfig, CellResult, train_cell
 from ..engine.runtime import cpu_isa, cpu_model, flush_denormals, resolve_device, set_threads, versions
@@ -147,9 +147,8 @@ def save_weights(model: torch.nn.Module, path: Path, metadata: dict[str, str]) -
 
     path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-    tmp = path.with_suffix(f".tmp{os.getpid()}")
-    save_file(tensors, str(tmp), metadata=metadata)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        save_file(tensors, str(tmp), metadata=metadata)
     return {"file": f"weights/{path.name}", "sha256": file_sha256(path), "bytes": path.stat().st_size}
 
 

@@ -14,6 +14,7 @@ any changed setting or revision gives new hashes, so nothing stale is ever reuse
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import re
 from collections.abc import Iterable
@@ -173,6 +174,13 @@ def resolve_datasets(tokens: Iterable[str]) -> list[str]:
     return _resolve("dataset", tokens)
 
 
+def _named_datasets(tokens: Iterable[str]) -> set[str]:
+    """The datasets given by their own name, not through ``all`` or a wildcard: those must be here."""
+    return {_listed_name("dataset", registry.get_dataset_entry(t))
+            for t in (t.strip() for item in tokens for t in item.split(",") if t.strip())
+            if t.lower() != "all" and not _WILDCARD.search(t)}
+
+
 def _obtain_hint(entry: registry.Entry, name: str, root: str | None) -> str:
     """The command (or instructions) that gets a dataset's data."""
     from ..data.base import TactileDataset
@@ -225,15 +233,44 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
                        entry.meta.get("max_epochs"))
 
 
+def _constructor_keywords(model: str) -> tuple[str, ...] | None:
+    """The keywords model ``model``'s constructor takes besides the spec; ``None`` when it takes any (``**kwargs``)
+    or its signature cannot be read (a C callable): then only building the model can tell."""
+    obj = registry.get_model_entry(model).obj
+    try:
+        params = list(inspect.signature(obj).parameters.values())
+    except (TypeError, ValueError):
+        return None
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params):
+        return None
+    named = [p for p in params if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
+    if named and named[0].kind is inspect.Parameter.POSITIONAL_OR_KEYWORD:
+        named = named[1:]  # the spec, passed positionally
+    return tuple(p.name for p in named)
+
+
+def _check_hparams(cell_config: CellConfig) -> None:
+    """An unknown constructor keyword (``--hparam``, a config file's ``hparams``, a named recipe's) is bad input:
+    it stops the command before anything runs, instead of failing every cell of the model."""
+    accepted = _constructor_keywords(cell_config.model)
+    unknown = sorted(set(cell_config.hparams) - set(accepted)) if accepted is not None else []
+    if unknown:
+        raise ConfigError(f"--hparam: model {cell_config.model!r} takes no keyword argument(s) "
+                          f"{', '.join(map(repr, unknown))}; it takes {', '.join(accepted) or 'none'}")
+
+
 def cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     """The resolved configuration of ``model`` on ``dataset`` under ``config``: the one place the command line's
-    settings become a cell (``tactile-zoo bench`` and ``tactile-zoo train`` both call it)."""
+    settings become a cell (``tactile-zoo bench`` and ``tactile-zoo train`` both call it). An unknown constructor
+    keyword stops it here, before anything runs."""
     entry = registry.get_model_entry(model)
     recipe_over, hparams = config.overrides_for(model, (entry.name, entry.qualified_name))
-    return resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
-                        epochs=config.effective_epochs(),
-                        dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
-                        prefixes=config.prefixes, evaluation=config.evaluation)
+    resolved = resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
+                            epochs=config.effective_epochs(),
+                            dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
+                            prefixes=config.prefixes, evaluation=config.evaluation)
+    _check_hparams(resolved)
+    return resolved
 
 
 def build_grid(config: BenchConfig) -> Grid:
@@ -245,14 +282,20 @@ def build_grid(config: BenchConfig) -> Grid:
     infos: list[DatasetInfo] = []
     skipped: list[SkipRow] = []
     notes: dict[str, str] = {}
+    named = _named_datasets(config.datasets)
     for name in dataset_names:
         probe = _probe_dataset(name, config)
         if isinstance(probe, DatasetInfo):
             infos.append(probe)
             continue
         status, reason, obtain = probe
+        if status == "skipped" and name in named:  # asked for by name: its absence is an error, not a skip
+            raise ConfigError(f"--datasets {name}: its data is not here: {skip_message(reason, obtain)}")
         notes[name] = skip_message(reason, obtain)
         skipped.extend(SkipRow(m, name, status, reason, obtain) for m in models)
+    if not infos and skipped and all(s.status == "skipped" for s in skipped):
+        raise ConfigError(f"--datasets {', '.join(config.datasets)}: none of the selected datasets has its data here "
+                          f"({'; '.join(f'{n}: {why}' for n, why in notes.items())})")
     cells: list[Cell] = []
     for info in infos:
         for model in models:

@@ -23,12 +23,13 @@ import json
 import logging
 import os
 import socket
-import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, TextIO
+
+from .._files import atomic_write_text
 
 __all__ = ["ProgressWriter", "add_listener", "remove_listener", "listening", "read_progress", "running_cells",
            "remove_progress", "CostModel", "ProgressDisplay", "format_seconds", "describe_running", "PROGRESS_DIR",
@@ -109,15 +110,7 @@ class ProgressWriter:
 
 def _replace(path: Path, text: str) -> None:
     """Atomic replace without fsync: a progress file is disposable, and an fsync per epoch would cost milliseconds."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, text, fsync=False)
 
 
 @contextlib.contextmanager

@@ -23,35 +23,42 @@ Plots (matplotlib, Agg backend, PNG):
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from .. import registry
+from .._files import atomic_path
 from ..engine.cell import recipe_name_of
-from ..errors import TactileZooError
+from ..errors import ResultsError, TactileZooError
 from .grid import safe_name
+from .records import CellScan, InvalidCell, InvalidCellsError
 from .results import RunDir, atomic_write_text
 from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
 
 __all__ = ["write_outputs", "load_run"]
 
 
-def load_run(path: str | os.PathLike, all_cells: bool = False
+def load_run(path: str | os.PathLike, all_cells: bool = False, scan: CellScan | None = None
              ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, Any], int]:
     """``(records of the run's cells, skipped rows, run.json, number of ignored cell files)``; with ``all_cells``
-    every cell file of the folder, whatever grid ``run.json`` names."""
+    every cell file of the folder, whatever grid ``run.json`` names. Damaged cell files are left out (``scan``,
+    when given, is the folder's already read :class:`~.records.CellScan`)."""
     run = RunDir(path)
-    records = run.cells()
+    records = (scan or run.scan()).records
     info: dict[str, Any] = {}
     try:
         info = json.loads((run.path / "run.json").read_text())
     except (OSError, ValueError):
         pass
+    if not isinstance(info, dict):  # a damaged run.json: the cells alone still make the tables
+        info = {}
     grid = info.get("grid") or {}
     wanted = None if all_cells else grid.get("cells")
     if wanted is not None:
@@ -63,10 +70,16 @@ def load_run(path: str | os.PathLike, all_cells: bool = False
     return selected, skipped, info, ignored
 
 
-def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool = False) -> dict[str, Path]:
+def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool = False, skip_invalid: bool = False,
+                  on_invalid: Callable[[InvalidCell], None] | None = None) -> dict[str, Path]:
     """Write leaderboard.csv, summary.csv, report.md (and the plots) of the run directory ``path``, holding the
     folder's table lock (another bench process on the same folder waits; it never sees half a table). With
-    ``all_cells`` every cell file of the folder counts (see the module docstring)."""
+    ``all_cells`` every cell file of the folder counts (see the module docstring).
+
+    A damaged cell file (:mod:`.records`) raises :class:`~.records.InvalidCellsError` naming every one before
+    anything is written; with ``skip_invalid`` the tables are built without them, ``on_invalid`` is called with
+    each, and report.md lists them. A folder where the tables cannot be written raises
+    :class:`~tactile_zoo.errors.ResultsError` naming it."""
     from ..errors import ConfigError
 
     run = RunDir(path)
@@ -74,12 +87,28 @@ def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool =
         raise ConfigError(f"{run.path} is not a folder (expected a bench output folder with cells/)")
     if not run.cells_dir.is_dir():
         raise ConfigError(f"{run.path} has no cells/ folder: not a tactile-zoo bench output")
-    with run.table_lock():
-        for name in ("leaderboard.csv", "summary.csv", "report.md"):
-            run.remove_torn(run.path, name)
-        for torn in run.plots_dir.rglob(".*.tmp") if run.plots_dir.is_dir() else ():
-            torn.unlink(missing_ok=True)
-        return _write_outputs(run, plots, all_cells)
+    scan = run.scan()
+    if scan.invalid and not skip_invalid:
+        raise InvalidCellsError(scan.invalid, run.cells_dir, "nothing written. `tactile-zoo bench` with the same "
+                                "arguments moves them to cells/damaged/ and recomputes them; --skip-invalid builds "
+                                "the tables without them")
+    for item in scan.invalid:
+        if on_invalid is not None:
+            on_invalid(item)
+    try:
+        with run.table_lock():
+            for name in ("leaderboard.csv", "summary.csv", "report.md"):
+                run.remove_torn(run.path, name)
+            for torn in run.plots_dir.rglob(".*.tmp") if run.plots_dir.is_dir() else ():
+                torn.unlink(missing_ok=True)
+            return _write_outputs(run, plots, all_cells, scan)
+    except OSError as exc:
+        if exc.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
+            raise
+        # a read-only folder (a colleague's results, a mounted archive): say where, not a traceback
+        raise ResultsError(f"cannot write the tables into {run.path} ({exc.strerror or exc}: "
+                           f"{exc.filename or run.path}); copy the folder somewhere writable and run `tactile-zoo "
+                           f"report` on the copy") from None
 
 
 def _mixed_configs(records: list[dict[str, Any]]) -> list[str]:
@@ -118,8 +147,10 @@ def _outdated_cells(records: list[dict[str, Any]]) -> list[str]:
             for (m, d, why), cells in sorted(stale.items())]
 
 
-def _write_outputs(run: RunDir, plots: bool, all_cells: bool = False) -> dict[str, Path]:
-    records, skipped, info, ignored = load_run(run.path, all_cells)
+def _write_outputs(run: RunDir, plots: bool, all_cells: bool = False, scan: CellScan | None = None
+                   ) -> dict[str, Path]:
+    scan = scan or run.scan()
+    records, skipped, info, ignored = load_run(run.path, all_cells, scan)
     board, board_cols = leaderboard_rows(records, skipped)
     summary, summary_cols = summary_rows(board, board_cols)
     written = {"leaderboard": run.path / "leaderboard.csv", "summary": run.path / "summary.csv",
@@ -130,6 +161,9 @@ def _write_outputs(run: RunDir, plots: bool, all_cells: bool = False) -> dict[st
     if plots and records:
         figures = _plots(run, records, summary)
     notes = []
+    if scan.invalid:  # --skip-invalid: the tables are short of these, and whoever reads them must know
+        notes.append(f"Warning: {len(scan.invalid)} damaged cell file(s) left out (`--skip-invalid`): "
+                     + "; ".join(f"`{item.path.name}` ({item.reason})" for item in scan.invalid) + ".")
     if all_cells:
         notes.append("Built with `--all-cells`: every cell file of the folder, from any bench command that wrote here; "
                      "`Command` above is only the last one.")
@@ -166,6 +200,15 @@ def _f(value: Any, digits: int = 3) -> str:
     return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
 
 
+def _threads(records: list[dict[str, Any]]) -> str:
+    """The torch threads the cells ran with, as they recorded them: the bench process's own count (run.json) is not
+    what its cells used (``--threads``, default 1, is set in each cell's process)."""
+    counts = sorted({r["threads"] for r in records if isinstance(r.get("threads"), int)})
+    if not counts:
+        return "torch threads per cell not recorded"
+    return f"{', '.join(map(str, counts))} torch thread(s) per cell"
+
+
 def _table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -193,7 +236,7 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
     if versions:
         out.append(f"tactile-zoo {versions.get('tactile_zoo', '?')}, torch {versions.get('torch', '?')}, "
                    f"Python {env.get('python', '?')}; {env.get('cpu_model', '?')} ({env.get('cpu_cores', '?')} cores, "
-                   f"{env.get('torch_threads', '?')} torch threads); GPU: "
+                   f"{_threads(records)}); GPU: "
                    f"{(env.get('gpu') or {}).get('name', 'none')}; device(s) used: {', '.join(devices) or '–'}; "
                    f"git {env.get('git_commit') or '–'}.")
     if ignored:
@@ -377,10 +420,11 @@ def _plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[str, A
     def save(fig: Any, rel: str) -> str:
         target = run.path / rel
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
-        plt.close(fig)
-        os.replace(tmp, target)
+        try:
+            with atomic_path(target) as tmp:
+                fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+        finally:
+            plt.close(fig)
         return rel
 
     models = sorted({s["model"] for s in summary})

@@ -2,10 +2,14 @@
 
 Layout of ``--out``::
 
+    run.json                                                          written first: its "format" marks a bench folder
     cells/<model>__<dataset>__f<fold>__s<seed>__<config hash>.json   one per finished cell (ok, failed, skipped)
+    cells/damaged/                                                    damaged cell files, moved aside (.records)
     claims/<cell id>.lock                                             held (flock) while a process runs that cell
     progress/<cell id>.json                                           a running cell's last epoch (see .progress)
-    run.json, leaderboard.csv, summary.csv, report.md, plots/*.png
+    run.lock, leaderboard.csv, summary.csv, report.md, plots/*.png
+
+``bench --out`` refuses an existing folder that holds anything and is not a bench folder (:meth:`RunDir.prepare`).
 
 Every file is written to a temporary file in the same folder and renamed over the target (``os.replace``), so a
 reader, or a rerun after SIGKILL, sees either the old complete file or the new complete one, never a torn one.
@@ -22,16 +26,18 @@ the holder died without finishing one, runs that cell itself. The tables are rew
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import socket
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from .._files import atomic_write_text, open_temporary, torn_temporaries
 from ..errors import ConfigError
+from .records import CellScan, InvalidCell, read_record, scan_cells
 
 # The table maths lives in .tables; its names stay importable from here for code written against the old layout.
 from .tables import (
@@ -53,24 +59,15 @@ __all__ = ["atomic_write_text", "atomic_write_json", "RunDir", "Claim", "CellWri
            "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows", "rows_to_csv", "prefix_label"]
 
 
+#: ``run.json``'s ``format``: the marker of a bench folder, written when ``bench`` creates the folder
+BENCH_FORMAT = "tactile-zoo-bench/1"
+BENCH_FORMAT_PREFIX = "tactile-zoo-bench/"
+RUN_JSON = "run.json"
+RUN_LOCK = "run.lock"
+
+
 class CellWriteError(OSError):
     """A cell (or table) file could not be written (disk full, permissions)."""
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same folder and ``os.replace`` (plus fsync)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
 
 
 def _json_default(value: Any) -> Any:
@@ -122,14 +119,59 @@ class RunDir:
         self.progress_dir = self.path / "progress"
 
     # ------------------------------------------------------------------------------------------- set-up
-    def prepare(self) -> RunDir:
-        """Create the folders and prove the location is writable; an unwritable ``--out`` is a ConfigError."""
+    def _run_info(self) -> Any:
         try:
-            for folder in (self.path, self.cells_dir, self.claims_dir, self.progress_dir):
+            return json.loads((self.path / RUN_JSON).read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+
+    def marked(self) -> bool:
+        """Whether ``run.json`` carries the bench folder marker (``"format": "tactile-zoo-bench/N"``)."""
+        info = self._run_info()
+        return isinstance(info, dict) and str(info.get("format", "")).startswith(BENCH_FORMAT_PREFIX)
+
+    def is_bench_folder(self) -> bool:
+        """Whether the folder was written by tactile-zoo bench: the marker, or a folder of a version before it (a
+        ``run.json`` with the ``command`` and ``grid`` only bench writes, or a ``cells/`` folder with a valid cell
+        record, as the committed benchmarks/results folders that have no run.json)."""
+        info = self._run_info()
+        if isinstance(info, dict) and (str(info.get("format", "")).startswith(BENCH_FORMAT_PREFIX)
+                                       or {"command", "grid"} <= set(info)):
+            return True
+        return bool(self.scan().records)
+
+    def _foreign_entries(self) -> list[str]:
+        """What is in the folder besides what a bench process creates first (the lock, run.json's temporary)."""
+        try:
+            names = sorted(os.listdir(self.path))
+        except FileNotFoundError:
+            return []
+        return [n for n in names if n != RUN_LOCK and not (n.startswith(f".{RUN_JSON}.") and n.endswith(".tmp"))]
+
+    def prepare(self) -> RunDir:
+        """Check that ``--out`` is new, empty or a bench folder, mark it as one (``run.json``), create its folders
+        and prove the location is writable. A folder holding anything else is refused before a byte is written, so
+        a bench run never overwrites files it did not write; that and an unwritable ``--out`` are ConfigErrors."""
+        try:
+            foreign = self._foreign_entries()
+        except OSError:  # e.g. a path under a file: creating the folder below says so
+            foreign = []
+        if foreign and not self.is_bench_folder():
+            raise ConfigError(f"--out {self.path}: the folder holds other files ({', '.join(foreign[:3])}"
+                              f"{', ...' if len(foreign) > 3 else ''}) and is not a tactile-zoo bench folder (no "
+                              f"run.json marker); choose a new or empty folder, or a bench folder to resume")
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            # the marker comes first, under the lock: a second bench starting on the same new folder sees either
+            # an empty folder (bar the lock and run.json's temporary) or the marker, never a half-made folder
+            with self.table_lock():
+                if not (self.path / RUN_JSON).exists():
+                    atomic_write_json(self.path / RUN_JSON, {"format": BENCH_FORMAT, "status": "created"})
+            for folder in (self.cells_dir, self.claims_dir, self.progress_dir):
                 folder.mkdir(parents=True, exist_ok=True)
-            fd, probe = tempfile.mkstemp(dir=self.cells_dir, prefix=".probe.")
+            fd, probe = open_temporary(self.cells_dir / "probe")
             os.close(fd)
-            os.unlink(probe)
+            probe.unlink()
         except OSError as exc:
             raise ConfigError(f"--out {self.path}: cannot write there ({exc.strerror or exc}); choose a writable "
                               f"folder") from None
@@ -140,25 +182,24 @@ class RunDir:
         return self.cells_dir / f"{cell_id}.json"
 
     def read_cell(self, cell_id: str) -> dict[str, Any] | None:
-        return self._read(self.cell_path(cell_id))
+        """The cell's valid record; ``None`` when it has no file or a damaged one (see :meth:`read_cell_file`)."""
+        result = self.read_cell_file(cell_id)
+        return None if isinstance(result, InvalidCell) else result
 
-    @staticmethod
-    def _read(path: Path) -> dict[str, Any] | None:
+    def read_cell_file(self, cell_id: str) -> dict[str, Any] | InvalidCell | None:
+        """The cell's valid record, an :class:`~.records.InvalidCell` for a damaged file, ``None`` for no file."""
         try:
-            record = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            return None  # absent, or not ours: it will be recomputed and replaced
-        return record if isinstance(record, dict) and "cell_id" in record and "status" in record else None
+            return read_record(self.cell_path(cell_id))
+        except FileNotFoundError:
+            return None
+
+    def scan(self) -> CellScan:
+        """Every cell file in the folder, checked (:func:`.records.scan_cells`): valid records and damaged files."""
+        return scan_cells(self.cells_dir)
 
     def cells(self) -> dict[str, dict[str, Any]]:
-        """Every readable cell record in the folder, by cell id."""
-        out = {}
-        if self.cells_dir.is_dir():
-            for path in sorted(self.cells_dir.glob("*.json")):
-                record = self._read(path)
-                if record is not None:
-                    out[record["cell_id"]] = record
-        return out
+        """Every valid cell record in the folder, by cell id (damaged files: :meth:`scan`)."""
+        return self.scan().records
 
     def write_cell(self, record: dict[str, Any]) -> Path:
         path = self.cell_path(record["cell_id"])
@@ -204,7 +245,7 @@ class RunDir:
         """Delete temporary files a killed writer of ``folder/name`` left behind. Only call this while holding what
         serialises those writes (the cell's claim, or the table lock), so no live writer's file is touched."""
         removed = 0
-        for tmp in folder.glob(f".{name}.*.tmp"):
+        for tmp in torn_temporaries(folder, name):
             with contextlib.suppress(OSError):
                 tmp.unlink()
                 removed += 1
@@ -224,7 +265,22 @@ class RunDir:
         if fcntl is None:
             yield
             return
-        fd = os.open(self.path / "run.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        fd: int | None
+        try:
+            fd = os.open(self.path / RUN_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            if exc.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
+                raise
+            # a read-only folder: an existing lock file can still be locked (flock needs no write access); with
+            # none, no process can write here, so there is nothing to serialise. Writing fails later, naming
+            # the file, for a caller that tries.
+            try:
+                fd = os.open(self.path / RUN_LOCK, os.O_RDONLY)
+            except OSError:
+                fd = None
+        if fd is None:
+            yield
+            return
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)
             yield

@@ -24,13 +24,15 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .. import registry
+from ..errors import ResultsError
 from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
 from .executors import Executor, LocalExecutor, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
 from .progress import CostModel, ProgressDisplay, format_seconds, remove_progress
-from .results import CellWriteError, Claim, RunDir, atomic_write_json
+from .records import InvalidCell, move_aside
+from .results import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
 
 logger = logging.getLogger(__name__)
 
@@ -123,7 +125,7 @@ def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Pat
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
     argv0 = os.path.basename(sys.argv[0]) if sys.argv else ""
     command = ["tactile-zoo", *sys.argv[1:]] if argv0 in ("tactile-zoo", "cli.py", "__main__.py") else list(sys.argv)
-    payload = {"status": status, "command": command, "config": config.to_dict(),
+    payload = {"format": BENCH_FORMAT, "status": status, "command": command, "config": config.to_dict(),
                "out": str(run.path), "environment": environment(),
                "grid": {"models": grid.models, "datasets": [d.name for d in grid.datasets],
                         "cells": [c.cell_id for c in grid.cells], "skipped": [s.to_dict() for s in grid.skipped],
@@ -134,8 +136,12 @@ def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: 
 
 
 def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False, out: TextIO | None = None,
-              err: TextIO | None = None, report: bool = True, plots: bool = True) -> BenchOutcome:
-    """Run (or with ``dry_run`` only list) the grid ``config`` describes. Raises ConfigError for bad input."""
+              err: TextIO | None = None, report: bool = True, plots: bool = True, skip_invalid: bool = False
+              ) -> BenchOutcome:
+    """Run (or with ``dry_run`` only list) the grid ``config`` describes. Raises ConfigError for bad input.
+
+    Damaged cell files in the folder (:mod:`.records`) are named on ``err``; those of the grid are moved to
+    ``cells/damaged/`` and recomputed. Either way the exit code is 1 unless ``skip_invalid``."""
     out, err = out or sys.stdout, err or sys.stderr
     if os.getcwd() not in sys.path and "" not in sys.path:
         sys.path.append(os.getcwd())  # --plugin-module my_model finds ./my_model.py, as `python -m` would
@@ -161,7 +167,9 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
     status = "running"
     try:
         _run_json(run, config, grid, "running", {"started": started_text, "executor": executor.describe()})
-        existing = run.cells()
+        scan = run.scan()
+        existing = scan.records
+        _name_damaged(scan.invalid, {c.cell_id for c in grid.cells}, skip_invalid, out_dir, console_error=err)
         todo = [c for c in grid.cells
                 if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
         outcome.reused = [c.cell_id for c in grid.cells if c not in todo]
@@ -197,16 +205,20 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
             if report:
                 from .report import write_outputs
 
-                write_outputs(run.path, plots=plots and status == "finished")
+                # damaged files were named above; the ones of the grid have been recomputed
+                write_outputs(run.path, plots=plots and status == "finished", skip_invalid=True)
             _run_json(run, config, grid, status, {"started": started_text, "executor": executor.describe(),
                                                   "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                                                   "counts": counts})
+        except ResultsError as exc:  # already names the folder
+            write_error = write_error or str(exc)
         except OSError as exc:
             write_error = write_error or f"cannot write the tables in {out_dir}: {exc.strerror or exc}"
         summary = (f"done: {counts['ok']} ok, {counts['failed']} failed, {counts['skipped']} skipped"
                    + (f", {counts['pending']} not run" if counts["pending"] else "")
                    + (f"; {counts['datasets_skipped']} dataset(s) skipped" if counts["datasets_skipped"] else "")
                    + (f"; {counts['datasets_failed']} dataset(s) failed" if counts["datasets_failed"] else "")
+                   + (f"; {len(scan.invalid)} damaged cell file(s) found" if scan.invalid else "")
                    + f" -> {out_dir / 'leaderboard.csv'}")
         console.line(summary, always=True)
         if write_error:
@@ -215,9 +227,21 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
             outcome.exit_code = 130
         elif write_error or counts["failed"] or counts["pending"] or counts["datasets_failed"]:
             outcome.exit_code = 1
+        elif scan.invalid and not skip_invalid:  # never silent: a damaged file is a problem even once repaired
+            outcome.exit_code = 1
         return outcome
     finally:
         executor.shutdown(cancel=status != "finished")
+
+
+def _name_damaged(invalid: list[InvalidCell], grid_ids: set[str], skip_invalid: bool, out_dir: Path,
+                  console_error: TextIO) -> None:
+    """One line per damaged cell file: what is wrong, and what this run does with it."""
+    level = "warning" if skip_invalid else "error"
+    for item in invalid:
+        fate = "it is moved to cells/damaged/ and recomputed" if item.path.stem in grid_ids else \
+            "not a cell of this run's grid: left in place (`tactile-zoo report` will name it too)"
+        print(f"tactile-zoo: {level}: damaged cell file {item}; {fate}", file=console_error, flush=True)
 
 
 def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor, console: _Console,
@@ -257,6 +281,22 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
             return None
         return record
 
+    def set_aside(cell: Cell) -> bool:
+        """Move a damaged file of ``cell`` (we hold its claim) to cells/damaged/ before it is recomputed, so the
+        new record never silently replaces it; False when that failed (the cell is then not run)."""
+        found = run.read_cell_file(cell.cell_id)
+        if not isinstance(found, InvalidCell):
+            return True
+        try:
+            moved = move_aside(found.path)
+        except OSError as exc:
+            console.error(f"tactile-zoo: error: cannot move the damaged cell file {found.path} aside "
+                          f"({exc.strerror or exc}); {cell.label()} is not run")
+            return False
+        console.line(f"moved the damaged cell file {found.path.name} to {moved.parent}/; recomputing "
+                     f"{cell.label()}", always=True)
+        return True
+
     def finish(cell: Cell, record: dict[str, Any], by_us: bool) -> None:
         nonlocal done
         done += 1
@@ -281,6 +321,9 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                     finish(cell, record, by_us=False)
                     continue
                 run.remove_torn(run.cells_dir, f"{cell.cell_id}.json")  # a killed writer's half file
+                if not set_aside(cell):
+                    claim.release()
+                    continue
                 _submit(executor, cell, claim, config, inflight, run)
                 if console.bar is not None and len(inflight) == 1 and not done:
                     eta()
@@ -328,8 +371,10 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
             if record is not None:
                 claim.release()
                 finish(cell, record, by_us=False)
-            else:  # its holder stopped without finishing it
+            elif set_aside(cell):  # its holder stopped without finishing it
                 _submit(executor, cell, claim, config, inflight, run)
+            else:
+                claim.release()
     finally:
         for cell, claim in inflight.values():
             display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): not running any more

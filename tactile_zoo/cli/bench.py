@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from typing import Any
 
 from ._common import add_recipe_flags, add_tracker_flags, echo, with_tracker
 
 __all__ = ["add_bench", "add_report"]
+
+logger = logging.getLogger(__name__)
 
 
 def add_bench(sub: argparse._SubParsersAction) -> None:
@@ -53,12 +56,20 @@ def add_bench(sub: argparse._SubParsersAction) -> None:
                    help="write the trained weights of every cell this run computes to OUT/weights/<cell id>."
                         "safetensors (its sha256 in the cell record); finished cells are not recomputed for it")
     p.add_argument("--config", default=None, metavar="FILE.yaml", help="settings file (flags given here win)")
+    _add_skip_invalid(p)
     p.add_argument("--dry-run", action="store_true", help="print the grid of cells and exit")
     p.add_argument("--no-plots", action="store_true", help="write the tables and report.md without the PNG plots "
                                                            "(`tactile-zoo report DIR` draws them later)")
     add_recipe_flags(p)
     add_tracker_flags(p, "the run folder, --out")
     p.set_defaults(handler=_cmd_bench)
+
+
+def _add_skip_invalid(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--skip-invalid", action="store_true",
+                   help="a damaged cell file (unreadable, truncated, failing the cell schema) is named as a warning "
+                        "instead of making the command fail; report leaves it out of the tables, bench recomputes "
+                        "the grid's own (moving the damaged file to cells/damaged/ first)")
 
 
 def _bench_config(args: argparse.Namespace) -> Any:
@@ -76,7 +87,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from ..bench import run_bench
 
     outcome = run_bench(with_tracker(_bench_config(args), args), dry_run=args.dry_run, quiet=args.quiet,
-                        plots=not args.no_plots)
+                        plots=not args.no_plots, skip_invalid=args.skip_invalid)
     return outcome.exit_code
 
 
@@ -90,6 +101,7 @@ def add_report(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--running", action="store_true",
                    help="only list the cells running now (from DIR/progress/, written after every epoch) and exit; "
                         "`watch tactile-zoo report DIR --running` follows a run from a second terminal")
+    _add_skip_invalid(p)
     p.set_defaults(handler=_cmd_report)
 
 
@@ -102,7 +114,10 @@ def _cmd_report(args: argparse.Namespace) -> int:
         for line in running or [f"no cell is running in {args.dir}"]:
             echo(line)
         return 0
-    written = write_outputs(args.dir, plots=not args.no_plots, all_cells=args.all_cells)
+    written = write_outputs(args.dir, plots=not args.no_plots, all_cells=args.all_cells,
+                            skip_invalid=args.skip_invalid,
+                            on_invalid=lambda item: logger.warning("damaged cell file %s; left out (--skip-invalid)",
+                                                                   item))
     for path in written.values():
         echo(f"wrote {path}")
     for line in running:

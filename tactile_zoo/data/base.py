@@ -19,7 +19,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
+from .._files import atomic_path
 from ..errors import ConfigError, DatasetError
 from .augment import apply_augmentation, resolve_augmentations
 from .guard import check_readable
@@ -254,11 +254,9 @@ class TactileDataset(torch.utils.data.Dataset):
         if path is not None:
             try:
                 path.parent.mkdir(parents=True, exist_ok=True)
-                fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-                os.close(fd)
-                torch.save({"x": data.x, "g": data.g, "y": data.y, "groups": data.groups,
-                            "partition": list(data.partition)}, tmp)
-                os.replace(tmp, path)
+                with atomic_path(path) as tmp:
+                    torch.save({"x": data.x, "g": data.g, "y": data.y, "groups": data.groups,
+                                "partition": list(data.partition)}, tmp)
             except OSError:  # an unwritable cache costs time, never correctness
                 pass
         return data

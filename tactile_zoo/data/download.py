@@ -15,7 +15,6 @@ import hashlib
 import os
 import re
 import stat
-import tempfile
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -23,6 +22,7 @@ import zipfile
 from pathlib import Path, PurePosixPath
 from typing import BinaryIO
 
+from .._files import open_temporary
 from ..errors import DatasetError
 
 __all__ = ["fetch", "verify_sha256", "check_zip_member", "check_zip", "open_zip", "safe_extract", "MAX_DOWNLOAD_BYTES",
@@ -62,7 +62,7 @@ def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60
         raise DatasetError(f"refusing to download {url!r}: only http(s) URLs are fetched.{suffix}")
     try:
         dest.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(dir=dest.parent, prefix=f".{dest.name}.", suffix=".part")
+        fd, tmp_name = open_temporary(dest, suffix=".part")  # the umask's permissions, not mkstemp's 0o600
     except OSError as exc:
         raise DatasetError(f"cannot write the download into {dest.parent} ({exc.strerror or exc}).{suffix}") from exc
     tmp = Path(tmp_name)

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from .._files import atomic_path
 from ..errors import ConfigError
 
 __all__ = ["save_checkpoint", "load_checkpoint", "CHECKPOINT_FORMAT", "build_from_checkpoint"]
@@ -37,16 +37,10 @@ def save_checkpoint(path: str | os.PathLike, model: torch.nn.Module, config: dic
             "config": _plain(config, "config")}
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        os.close(fd)
-    except OSError as exc:
+        with atomic_path(path) as tmp:
+            torch.save(blob, tmp)
+    except OSError as exc:  # the folder is not writable, or the disk is full: path is left as it was
         raise ConfigError(f"cannot write checkpoint {path}: {exc.strerror or exc}") from None
-    try:
-        torch.save(blob, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

@@ -69,6 +69,7 @@ import torch
 from torch import Tensor, nn
 
 from .. import registry
+from .._files import atomic_write_text
 from .._version import __version__
 from ..errors import ConfigError, ExportError
 from .graphs import ForwardGraph, StateTensor, StepGraph, _dtype_name, _for_export, _registry_key
@@ -407,9 +408,7 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
 
     manifest = _describe(name, spec, meta, eager, files, checks, full, fwd_inputs, stepper, graphs, info)
     manifest_path = folder / f"{name}.export.json"
-    tmp = manifest_path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(manifest, indent=2) + "\n")
-    tmp.replace(manifest_path)
+    atomic_write_text(manifest_path, json.dumps(manifest, indent=2) + "\n")
     return ExportResult(files, manifest, manifest_path)
 
 

@@ -17,11 +17,11 @@ import functools
 import inspect
 import json
 import os
-import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from .._files import atomic_write_text
 from ..errors import ConfigError
 from .entry import MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
 
@@ -93,15 +93,7 @@ def write_manifest(entries: Iterable[WeightEntry], path: str | os.PathLike, desc
                                 "weights": items}
     parse_manifest(document, f"weights manifest {path}")  # what is written must read back
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(document, fh, indent=2)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, json.dumps(document, indent=2) + "\n")
     return path
 
 

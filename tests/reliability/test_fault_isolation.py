@@ -89,11 +89,18 @@ def test_a_present_but_corrupt_dataset_fails_loudly_and_the_others_run(tmp_path:
 
 
 # ----------------------------------------------------------------------------------------------- failing writes
+def _mark(out: Path) -> None:
+    """Make ``out`` a bench folder (its run.json marker), as a run that got this far would have: bench refuses to
+    write into a folder that holds files and is not one."""
+    (out / "run.json").write_text(json.dumps({"format": "tactile-zoo-bench/1"}))
+
+
 def test_a_cell_file_that_cannot_be_written_keeps_the_earlier_cells(reference_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     third = _run_order(reference_run)[2]
     blocker = out / "cells" / f"{third}.json"
     blocker.mkdir(parents=True)  # os.replace onto a directory fails, for root too (unlike chmod)
+    _mark(out)
     outcome, _, err = quiet_bench(out)
     assert outcome.exit_code == 1
     assert f"cannot write cell file {blocker}" in err and "every cell file written before is intact" in err
@@ -138,6 +145,7 @@ def test_disk_full_while_writing_a_cell(reference_run: Path, tmp_path: Path, mon
 def test_unwritable_tables_keep_every_cell_and_say_so(reference_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     (out / "leaderboard.csv").mkdir(parents=True)
+    _mark(out)
     outcome, text, err = quiet_bench(out, datasets=["tiny_kfold"])
     assert outcome.exit_code == 1 and outcome.counts["ok"] == 4
     assert f"cannot write the tables in {out}" in err and "intact" in err
