@@ -14,7 +14,9 @@ missing, ``ru_maxrss`` from ``os.wait4`` is used, an upper bound (``rss_source``
 The command is the README's first one (``make bench``): ``--executor process --workers N`` with N = ``--threads``,
 one torch thread per worker. The full grid trains every model with its whole recipe; ``--quick`` runs ``tactile-zoo
 bench --quick`` instead (2 epochs on small subsets). With ``BENCH_WALL_KEEP=DIR`` in the environment the run's output
-folder (leaderboard, report, plots, cell files) is copied to DIR instead of being thrown away.
+folder (leaderboard, report, plots, cell files) is copied to DIR instead of being thrown away; ``BENCH_WALL_EPOCHS=N``
+passes ``--epochs N`` (the full grid shortened to fit a time budget, as ``benchmarks.gpu_check`` runs it; the row's
+``case`` and ``command`` say so).
 """
 
 from __future__ import annotations
@@ -58,18 +60,27 @@ def _record(path: Path) -> dict:
         return {"status": "unreadable"}
 
 
+def bench_args(ctx: Context, out: Path, models: str = "all", datasets: str | None = None,
+               extra: tuple[str, ...] = ()) -> list[str]:
+    """The ``tactile-zoo bench`` arguments: the README's command on ``ctx.device``, with one worker process per
+    thread of the budget and one torch thread each (bench's default); ``--epochs`` from ``$BENCH_WALL_EPOCHS``."""
+    args = ["bench", "--models", models, "--out", str(out), "--device", str(ctx.device), "--executor", "process",
+            "--workers", str(ctx.threads), "-q"]
+    if datasets:
+        args += ["--datasets", datasets]
+    if ctx.quick:
+        args.append("--quick")
+    epochs = os.environ.get("BENCH_WALL_EPOCHS")
+    if epochs:
+        args += ["--epochs", str(int(epochs))]  # int(): a typo fails here, not as a bench usage error
+    return args + list(extra)
+
+
 def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: tuple[str, ...] = ()) -> Path:
     with tempfile.TemporaryDirectory(prefix="tz-bench-wall-") as tmp:
         tmp_path = Path(tmp)
         (tmp_path / "data").mkdir()
-        # the README's command: one worker process per thread of the budget, one torch thread each (bench's default)
-        args = ["bench", "--models", models, "--out", str(tmp_path / "out"), "--device", str(ctx.device),
-                "--executor", "process", "--workers", str(ctx.threads), "-q"]
-        if datasets:
-            args += ["--datasets", datasets]
-        if ctx.quick:
-            args.append("--quick")
-        args += list(extra)
+        args = bench_args(ctx, tmp_path / "out", models, datasets, extra)
         env = {**os.environ, "TACTILE_ZOO_DATA": str(tmp_path / "data"), "TACTILE_ZOO_CACHE": str(tmp_path / "cache")}
         log = tmp_path / "log.txt"
         with log.open("w") as out:
@@ -99,7 +110,9 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
         rss_kb //= 1024  # bytes there, kB on Linux
     cpu = usage.ru_utime + usage.ru_stime
     command = "tactile-zoo " + " ".join(a if "tz-bench-wall-" not in a else "<fresh tmp dir>" for a in args)
-    row = {"case": "quick" if ctx.quick else "full", "command": command, "exit_code": code,
+    epochs = os.environ.get("BENCH_WALL_EPOCHS")
+    case = "quick" if ctx.quick else (f"{int(epochs)} epochs" if epochs else "full")
+    row = {"case": case, "command": command, "exit_code": code,
            "cells": cells, "cells_not_ok": failed, "wall_s": wall, "cpu_s": cpu, "peak_rss_mb": rss_kb / 1024,
            "rss_source": rss_source, "max_cell_peak_mb": max(cell_peaks) if cell_peaks else None,
            "note": "empty data home (simulated datasets only), fresh cache (includes generating them)"}
@@ -108,4 +121,4 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
     return write_csv(ctx, NAME, COLUMNS, [row])
 
 
-__all__ = ["run", "NAME", "TITLE"]
+__all__ = ["run", "bench_args", "NAME", "TITLE"]

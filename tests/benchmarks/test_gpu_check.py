@@ -1,15 +1,16 @@
-"""benchmarks/gpu_check.py: skips cleanly without CUDA, runs its comparison for real with --allow-cpu, and reports a
-perturbed comparison (logits, spikes, gradients, a bench cell) as a failure. CPU only, small shapes."""
+"""benchmarks/gpu_check.py, the prepared command for a GPU machine: it skips cleanly without CUDA, runs the parity
+tests (CPU against CPU with --allow-cpu) and the suite's benchmarks as child processes, and reports a failing or
+overlong step. CPU only; the comparison itself is tested in tests/gpu/test_parity_helpers.py."""
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import subprocess
 import sys
-import types
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
@@ -18,20 +19,14 @@ REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
     sys.path.insert(0, str(REPO))
 
-from benchmarks import gpu_check  # noqa: E402
-from benchmarks.gpu_check import Run, compare_runs  # noqa: E402
-
-#: a tiny configuration: short sequences of one simulator, batch 2, 8 training samples, 1 thread, no bench
-TINY = ["--allow-cpu", "--quick", "--datasets", "sim_biotac_slip", "--steps", "10", "--batch", "2", "--samples", "8",
-        "--threads", "1", "--skip", "bench"]
+from benchmarks import BENCHMARKS, bench_wall, common, gpu_check, run  # noqa: E402
 
 
-def _read(path: Path) -> list[dict[str, str]]:
-    with path.open() as fh:
-        return list(csv.DictReader(fh))
+def _summary(out: Path) -> dict[str, Any]:
+    return json.loads((out / "gpu_check.json").read_text())
 
 
-# ------------------------------------------------------------------------------------------------ the command
+# ------------------------------------------------------------------------------------------------ without CUDA
 def test_without_cuda_it_skips_writes_nothing_and_exits_0(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
@@ -57,144 +52,134 @@ def test_a_missing_package_is_named_and_exits_2(monkeypatch: pytest.MonkeyPatch,
     monkeypatch.setitem(sys.modules, "snntorch", None)  # import snntorch now raises ModuleNotFoundError
     assert gpu_check.main(["--allow-cpu"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "missing package 'snntorch'" in err[0]
+    assert len(err) == 1 and "missing package 'snntorch'" in err[0] and "pytest" in err[0]
 
 
-def test_allow_cpu_quick_runs_the_comparison_and_timings_and_passes(tmp_path: Path) -> None:
-    threads = torch.get_num_threads()
-    assert gpu_check.main([*TINY, "--models", "sgnet,tacformer,dcnn", "--out", str(tmp_path)]) == 0
-    assert torch.get_num_threads() == threads  # the process's thread count is restored
-    rows = {r["case"]: r for r in _read(tmp_path / "gpu_check_compare.csv")}
-    expected = {f"{m}/sim_biotac_slip/{c}" for m in ("sgnet", "tacformer") for c in ("forward", "backward", "stream")}
-    assert set(rows) == expected | {"dcnn/sim_biotac_slip/forward", "dcnn/sim_biotac_slip/backward"}
-    for row in rows.values():
-        assert row["status"] == "pass" and float(row["max_abs_diff"]) == 0.0 and row["device"] == "cpu"
-        assert row["torch"] == torch.__version__ and row["quick"] == "True"
-    for check in ("forward", "backward", "stream"):
-        sg = rows[f"sgnet/sim_biotac_slip/{check}"]  # a spiking model: spikes counted, and there were some
-        assert float(sg["spike_total"]) > 0 and sg["spikes_equal"] == "True"
-        assert float(sg["spike_rate_diff"]) == 0.0 and float(sg["spike_rate_limit"]) == pytest.approx(1 / 10)
-    assert float(rows["tacformer/sim_biotac_slip/forward"]["spike_rate_limit"]) == pytest.approx(1 / 2)  # 2 bins
-    assert rows["dcnn/sim_biotac_slip/forward"]["spike_total"] == ""  # not spiking
-    assert float(rows["dcnn/sim_biotac_slip/backward"]["grad_rel_diff"]) == 0.0
-    assert float(rows["sgnet/sim_biotac_slip/stream"]["stream_vs_forward_diff"]) == 0.0
-    timing = _read(tmp_path / "gpu_check_timing.csv")
-    assert [r["model"] for r in timing] == ["sgnet", "tacformer", "dcnn"]
-    assert all(r["status"] == "ok" and float(r["epoch_s"]) > 0 and float(r["latency_ms"]) > 0 for r in timing)
-    assert {r["samples"] for r in timing} == {"8"}
-    summary = json.loads((tmp_path / "gpu_check.json").read_text())
-    assert summary["passed"] is True and summary["failed"] == [] and len(summary["sections"]["compare"]) == 8
-    assert not (tmp_path / "gpu_check_bench.csv").exists()
+# ------------------------------------------------------------------------------------------------ the parity step
+def test_allow_cpu_runs_the_parity_tests_cpu_against_cpu(tmp_path: Path) -> None:
+    """The real test file in a child pytest, the device side on the CPU: the selected tests ran (not skipped) and
+    passed, and their measurements are in the JUnit XML."""
+    assert gpu_check.main(["--allow-cpu", "--only", "parity", "--models", "dcnn,tacformer", "--datasets",
+                           "sim_biotac_slip", "--out", str(tmp_path)]) == 0
+    [row] = _summary(tmp_path)["steps"]
+    assert (row["step"], row["status"], row["tests"], row["failed"], row["skipped"]) == ("parity", "ok", 2, 0, 0)
+    xml = (tmp_path / "gpu_check_parity.xml").read_text()
+    assert "test_cuda_matches_cpu[tacformer-sim_biotac_slip]" in xml and "x_tacformer" not in xml
+    assert '<property name="stream"' in xml and "&quot;max_abs_diff&quot;: 0.0" in xml
 
 
-def test_a_perturbed_device_copy_fails_the_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The 'device' copy of the model gets one weight moved by 1e-2: its logits and gradients no longer match."""
-    import copy
-
-    def perturbed(model: torch.nn.Module) -> torch.nn.Module:
-        twin = copy.deepcopy(model)
-        with torch.no_grad():
-            next(twin.parameters()).add_(1e-2)
-        return twin
-
-    monkeypatch.setattr(gpu_check, "copy", types.SimpleNamespace(deepcopy=perturbed))
-    assert gpu_check.main([*TINY, "--models", "dcnn", "--only", "compare", "--out", str(tmp_path)]) == 1
-    rows = _read(tmp_path / "gpu_check_compare.csv")
-    assert [r["status"] for r in rows] == ["FAIL", "FAIL"]
-    assert all("scores differ" in r["note"] and float(r["max_abs_diff"]) > 1e-4 for r in rows)
-    assert "gradients differ" in rows[1]["note"]
-    assert json.loads((tmp_path / "gpu_check.json").read_text())["failed"] == ["dcnn/sim_biotac_slip/forward",
-                                                                             "dcnn/sim_biotac_slip/backward"]
-
-
-def test_a_spent_budget_skips_the_remaining_work_with_a_note(tmp_path: Path) -> None:
-    assert gpu_check.main([*TINY[:-2], "--models", "dcnn", "--timeout", "0", "--out", str(tmp_path)]) == 0
-    for section in ("compare", "timing", "bench"):
-        rows = _read(tmp_path / f"gpu_check_{section}.csv")
-        assert rows and all(r["status"] == "skipped" and "budget" in r["note"] for r in rows), section
-    assert json.loads((tmp_path / "gpu_check.json").read_text())["passed"] is True
-
-
-# ------------------------------------------------------------------------------------------------ the judgement
-def _run(scores: torch.Tensor, counts: torch.Tensor | None = None, steps: int = 10, horizon: int | None = None,
-         grads: dict | None = None) -> Run:
-    """A run whose one LIF layer ``lif`` fired ``counts`` over ``steps`` steps of sequences of ``horizon`` steps."""
-    if counts is None:
-        return Run(scores, grads=grads)
-    return Run(scores, {"lif": counts}, {"lif": steps}, {"lif": horizon or steps}, grads)
-
-
-def test_logits_beyond_the_tolerance_fail() -> None:
-    scores = torch.randn(2, 5, generator=torch.Generator().manual_seed(0))
-    assert compare_runs(_run(scores), _run(scores + 5e-5))["passed"]
-    bad = scores.clone()
-    bad[1, 3] += 3e-4
-    verdict = compare_runs(_run(scores), _run(bad))
-    assert not verdict["passed"] and "scores differ" in verdict["why"]
-    assert verdict["max_abs_diff"] == pytest.approx(3e-4, rel=1e-3)
-    nan = scores.clone()
-    nan[0, 0] = float("nan")
-    assert not compare_runs(_run(scores), _run(nan))["passed"]
-    assert not compare_runs(_run(scores), _run(scores[:1]))["passed"]  # shapes differ
-
-
-def test_spikes_differing_by_more_than_one_over_t_fail() -> None:
-    """T = 10 steps: one spike more on one neuron (rate 1/10) is allowed, and then the logits are not judged; two
-    spikes more (rate 2/10) fail."""
-    counts = torch.tensor([[3.0, 0.0, 7.0], [1.0, 1.0, 0.0]], dtype=torch.float64)
-    scores = torch.zeros(2, 3)
-    same = compare_runs(_run(scores, counts), _run(scores, counts.clone()))
-    assert same["passed"] and same["spikes_equal"] and same["spike_rate_diff"] == 0.0
-    one = counts.clone()
-    one[0, 1] += 1
-    verdict = compare_runs(_run(scores, counts), _run(scores + 0.5, one))
-    assert verdict["passed"] and verdict["spikes_equal"] is False and "not judged" in verdict["why"]
-    assert verdict["spike_rate_diff"] == pytest.approx(0.1) and verdict["spike_rate_limit"] == pytest.approx(0.1)
-    two = counts.clone()
-    two[1, 2] += 2
-    verdict = compare_runs(_run(scores, counts), _run(scores, two))
-    assert not verdict["passed"] and "spike-rate mismatch" in verdict["why"]
-    assert verdict["spike_rate_diff"] == pytest.approx(0.2)
-    # a stream of 20 calls over a 10-step sequence (re-reading an open bin): 2 spikes in 20 calls is the limit
-    assert compare_runs(_run(scores, counts, 20, 10), _run(scores, two, 20, 10))["passed"]
-    three = two.clone()
-    three[1, 2] += 1
-    assert not compare_runs(_run(scores, counts, 20, 10), _run(scores, three, 20, 10))["passed"]
-    assert not compare_runs(_run(scores, counts), _run(scores))["passed"]  # spiking layers missing on one side
-
-
-def test_gradients_beyond_the_tolerance_fail() -> None:
-    gen = torch.Generator().manual_seed(1)
-    grads = {"w": torch.randn(4, 3, generator=gen), "b": torch.randn(3, generator=gen)}
-    scores = torch.zeros(1, 3)
-    close = {k: v + 1e-5 for k, v in grads.items()}
-    assert compare_runs(_run(scores, grads=grads), _run(scores, grads=close))["passed"]
-    far = {"w": grads["w"].clone(), "b": grads["b"] * 1.01}
-    verdict = compare_runs(_run(scores, grads=grads), _run(scores, grads=far))
-    assert not verdict["passed"] and "gradients differ" in verdict["why"] and verdict["grad_rel_diff"] > 1e-3
-    assert not compare_runs(_run(scores, grads=grads), _run(scores, grads={"w": grads["w"], "b": None}))["passed"]
-
-
-# ------------------------------------------------------------------------------------------------ the bench child
-def test_bench_cells_that_failed_fail_the_section(tmp_path: Path) -> None:
+def test_a_failing_parity_test_fails_the_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tests = tmp_path / "test_planted.py"
+    tests.write_text("def test_agrees():\n    pass\n\n\ndef test_differs():\n    assert 1 == 2\n")
+    monkeypatch.setattr(gpu_check, "PARITY_TESTS", str(tests))
     out = tmp_path / "out"
-    script = ("import json, pathlib, sys; cells = pathlib.Path(sys.argv[1]) / 'cells'; cells.mkdir(parents=True); "
-              "[(cells / f'{i}.json').write_text(json.dumps({'status': s})) "
-              "for i, s in enumerate(['ok', 'ok', 'skipped', 'failed'])]")
-    row = gpu_check.run_bench_command([sys.executable, "-c", script, str(out)], out, timeout=60)
-    assert row["status"] == "FAIL" and row["exit_code"] == 0
-    assert (row["cells_ok"], row["cells_skipped"], row["cells_failed"]) == (2, 1, 1)
+    assert gpu_check.main(["--allow-cpu", "--only", "parity", "--out", str(out)]) == 1
+    summary = _summary(out)
+    assert summary["passed"] is False and summary["failed"] == ["parity"]
+    [row] = summary["steps"]
+    assert (row["status"], row["exit_code"], row["tests"], row["failed_tests"]) == ("FAIL", 1, 2, ["test_differs"])
 
 
-def test_a_bench_over_the_budget_is_stopped(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    row = gpu_check.run_bench_command([sys.executable, "-c", "import time; time.sleep(60)"], out, timeout=1)
-    assert row["status"] == "timeout" and row["exit_code"] is None and row["wall_s"] < 30
-    assert row["cells_ok"] == 0 and "time budget" in row["note"]
+def test_parity_nodes_name_each_model_exactly() -> None:
+    nodes = gpu_check.parity_nodes(["tacformer", "dcnn"], ["sim_evtouch", "sim_biotac_slip"])
+    assert nodes[0] == "tests/gpu/test_cuda_parity.py::test_cuda_matches_cpu[tacformer-sim_evtouch]"
+    assert [n.split("[")[1] for n in nodes] == ["tacformer-sim_evtouch]", "dcnn-sim_evtouch]",
+                                                "tacformer-sim_biotac_slip]", "dcnn-sim_biotac_slip]"]
+    assert (REPO / gpu_check.PARITY_TESTS).exists()
 
 
-def test_bench_command_is_bench_walls_on_the_device() -> None:
-    args = gpu_check.bench_command("cuda", Path("/tmp/x"), 4, quick=False, epochs=3)
-    assert args[:3] == ["bench", "--models", "all"] and args[args.index("--device") + 1] == "cuda"
-    assert args[args.index("--executor") + 1] == "process" and args[args.index("--epochs") + 1] == "3"
-    assert "--quick" in gpu_check.bench_command("cuda", Path("/tmp/x"), 4, quick=True, epochs=None)
+# ------------------------------------------------------------------------------------------------ the suite steps
+def test_the_suite_steps_are_benchmarks_run_on_the_device(tmp_path: Path) -> None:
+    """Each suite step is a command line that the suite's own runner accepts, for a benchmark it has."""
+    assert set(gpu_check.SUITE) <= set(BENCHMARKS)
+    command = gpu_check.suite_command("bench_wall", "cuda", tmp_path, 4, quick=True)
+    assert command[:3] == [sys.executable, "-m", "benchmarks.run"]
+    args = run._parser().parse_args(command[3:])
+    assert (args.only, args.device, args.threads, args.out, args.quick) == ("bench_wall", "cuda", 4, tmp_path, True)
+    assert "--quick" not in gpu_check.suite_command("inference", "cuda", tmp_path, 4, quick=False)
+
+
+def test_main_runs_every_step_in_order_and_a_failed_one_fails_it(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[tuple[list[str], dict[str, str]]] = []
+
+    def fake(command: list[str], log: Path, timeout: float, env: dict[str, str] | None = None) -> dict[str, Any]:
+        calls.append((command, env or {}))
+        for arg in command:  # the parity step's pytest writes its JUnit XML
+            if arg.startswith("--junitxml="):
+                Path(arg.split("=", 1)[1]).write_text('<testsuite><testcase name="test_cuda_matches_cpu[a-b]"/>'
+                                                      '</testsuite>')
+        failed = "epoch_all_models" in command
+        return {"status": "FAIL" if failed else "ok", "exit_code": int(failed), "seconds": 0.0, "note": ""}
+
+    monkeypatch.setattr(gpu_check, "run_step", fake)
+    assert gpu_check.main(["--allow-cpu", "--out", str(tmp_path), "--threads", "2"]) == 1
+    assert [c[c.index("--only") + 1] for c, _ in calls[1:]] == ["inference", "epoch_all_models", "bench_wall"]
+    assert calls[0][0][1:3] == ["-m", "pytest"] and calls[0][0][-1] == gpu_check.PARITY_TESTS  # the whole file
+    assert all(c[c.index("--device") + 1] == "cpu" and "--quick" not in c for c, _ in calls[1:])
+    env = calls[0][1]
+    assert env["TACTILE_ZOO_PARITY_DEVICE"] == "cpu" and env["BENCH_WALL_EPOCHS"] == "3"
+    assert env["PYTHONPATH"].split(os.pathsep)[0] == str(REPO)
+    summary = _summary(tmp_path)
+    assert summary["failed"] == ["epoch_all_models"] and [r["status"] for r in summary["steps"]] == [
+        "ok", "ok", "FAIL", "ok"]
+    assert (summary["steps"][0]["tests"], summary["steps"][0]["failed"]) == (1, 0)
+    assert (tmp_path / "gpu_check_parity.xml").exists()  # the later steps leave the parity results alone
+    calls.clear()
+    assert gpu_check.main(["--allow-cpu", "--quick", "--skip", "parity", "--out", str(tmp_path / "q")]) == 1
+    assert len(calls) == 3 and all("--quick" in c for c, _ in calls) and "BENCH_WALL_EPOCHS" not in calls[0][1]
+
+
+def test_a_spent_budget_skips_every_step_with_a_note(tmp_path: Path) -> None:
+    stale = tmp_path / "gpu_check_parity.xml"  # an earlier run's results, which must not count for this one
+    stale.write_text('<testsuite><testcase name="old"/></testsuite>')
+    assert gpu_check.main(["--allow-cpu", "--timeout", "0", "--out", str(tmp_path)]) == 0
+    assert not stale.exists() and "tests" not in _summary(tmp_path)["steps"][0]
+    summary = _summary(tmp_path)
+    assert [r["step"] for r in summary["steps"]] == list(gpu_check.STEPS)
+    assert all(r["status"] == "skipped" and "budget" in r["note"] for r in summary["steps"])
+    assert summary["passed"] is True and summary["skipped"] == list(gpu_check.STEPS)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs (a killed process not yet reaped by its new parent is a zombie)."""
+    try:
+        return Path(f"/proc/{pid}/status").read_text().split("State:")[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads process states from /proc (Linux)")
+def test_a_step_over_its_time_is_stopped_with_its_children(tmp_path: Path) -> None:
+    """The step starts a grandchild (as benchmarks.run starts bench children) and sleeps; when its time is up both
+    are stopped, as the whole process group is."""
+    pid_file = tmp_path / "grandchild.pid"
+    script = ("import os, subprocess, sys, time; "
+              "p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)']); "
+              f"open({str(pid_file)!r}, 'w').write(str(p.pid)); time.sleep(120)")
+    row = gpu_check.run_step([sys.executable, "-c", script], tmp_path / "step.log", timeout=5)
+    assert row["status"] == "timeout" and row["exit_code"] is None and "time budget" in row["note"]
+    assert pid_file.exists(), "the step did not start its grandchild within its time; nothing was checked"
+    grandchild = int(pid_file.read_text())
+    for _ in range(100):  # SIGKILL is delivered asynchronously: give it a moment to land
+        if not _alive(grandchild):
+            break
+        time.sleep(0.1)
+    assert not _alive(grandchild)
+
+
+def test_a_step_that_exits_nonzero_fails_with_its_output(tmp_path: Path) -> None:
+    row = gpu_check.run_step([sys.executable, "-c", "print('broken here'); raise SystemExit(3)"], tmp_path / "s.log",
+                             timeout=60)
+    assert (row["status"], row["exit_code"]) == ("FAIL", 3) and "broken here" in row["note"]
+    assert "broken here" in (tmp_path / "s.log").read_text()
+
+
+def test_bench_wall_takes_its_epochs_from_the_environment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    ctx = common.Context(device=torch.device("cpu"), threads=4, out=tmp_path, log=lambda _msg: None)
+    monkeypatch.delenv("BENCH_WALL_EPOCHS", raising=False)
+    assert "--epochs" not in bench_wall.bench_args(ctx, tmp_path)
+    monkeypatch.setenv("BENCH_WALL_EPOCHS", "3")
+    args = bench_wall.bench_args(ctx, tmp_path)
+    assert args[args.index("--epochs") + 1] == "3" and args[args.index("--workers") + 1] == "4"
+    assert args[:3] == ["bench", "--models", "all"] and args[args.index("--device") + 1] == "cpu"
