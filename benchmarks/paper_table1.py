@@ -54,7 +54,7 @@ READING = ("Figures: mean ± sample std over runs. The 95 % interval is a confid
            "accuracy of this training procedure on this task (over training seeds, on the population the test set "
            "was drawn from): one draw of the test units (samples; recordings on BioTac-DoS) per resample, shared by "
            "all runs, since they share the test set, plus the runs' spread with its small-sample t quantile. In "
-           "simulated experiments like these it covered the truth 95-96 % of the time "
+           "simulated experiments like these it covered the truth 93-96 % of the time "
            "(`benchmarks/results/interval_coverage.md`). A paper figure above the interval is one these runs do not "
            "reproduce, and two models whose intervals overlap widely are not told apart.")
 
