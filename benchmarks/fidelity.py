@@ -145,7 +145,7 @@ def tables() -> str:
 
 def replace_block(text: str, begin: str, end: str, body: str, where: Path) -> str:
     """``text`` with what lies between the markers ``begin`` and ``end`` replaced by ``body`` (generated tables in a
-    hand-written page: the ledger, the README's Table I)."""
+    hand-written page: the ledger, Table I, the README's headline)."""
     if begin not in text or end not in text:
         raise SystemExit(f"{where} lacks the markers {begin!r} ... {end!r}")
     head, rest = text.split(begin, 1)
