@@ -341,9 +341,9 @@ def _reference_section(records: list[dict[str, Any]]) -> list[str]:
               ",".join(map(str, r["best_test_epochs"]))] for r in rows]
     return ["## Reference protocol (--evaluation reference)", "",
             "Trained on every training recording for the recipe's fixed epochs; the test split was evaluated after "
-            "every epoch. **Final epoch** selects nothing: an honest figure (95 % bootstrap interval over seeds and "
-            "test samples). **Best test epoch** is chosen on the test set itself, the optimistic protocol under "
-            "which some sources publish: comparable with those sources only, never with the summary above.", "",
+            "every epoch. **Final epoch** selects nothing: an honest figure (its 95 % interval as in the summary: "
+            "seeds and test samples). **Best test epoch** is chosen on the test set itself, the optimistic protocol "
+            "under which some sources publish: comparable with those sources only, never with the summary above.", "",
             _table(["model", "dataset", "seeds", "final epoch (honest)", "95 % interval",
                     "best test epoch (optimistic)", "best epochs"], table), ""]
 
