@@ -1,5 +1,5 @@
-"""The README's Table I generator: per dataset, paper figures next to mean ± std and a 95 % interval over the current,
-finished runs."""
+"""The Table I generator (docs/table1.md and the README's headline): per dataset, paper figures next to mean ± std
+and a 95 % interval over the current, finished runs."""
 
 from __future__ import annotations
 
