@@ -35,7 +35,7 @@ lint: install
 benchmarks: install
 	$(BIN)/python -m benchmarks.run $(BENCHMARK_ARGS)
 
-# after committing new cells: the fidelity ledger and the README's Table I, both checked by the suite
+# after committing new cells: the fidelity ledger, Table I (docs/table1.md) and the README's headline, checked by the suite
 tables: install
 	$(BIN)/python -m benchmarks.fidelity
 	$(BIN)/python -m benchmarks.paper_table1 --readme

@@ -13,8 +13,9 @@ Sources read (nothing is trained here):
 - ``benchmarks/results/dcnn_released.csv``: the ten released D-CNN models on the 120 Augment8000 real-life samples.
 
 A cell computed by an older revision of its model's or dataset's code is left out (``report.md`` flags it), as is a
-cell of another recipe than ``source``. Intervals are 95 % bootstraps over seeds and test units: samples, or
-recordings for BioTac-DoS (:func:`tactile_zoo.bench.intervals.records_interval`).
+cell of another recipe than ``source``. Intervals are 95 % confidence intervals of the expected accuracy, the test
+units (samples, or recordings for BioTac-DoS) drawn once per resample for all seeds
+(:func:`tactile_zoo.bench.intervals.records_interval`).
 """
 
 from __future__ import annotations
@@ -135,15 +136,16 @@ def tables() -> str:
         for dataset, value in zip(EV, paper):
             row += ["-" if value is None else f"{value:.4f}", figure(_pick(honest, model, dataset))]
         lines.append("| " + " | ".join(row) + " |")
-    lines += ["", "Figures: mean ± sample std over seeds [95 % bootstrap interval over seeds and test samples] "
-                  "(seeds). \"not run yet\": no current cell (a cell of an older code revision does not count). "
-                  "BioTac-DoS intervals resample recordings (about 27 windows each), not windows."]
+    lines += ["", "Figures: mean ± sample std over seeds [95 % confidence interval of the expected accuracy: one "
+                  "draw of the test samples per resample shared by the seeds, plus the seeds' spread with its t "
+                  "quantile] (seeds). \"not run yet\": no current cell (a cell of an older code revision does not "
+                  "count). BioTac-DoS intervals resample recordings (about 27 windows each), not windows."]
     return "\n".join(lines)
 
 
 def replace_block(text: str, begin: str, end: str, body: str, where: Path) -> str:
     """``text`` with what lies between the markers ``begin`` and ``end`` replaced by ``body`` (generated tables in a
-    hand-written page: the ledger, the README's Table I)."""
+    hand-written page: the ledger, Table I, the README's headline)."""
     if begin not in text or end not in text:
         raise SystemExit(f"{where} lacks the markers {begin!r} ... {end!r}")
     head, rest = text.split(begin, 1)

@@ -1,4 +1,4 @@
-"""Is recipe b better than recipe a? A paired bootstrap of the accuracy difference, and Holm's correction.
+"""Is recipe b better than recipe a? A paired interval of the accuracy difference, and Holm's correction.
 
 Comparing two recipes by their separate intervals (:func:`~tactile_zoo.bench.intervals.bootstrap_accuracy`) wastes
 most of the evidence. When both recipes are run on the same cells (same fold, same seed, same test set), most of the
@@ -6,16 +6,17 @@ chance in their accuracies is shared: a seed that splits the data badly, or a te
 Each interval carries that shared noise in full, so two intervals can overlap widely while b beats a on every seed.
 What the question needs is the interval of the *difference*, and the shared noise cancels in it.
 
-:func:`paired_bootstrap` keeps the hierarchy of ``bootstrap_accuracy`` (cells with replacement, then the test units
-of each drawn cell with replacement; a unit is a sample or, with ``groups``, a recording with all its windows) and
-pairs the two recipes inside it: a resample draws one set of units per drawn cell and scores both recipes on exactly
-those units. The statistic is the mean over the drawn cells of ``acc_b - acc_a``; its ``level`` percentiles are the
-interval.
+:func:`paired_bootstrap` uses the method of :mod:`tactile_zoo.bench.intervals` on the per-unit gain ``correct_b -
+correct_a``: one bootstrap draw of the test units per resample, shared by every pair of runs scored on that test set
+and scoring both recipes on exactly those units (a unit is a sample or, with ``groups``, a recording with all its
+windows), gives the test part of the variance; the spread of the pairs' differences over seeds gives the seed part.
+The statistic is the mean over the pairs of ``acc_b - acc_a``; the interval is that mean plus or minus
+``sqrt(t_{S-1}^2 v_seed + t_{U-1}^2 v_test)``.
 
-The one-sided p-value (H0: b is not better than a) comes from the same resamples, shifted: ``d* - d`` imitates how
-the difference scatters around its true value, so under a true difference of zero it is a draw of the statistic
-itself, and ``p = (1 + #{d* - d >= d}) / (resamples + 1)``. The added one counts the observed run among the draws,
-so p never reads 0 from a finite number of resamples: its floor is ``1 / (resamples + 1)``.
+The one-sided p-value (H0: b is not better than a) inverts the same construction: p is the ``alpha`` at which the
+one-sided lower bound ``d - sqrt(t_{S-1}(1-alpha)^2 v_seed + t_{U-1}(1-alpha)^2 v_test)`` reaches 0, so "p < 0.05"
+and "the one-sided 95 % lower bound is above 0" say the same. ``benchmarks/interval_coverage.py`` measures its
+false-positive rate under a true difference of zero.
 
 When several recipes are tried against one baseline, the smallest of their p-values is small by chance alone;
 :func:`holm` adjusts a family of p-values (Holm-Bonferroni step-down) so that the chance of any false "better" in the
@@ -29,10 +30,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import optimize
 
-from .intervals import DEFAULT_RESAMPLES
+from .intervals import DEFAULT_RESAMPLES, Components, units_of, variance_components
 
-__all__ = ["PairedResult", "paired_bootstrap", "records_paired", "holm"]
+__all__ = ["PairedResult", "paired_bootstrap", "records_paired", "holm", "P_FLOOR"]
+
+P_FLOOR = 1e-9  #: the smallest p-value reported
 
 
 @dataclass(frozen=True)
@@ -41,9 +45,9 @@ class PairedResult:
 
     Attributes:
         difference: mean over the paired cells of ``accuracy_b - accuracy_a`` on their full test sets.
-        low: lower end of the ``level`` percentile interval of the bootstrap difference.
+        low: lower end of the ``level`` confidence interval of the expected difference.
         high: upper end of that interval.
-        p_value: one-sided p-value of H0 "b is not better than a"; at least ``1 / (resamples + 1)``.
+        p_value: one-sided p-value of H0 "b is not better than a".
         n_cells: number of paired cells.
         resamples: bootstrap resamples behind ``low``, ``high`` and ``p_value``.
     """
@@ -59,12 +63,12 @@ class PairedResult:
 def paired_bootstrap(cells: Sequence[tuple[Sequence[int], Sequence[int], Sequence[int]]], *,
                      groups: Sequence[Sequence] | None = None, resamples: int = DEFAULT_RESAMPLES,
                      level: float = 0.95, seed: int = 0) -> PairedResult:
-    """Paired hierarchical bootstrap of the accuracy difference b - a over ``cells``.
+    """The paired interval of the accuracy difference b - a over ``cells``, and its one-sided p-value.
 
     Args:
         cells: per paired cell, ``(targets, predictions_a, predictions_b)``: one test set scored by both recipes.
         groups: per cell, the independent unit of each sample (e.g. its recording); default: each sample its own.
-        resamples: bootstrap resamples.
+        resamples: bootstrap resamples of the test units.
         level: coverage of the interval, e.g. 0.95.
         seed: seeds the resampling, so a table regenerates to the same digits.
 
@@ -84,42 +88,40 @@ def paired_bootstrap(cells: Sequence[tuple[Sequence[int], Sequence[int], Sequenc
     if groups is not None and len(groups) != len(cells):
         raise ValueError(f"groups lists {len(groups)} cells, cells are {len(cells)}")
 
-    # Per cell, per unit: (correct_b - correct_a) and the sample count. Only the difference of the correct counts is
-    # needed, since both recipes are scored on the same drawn units; that sharing is the pairing.
-    per_cell: list[tuple[np.ndarray, np.ndarray]] = []
-    observed = []
+    runs = []
     for i, (targets, pred_a, pred_b) in enumerate(cells):
         t, a, b = np.asarray(targets), np.asarray(pred_a), np.asarray(pred_b)
         if t.size == 0 or t.shape != a.shape or t.shape != b.shape:
             raise ValueError(f"cell {i}: {t.size} targets, {a.size} predictions of a and {b.size} of b")
-        if groups is None:
-            unit = np.arange(t.size)
-        else:
-            g = np.asarray(groups[i])
-            if g.shape != t.shape:
-                raise ValueError(f"cell {i}: {g.size} groups for {t.size} samples")
-            unit = np.unique(g, return_inverse=True)[1].reshape(-1)
+        if groups is not None and np.asarray(groups[i]).shape != t.shape:
+            raise ValueError(f"cell {i}: {np.asarray(groups[i]).size} groups for {t.size} samples")
+        unit, key = units_of(t, None if groups is None else groups[i])
+        # Only the difference of the correct counts is needed, since both recipes are scored on the same drawn
+        # units; that sharing is the pairing
         gain = (b == t).astype(np.int64) - (a == t).astype(np.int64)
-        per_cell.append((np.bincount(unit, weights=gain), np.bincount(unit).astype(np.float64)))
-        # integer gain over the sample count, so that e.g. 30 of 100 reads 0.3, not 1.0 - 0.7
-        observed.append(int(gain.sum()) / t.size)
-    difference = float(np.mean(observed))
+        runs.append((np.bincount(unit, weights=gain), np.bincount(unit).astype(np.float64), key))
+    parts = variance_components(runs, resamples=resamples, seed=seed)
+    # integer gains over the sample counts, so that e.g. 30 of 100 reads 0.3, not 1.0 - 0.7
+    difference = float(np.mean([num.sum() / counts.sum() for num, counts, _ in runs]))
+    parts = Components(difference, parts.v_seed, parts.v_test, parts.n_runs, parts.n_units, parts.n_test_sets)
+    low, high = parts.interval(level, (-1.0, 1.0))
+    return PairedResult(difference, low, high, _p_value(parts), parts.n_runs, resamples)
 
-    rng = np.random.default_rng(seed)
-    diffs = np.empty(resamples)
-    for r in range(resamples):
-        picked = rng.integers(0, len(per_cell), len(per_cell))  # cells (seeds) with replacement
-        total = 0.0
-        for c in picked:
-            gain, counts = per_cell[c]
-            units = rng.integers(0, counts.size, counts.size)  # one draw of units, scored for a and b alike
-            total += gain[units].sum() / counts[units].sum()
-        diffs[r] = total / len(picked)
 
-    tail = (1.0 - level) / 2
-    low, high = np.quantile(diffs, [tail, 1.0 - tail])
-    p_value = (1 + int(np.count_nonzero(diffs - difference >= difference))) / (resamples + 1)
-    return PairedResult(difference, float(low), float(high), p_value, len(per_cell), resamples)
+def _p_value(parts: Components) -> float:
+    """One-sided p of H0 "the expected difference is at most 0": the alpha whose one-sided lower bound is 0."""
+    d = parts.estimate
+    if parts.v_seed == 0.0 and parts.v_test == 0.0:  # no spread at all: the sign is all there is
+        return 0.0 if d > 0 else 1.0
+    if d == 0.0:
+        return 0.5
+    # the lower bound |d| - half_width(1 - alpha) rises with alpha on (0, 0.5]; half_width(0.5) = 0. Below
+    # P_FLOOR, 1 - alpha rounds too close to 1 for the t quantiles: p is reported as that floor.
+    def bound(alpha: float) -> float:
+        return abs(d) - parts.half_width(1.0 - alpha)
+
+    tail = P_FLOOR if bound(P_FLOOR) >= 0 else optimize.brentq(bound, P_FLOOR, 0.5, xtol=1e-12)
+    return tail if d > 0 else 1.0 - tail
 
 
 def records_paired(records_a: Sequence[dict[str, Any]], records_b: Sequence[dict[str, Any]], split: str = "test", *,

@@ -199,8 +199,8 @@ def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple
 
 def reference_rows(records: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per (model, dataset) over ok ``--evaluation reference`` cells: the final epoch's test accuracy (honest: nothing
-    was selected) with its 95 % bootstrap interval over seeds and test samples, and the best test epoch's accuracy
-    (chosen on the test set: the sources' optimistic figure, without an interval)."""
+    was selected) with its 95 % interval (:mod:`.intervals`: seeds and shared test draws), and the best test epoch's
+    accuracy (chosen on the test set: the sources' optimistic figure, without an interval)."""
     from .intervals import records_interval
 
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}

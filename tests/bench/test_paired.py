@@ -6,6 +6,7 @@ import random
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from tactile_zoo.bench.intervals import bootstrap_accuracy
 from tactile_zoo.bench.paired import PairedResult, holm, paired_bootstrap, records_paired
@@ -15,11 +16,12 @@ R = 500  # resamples: plenty for these margins, and the module runs in about two
 
 def _correlated_cells(n_cells: int = 3, n: int = 200, shared_wrong: int = 60, fixed: int = 8, broken: int = 2,
                       seed: int = 0) -> list[tuple[list[int], list[int], list[int]]]:
-    """Cells where a and b share most errors; b fixes ``fixed`` of a's errors and breaks ``broken`` of a's hits."""
+    """Seeds scored on one test set where a and b share most errors; b fixes ``fixed`` of a's errors and breaks
+    ``broken`` of a's hits."""
     rng = np.random.default_rng(seed)
     cells = []
+    targets = rng.integers(0, 5, n)
     for _ in range(n_cells):
-        targets = rng.integers(0, 5, n)
         order = rng.permutation(n)
         a_wrong = order[:shared_wrong + fixed]
         b_wrong = np.concatenate([order[fixed:shared_wrong + fixed], order[shared_wrong + fixed:][:broken]])
@@ -39,15 +41,16 @@ def test_identical_predictions_give_no_difference_and_p_one() -> None:
 
 def test_b_right_everywhere_against_a_wrong_on_30_percent() -> None:
     cells = []
+    targets = [i % 4 for i in range(100)]
     for k in range(3):
-        targets = [(i + k) % 4 for i in range(100)]
-        a = [(t + 1) % 4 if i % 10 < 3 else t for i, t in enumerate(targets)]  # wrong on 30 of 100
+        a = [(t + 1) % 4 if (i + k) % 10 < 3 else t for i, t in enumerate(targets)]  # wrong on 30 of 100
         cells.append((targets, a, list(targets)))
     res = paired_bootstrap(cells, resamples=R)
     assert res.difference == 0.3
-    # never in 500 resamples does a's error rate double to 60 %: the p-value sits at its floor
-    assert res.p_value == 1 / (R + 1)
-    assert 0 < res.low < 0.3 < res.high < 0.45
+    # the seeds agree on the difference (no seed part), and 0.3 lies about 6.5 standard errors (sqrt(0.21 / 100))
+    # above 0: the p-value is that of t with 99 degrees of freedom, far below any level
+    assert res.p_value < 1e-6
+    assert 0.2 < res.low < 0.3 < res.high < 0.4
     assert res.n_cells == 3 and res.resamples == R
 
 
@@ -64,15 +67,16 @@ def test_pairing_shows_a_small_consistent_gain_that_separate_intervals_miss() ->
     assert res.high - res.low < 0.75 * min(a_high - a_low, b_high - b_low)
 
 
-def test_cells_are_resampled_and_the_p_value_is_the_shifted_tail() -> None:
-    # Four seeds of one sample each: b fixes a's error on seed 0 only, so d = 1/4 and, with no spread inside a cell,
-    # d* = K/4 where K ~ Binomial(4, 1/4) counts the draws of seed 0. The shifted tail d* - d >= d is K >= 2:
-    # 1 - (3/4)^4 - 4 (1/4) (3/4)^3 = 0.2617 (the unshifted P(d* <= 0) would be (3/4)^4 = 0.3164).
+def test_the_seed_part_takes_t_with_s_minus_1_degrees_of_freedom() -> None:
+    # Four seeds scored on one test sample: b fixes a's error on seed 0 only, so d = 1/4 and the test part is 0 (the
+    # one unit is drawn every time). The seed part is var(1, 0, 0, 0) / 4 = 1/16, the standard error 1/4, and with 3
+    # degrees of freedom the interval is 1/4 +- t_3(0.975) / 4, the p-value P(T_3 >= 1).
     cells = [([0], [1], [0])] + [([0], [0], [0])] * 3
-    res = paired_bootstrap(cells, resamples=10_000, seed=2)
+    res = paired_bootstrap(cells, resamples=R, seed=2)
     assert res.difference == 0.25
-    assert res.p_value == pytest.approx(1 - 0.75**4 - 0.75**3, abs=0.015)
-    assert (res.low, res.high) == (0.0, 0.75)  # K = 0 has 32 %, K = 4 only 0.4 %: the seeds' spread is covered
+    assert res.p_value == pytest.approx(stats.t.sf(1.0, 3), abs=1e-9)
+    assert res.low == pytest.approx(0.25 - stats.t.ppf(0.975, 3) / 4)
+    assert res.high == 1.0  # 0.25 + 0.80 is clipped: a difference of accuracies cannot exceed 1
 
 
 def test_groups_widen_the_interval_when_a_recordings_windows_move_together() -> None:

@@ -67,20 +67,19 @@ def test_an_honest_run_has_no_reference_columns(tmp_path: Path) -> None:
 def test_bootstrap_interval_covers_the_mean_and_widens_with_dependent_units() -> None:
     rng = np.random.default_rng(1)
     cells = []
+    targets = rng.integers(0, 4, 200)  # the seeds share one test set
     for _ in range(3):
-        targets = rng.integers(0, 4, 200)
         predictions = np.where(rng.random(200) < 0.7, targets, (targets + 1) % 4)
         cells.append((targets.tolist(), predictions.tolist()))
     mean = np.mean([np.mean(np.equal(t, p)) for t, p in cells])
     low, high = bootstrap_accuracy(cells)
     assert low < mean < high and 0.6 < low and high < 0.8
     assert bootstrap_accuracy(cells) == (low, high)  # seeded: a report regenerates to the same digits
-    # 20 "recordings" of 10 windows that are right or wrong together: 20 independent units, not 200
-    grouped = []
-    for _ in range(3):
-        right = np.repeat(rng.random(20) < 0.7, 10)
-        targets = np.zeros(200, dtype=int)
-        grouped.append((targets.tolist(), np.where(right, 0, 1).tolist()))
+    # 20 "recordings" of 10 windows that are right or wrong together (for every seed alike, so that only the test
+    # part is left): 20 independent units, not 200
+    right = np.repeat(rng.random(20) < 0.7, 10)
+    targets = np.zeros(200, dtype=int)
+    grouped = [(targets.tolist(), np.where(right, 0, 1).tolist())] * 3
     groups = [np.repeat(np.arange(20), 10).tolist()] * 3
     narrow, wide = bootstrap_accuracy(grouped), bootstrap_accuracy(grouped, groups=groups)
     assert (wide[1] - wide[0]) > 2 * (narrow[1] - narrow[0])
