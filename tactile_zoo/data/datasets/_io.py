@@ -22,6 +22,7 @@ import contextlib
 import csv
 import io
 import itertools
+import math
 import os
 import re
 import stat
@@ -396,6 +397,9 @@ def _npy_header(fp: BinaryIO, size: int, label: str | os.PathLike) -> tuple[tupl
     if size - offset < need:
         raise DatasetError(f"{label}: truncated .npy file: its header declares shape {tuple(shape)} {dtype} "
                            f"({need} bytes of data), the file holds {size - offset}")
+    if math.prod(max(int(d), 1) for d in shape) * dtype.itemsize >= 2**63:
+        # a zero-size shape whose other sides overflow numpy's size arithmetic
+        raise DatasetError(f"{label}: truncated or corrupt .npy file (shape {tuple(shape)} is too large)")
     return tuple(shape), bool(fortran), dtype, offset
 
 

@@ -10,9 +10,9 @@ channels of a taxel together (``[x, y, z]`` of taxel 0, then of taxel 1, ...), f
 (joint angles, ...): ``N * C + G`` columns for a sensor with ``N`` taxels, ``C`` channels per taxel and ``G``
 globals. A ``.csv`` (comma, semicolon or tab between values, ``.`` as the decimal mark, quotes allowed) may start
 with one row of column names (a row in which no field is or looks like a number); a ``.npy`` is a 2-D real array
-``(T, N * C + G)``, memory-mapped and read with ``allow_pickle=False``. With ``num_steps`` set, only the first
-``num_steps`` rows of a trial are read. A file above the input size limit (``$TACTILE_ZOO_MAX_INPUT_MB``) or not a
-regular file is an error. Hidden files are ignored; anything else in a class folder is an error.
+``(T, N * C + G)``, read with ``allow_pickle=False``. A file above the input size limit (``$TACTILE_ZOO_MAX_INPUT_MB``,
+default 2048) or not a regular file is an error. Hidden files are ignored; anything else in a class folder is an
+error.
 
 Classes are the sorted class-folder names, or the ``classes=`` list (label = position in the list; then a folder not
 in the list is an error). All trials must have the same number of steps, unless ``num_steps`` is given: longer trials
@@ -47,7 +47,7 @@ from ...errors import ConfigError, DatasetError
 from ...registry import get_sensor, register_dataset
 from ..base import TactileDataset, TensorData, data_home
 from ..sensors import USKIN_ALLEGRO, Sensor
-from ._io import check_finite, open_npy, read_csv_table
+from ._io import check_finite, load_npy, read_numeric_csv
 
 __all__ = ["RecordingsDataset", "AluTextures", "define_recordings"]
 
@@ -182,25 +182,22 @@ class RecordingsDataset(TactileDataset):
                 "fixed": self.fixed}
 
     # ------------------------------------------------------------------------------------------- reading
-    def _read_trial(self, path: Path) -> tuple[np.ndarray, int]:
-        """``(the trial's first num_steps rows, or all of them, as float64; the rows in the file)``: with
-        ``num_steps`` set the rows after it are not read (a ``.npy`` is memory-mapped, a CSV parsed up to there)."""
+    def _read_trial(self, path: Path) -> np.ndarray:
         n, c, g = self.sensor.num_nodes, self.num_channels, self.num_globals
         width = n * c + g
         if path.suffix.lower() == ".npy":
-            view = open_npy(path)
-            if view.ndim != 2 or view.shape[1] != width:
-                raise DatasetError(f"{path}: shape {view.shape}, expected (T, {width}) = (time steps, {n} taxels x "
+            table = load_npy(path)
+            if table.ndim != 2 or table.shape[1] != width:
+                raise DatasetError(f"{path}: shape {table.shape}, expected (T, {width}) = (time steps, {n} taxels x "
                                    f"{c} channels + {g} globals)")
-            table, rows = np.array(view[: self.num_steps], dtype=np.float64), int(view.shape[0])
+            table = table.astype(np.float64)
             check_finite(table, path)
         else:
-            read = read_csv_table(path, optional_header=True, max_rows=self.num_steps)
-            table, rows = read.table, read.rows
+            table = read_numeric_csv(path, optional_header=True)
             if table.shape[1] != width:
                 raise DatasetError(f"{path}: {table.shape[1]} columns, expected {width} ({n} taxels x {c} channels "
                                    f"+ {g} globals, taxels row-major)")
-        return table, rows
+        return table
 
     def process(self) -> TensorData:
         trials = self._trials()
@@ -212,15 +209,16 @@ class RecordingsDataset(TactileDataset):
             raise DatasetError(f"{self.raw_dir}: no trials")
         tables, first = [], None
         for _, _, path in trials:
-            table, rows = self._read_trial(path)
+            table = self._read_trial(path)
             if self.num_steps is not None:
-                if rows < self.num_steps:
-                    raise DatasetError(f"{path}: {rows} time steps, shorter than the declared length "
+                if table.shape[0] < self.num_steps:
+                    raise DatasetError(f"{path}: {table.shape[0]} time steps, shorter than the declared length "
                                        f"num_steps={self.num_steps}")
-            elif first is not None and rows != first[1]:
-                raise DatasetError(f"{path}: {rows} time steps, but {first[0]} has {first[1]}; trials must "
+                table = table[: self.num_steps]
+            elif first is not None and table.shape[0] != first[1]:
+                raise DatasetError(f"{path}: {table.shape[0]} time steps, but {first[0]} has {first[1]}; trials must "
                                    f"have equal length (pass num_steps= to crop them to a common length)")
-            first = first or (path, rows)
+            first = first or (path, table.shape[0])
             tables.append(table)
         data = np.stack(tables).astype(np.float32)  # (S, T, N*C + G)
         s, t = data.shape[:2]
