@@ -49,11 +49,11 @@ DEFAULT_MAX_INPUT_MB = 2048
 _DELIMITERS = {",": "comma", ";": "semicolon", "\t": "tab"}
 #: What ``float()`` accepts minus underscores and non-ASCII digits (NaN and Inf are read, then refused by
 #: check_finite with their own message).
-_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.IGNORECASE)
+_NUMBER = re.compile(r"[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)", re.IGNORECASE | re.ASCII)
 #: A field that is not a number but looks like one (a decimal comma, digit separators, values that were not split):
 #: such a first row is data with a problem, not column names.
-_NUMERIC_LOOKING = re.compile(r"[+-]?[\d.,_';\t ]*\d[\d.,_';\t ]*(?:[eE][+-]?\d+)?")
-_DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+(?:[eE][+-]?\d+)?")
+_NUMERIC_LOOKING = re.compile(r"[+-]?[\d.,_';\t ]*\d[\d.,_';\t ]*(?:[eE][+-]?\d+)?", re.ASCII)
+_DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+(?:[eE][+-]?\d+)?", re.ASCII)
 _CHUNK_ROWS = 4096  # CSV rows converted to float64 at a time
 
 
