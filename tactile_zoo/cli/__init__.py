@@ -130,9 +130,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except SystemExit as exc:  # --help and --version: main() returns its code instead of exiting the caller
         return exc.code if isinstance(exc.code, int) else 0
-    except BrokenPipeError:  # `tactile-zoo --help | head -1`
-        _silence_stdout()
-        return 128 + signal.SIGPIPE
     handler, level, propagate = _install_logging(args.log_verbose, args.log_quiet)
     registry.set_plugin_policy(strict=True if args.strict_plugins else None,
                                enabled=False if args.no_plugins else None)
