@@ -36,7 +36,8 @@ def test_comma_semicolon_and_tab_are_detected(tmp_path: Path, delimiter: str, he
 def test_quoted_numbers_are_read(tmp_path: Path) -> None:
     path = _write(tmp_path / "r.csv", ['"x","y","z"'] + [",".join(f'"{float(v)!r}"' for v in row) for row in TABLE])
     assert np.array_equal(read_numeric_csv(path, optional_header=True), TABLE)
-    semi = _write(tmp_path / "s.csv", [";".join(f'" {float(v)!r} "' for v in row) for row in TABLE])  # spaces inside quotes
+    # spaces inside the quotes
+    semi = _write(tmp_path / "s.csv", [";".join(f'" {float(v)!r} "' for v in row) for row in TABLE])
     assert np.array_equal(read_numeric_csv(semi, optional_header=True), TABLE)
 
 

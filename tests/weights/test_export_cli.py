@@ -135,7 +135,7 @@ def test_an_opset_the_exporter_cannot_write_is_refused_naming_the_range(tmp_path
                                                                         capsys: pytest.CaptureFixture) -> None:
     """Issue 28: ``--opset 13`` wrote an opset-18 file, said 18 in export.json, exited 0 and left the version
     converter's traceback on stderr. Now: exit 2, one line naming the supported range, and no file at the wrong
-    opset; an opset beyond what onnx knows is refused before anything is written."""
+    opset (next test); an opset beyond what onnx knows is refused before anything is written."""
     import onnx
 
     newest = onnx.defs.onnx_opset_version()
@@ -145,6 +145,15 @@ def test_an_opset_the_exporter_cannot_write_is_refused_naming_the_range(tmp_path
     assert err == [f"tactile-zoo: error: --opset {newest + 12} is not supported: choose 18 to {newest} (older ones "
                    f"down to 7 only where onnx's version converter can convert the graph)"]
     assert not out.exists()
+
+
+@pytest.mark.skipif(not ONNX, reason="needs onnx, onnxscript and onnxruntime")
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_an_opset_the_graph_cannot_be_converted_to_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    import onnx
+
+    newest = onnx.defs.onnx_opset_version()
+    out = tmp_path / "out"
     assert main(["export", *_SMALL, "--no-step", "--opset", "13", "--out", str(out)]) == 2
     err = capsys.readouterr().err.splitlines()
     assert err == [f"tactile-zoo: error: ONNX export of sgnet.forward.onnx at opset 13 failed: onnx's version "
