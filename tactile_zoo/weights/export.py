@@ -165,12 +165,19 @@ _EXPORTER_LOGGERS = ("torch.onnx", "torch.export", "torch._export", "onnxscript"
 logger = logging.getLogger(__name__)
 
 
-class _ToDebugLog(logging.Handler):
+class _Collect(logging.Handler):
+    """Keeps the records' text, logged once the streams are restored (logging them at once would write into the
+    redirected stderr)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines: list[str] = []
+
     def emit(self, record: logging.LogRecord) -> None:
         text = record.getMessage()
         if record.exc_info:
             text += "\n" + logging.Formatter().formatException(record.exc_info)
-        logger.debug("%s: %s", record.name, text)
+        self.lines.append(f"{record.name}: {text}")
 
 
 @contextlib.contextmanager
@@ -181,7 +188,7 @@ def _quiet() -> Iterator[None]:
     import io
     from contextlib import redirect_stderr, redirect_stdout
 
-    handler = _ToDebugLog()
+    handler = _Collect()
     saved = []
     for name in _EXPORTER_LOGGERS:
         other = logging.getLogger(name)
@@ -197,6 +204,8 @@ def _quiet() -> Iterator[None]:
         for other, handlers, propagate in saved:
             other.handlers[:] = handlers
             other.propagate = propagate
+        for line in handler.lines:
+            logger.debug("%s", line)
         for w in caught:
             logger.debug("exporter warning: %s: %s", w.category.__name__, w.message)
         for stream, text in (("stdout", out.getvalue()), ("stderr", err.getvalue())):
