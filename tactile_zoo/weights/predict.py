@@ -107,15 +107,17 @@ class Prediction:
                 "length": self.length, "probabilities": self.probabilities}
 
 
-def _as_table(array: np.ndarray, spec: Any, where: str) -> np.ndarray:
-    """A 2-D ``(T, N * C + G)`` view of an input array; a 3-D ``(T, N, C)`` one is accepted without globals. Any other
-    layout is refused, saying the expected one and, when the axes are only in another order (the Ev-Touch zips keep
-    ``(N, C, T)``), the transpose that fixes it."""
-    if array.ndim == 2:
-        return array
+def _as_table(array: np.ndarray, spec: Any, where: str, max_rows: int | None = None) -> np.ndarray:
+    """The first ``max_rows`` rows (all with ``None``) of an input array as a 2-D ``(T, N * C + G)`` table; a 3-D
+    ``(T, N, C)`` array is accepted without globals. Any other layout is refused, saying the expected one and, when
+    the axes are only in another order (the Ev-Touch zips keep ``(N, C, T)``), the transpose that fixes it. Rows are
+    taken before any reshape, so a memory-mapped file is only read where it is used."""
     n, c, g = spec.num_nodes, spec.num_channels, spec.num_globals
+    if array.ndim == 2:
+        return array[:max_rows]
     if array.ndim == 3 and array.shape[1:] == (n, c) and g == 0:
-        return array.reshape(array.shape[0], n * c)
+        rows = array[:max_rows]
+        return rows.reshape(rows.shape[0], n * c)
     expected = (f"expected 2-D (time steps, columns) = (T, {n * c + g}), {n} taxels x {c} channel(s) + {g} "
                 f"global(s)" + (f", or 3-D (T, N, C) = (T, {n}, {c})" if g == 0 else ""))
     hint = ""
@@ -143,8 +145,8 @@ def _read_table(path: Path, spec: Any, max_rows: int | None) -> tuple[np.ndarray
         table = read_csv_table(path, optional_header=True, max_rows=max_rows)
         return table.table, table.rows
     if suffix == ".npy":
-        view = _as_table(open_npy(path), spec, str(path))  # memory-mapped: only the rows copied below are read
-        array = np.array(view[:max_rows], dtype=np.float64)
+        view = open_npy(path)  # memory-mapped: only the rows copied below are read
+        array = np.array(_as_table(view, spec, str(path), max_rows), dtype=np.float64)
         check_finite(array, path)
         return array, int(view.shape[0])
     if not path.exists():

@@ -126,7 +126,7 @@ def _open_checked(path: str | os.PathLike, label: str | os.PathLike) -> Iterator
         raise DatasetError(f"{label}: {_mib(info.st_size)}, above the input size limit of {_mib(limit)} (set "
                            f"{MAX_INPUT_ENV} to raise the limit)")
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
         raise DatasetError(f"{label}: cannot be read ({exc.strerror or exc})") from exc
     with os.fdopen(fd, "rb", buffering=0) as raw:
