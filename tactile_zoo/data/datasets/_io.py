@@ -63,10 +63,7 @@ def max_input_bytes() -> int:
     text = os.environ.get(MAX_INPUT_ENV, "").strip()
     if not text:
         return DEFAULT_MAX_INPUT_MB * 2**20
-    try:
-        value = float(text) if _NUMBER.fullmatch(text) else -1.0
-    except ValueError:
-        value = -1.0
+    value = float(text) if _NUMBER.fullmatch(text) else -1.0  # the CSV grammar: no "1_0", no non-ASCII digits
     if not value > 0 or value == float("inf"):
         raise ConfigError(f"${MAX_INPUT_ENV}={text!r}: expected a positive number of MiB (default "
                           f"{DEFAULT_MAX_INPUT_MB})")
