@@ -178,3 +178,21 @@ def test_console_script_is_installed():
     proc = subprocess.run([str(script), "--version"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and proc.stdout.strip() == f"tactile-zoo {tactile_zoo.__version__}"
 
+
+@pytest.mark.parametrize("argv", [["list", "models"], ["info", "sgnet"]])
+def test_a_reader_that_closes_the_pipe_ends_the_command_quietly(argv: list[str]) -> None:
+    """Issue 28: ``tactile-zoo weights | head -1`` printed a BrokenPipeError traceback. The pipe's read end is closed
+    before the command starts, so its first line already meets a closed pipe (as ``head -1`` leaves it, without the
+    race of waiting for head): no output on stderr, status 141 as for a command killed by SIGPIPE."""
+    import os
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(tactile_zoo.__file__).resolve().parents[1]),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    try:
+        proc = subprocess.run([sys.executable, "-m", "tactile_zoo.cli", *argv], stdout=write_end,
+                              stderr=subprocess.PIPE, text=True, timeout=300, env=env)
+    finally:
+        os.close(write_end)
+    assert proc.stderr == "" and proc.returncode == 141

@@ -9,12 +9,18 @@ configures it, :func:`main` installs one handler for the command's duration: INF
 warnings, errors), ``-v`` adds DEBUG, ``-q`` keeps warnings and errors only. Warnings users must see (a skipped
 plugin, a missing file) are ``warnings.warn`` in the library and shown here as ``tactile-zoo: warning: ...`` at every
 verbosity.
+
+A reader that closes the pipe early (``tactile-zoo weights | head -1``) ends any command quietly with status 141, what
+a shell reports for a command killed by SIGPIPE. Python ignores SIGPIPE (writes raise BrokenPipeError), and it stays
+ignored: restoring the default action would also kill a bench process whose worker connection drops.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
+import signal
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -143,11 +149,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         logger.error("interrupted", extra={"bare": True})
         return 130
+    except BrokenPipeError:
+        # the reader went away (`tactile-zoo weights | head -1`): stop quietly, as a command killed by SIGPIPE does
+        _silence_stdout()
+        return 128 + signal.SIGPIPE
     finally:
         registry.set_plugin_policy()
         logger.removeHandler(handler)
         logger.setLevel(level)
         logger.propagate = propagate
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's final flush of what is still buffered for the closed pipe
+    does not print a second BrokenPipeError at exit."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # a replaced sys.stdout (tests) has no descriptor to redirect
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
 
 
 def entry() -> None:  # console script

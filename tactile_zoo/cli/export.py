@@ -56,7 +56,9 @@ def add_export(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-step", dest="step", action="store_false", help="export the forward only")
     p.add_argument("--no-check", dest="check", action="store_false",
                    help="skip loading the files back and comparing them with the eager model")
-    p.add_argument("--opset", type=_positive("--opset"), default=None, help="ONNX opset (default: the exporter's)")
+    p.add_argument("--opset", type=_positive("--opset"), default=None,
+                   help="ONNX opset (default: the exporter's; 18 up to the newest your onnx knows, older ones only "
+                        "where the graph converts; a file that does not carry it is refused, exit 2)")
     p.add_argument("--root", default=None, help="data home (only for a dataset whose registry entry lacks its spec)")
     p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=[], metavar="MODULE",
                    help="import MODULE first (it registers models or datasets); repeatable")
@@ -120,9 +122,11 @@ def _preprocessing(dataset: str | None, kwargs: dict[str, Any]) -> dict[str, Any
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from ..engine import seed_everything
-    from ..weights.export import export_model, spec_for_dataset
+    from ..weights.export import check_opset, export_model, onnx_available, spec_for_dataset
 
     formats = _formats(args.formats)
+    if "onnx" in formats and onnx_available():  # before any weights are loaded
+        check_opset(args.opset, "--opset")
     registry.import_plugin_modules(args.plugin_modules)
     trained = bool(args.pretrained or args.weights or args.manifest)
     if _is_checkpoint(args.model):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from typing import Any
 
@@ -13,6 +14,8 @@ from ..errors import ConfigError
 from ._common import echo
 
 __all__ = ["add_weights", "add_predict", "add_pretrained_flags", "pretrained_model"]
+
+logger = logging.getLogger("tactile_zoo.cli")
 
 #: how to use weights that are not installed (your own, from `bench --save-weights` and a manifest)
 USE_LOCAL = "Use your own: tactile-zoo predict MODEL --weights FILE.safetensors --manifest FILE.json FILE..."
@@ -121,7 +124,8 @@ def add_predict(sub: argparse._SubParsersAction) -> None:
                                    "row-major taxel order (all channels of a taxel together), then the global "
                                    "features, in the units the weights' dataset feeds its models. A longer recording "
                                    "is cut to the weights' number of steps; --length pad or resample accept shorter "
-                                   "ones.")
+                                   "ones. A file that cannot be read gets one error line and the others are still "
+                                   "answered; the exit status is then 1 (2 when no file could be read).")
     p.add_argument("model", help="a model name, e.g. x_tacformer")
     p.add_argument("files", nargs="+", metavar="FILE", help=".csv or .npy recordings")
     add_pretrained_flags(p)
@@ -135,19 +139,30 @@ def add_predict(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_predict(args: argparse.Namespace) -> int:
-    from ..weights import predict
+    """Answer every file that can be read; each one that cannot gets one error line (naming it and what is wrong).
+    Exit 0 when all were answered, 1 when some were, 2 when none was."""
+    from ..weights import Refused, predict
 
     if args.top_k < 1:
         raise ConfigError(f"--top-k must be a positive integer, got {args.top_k}")
     model = pretrained_model(args.model, args)
     entry = model.zoo_pretrained
-    results = predict(model, args.files, top_k=args.top_k, length=args.length, device=args.device)
+    answers = predict(model, args.files, top_k=args.top_k, length=args.length, device=args.device,
+                      on_error="report")
+    refused = [a for a in answers if isinstance(a, Refused)]
+    results = [a for a in answers if not isinstance(a, Refused)]
+    for bad in refused:
+        logger.error("%s", bad.reason)
+    if not results:
+        return 2
+    code = 1 if refused else 0
     if args.json:
         echo(json.dumps({"model": entry.model, "weights": entry.qualified_tag, "dataset": entry.dataset,
                          "test_accuracy": entry.accuracy, "note": entry.note or None,
                          "predictions": [{k: v for k, v in r.to_dict().items() if k != "probabilities"}
-                                         for r in results]}, indent=2))
-        return 0
+                                         for r in results],
+                         "refused": [bad.to_dict() for bad in refused]}, indent=2))
+        return code
     accuracy = "" if entry.accuracy is None else f", test accuracy {entry.accuracy:.4f}"
     echo(f"{entry.model} with weights {entry.qualified_tag} (trained on {entry.dataset}{accuracy})")
     if entry.note:
@@ -158,4 +173,7 @@ def _cmd_predict(args: argparse.Namespace) -> int:
         echo(f"{r.source} ({r.steps_read} steps{fitted})")
         for rank, (name, prob) in enumerate(r.top_k, start=1):
             echo(f"  {rank:>2}  {name:<{width}}  {prob:.3f}")
-    return 0
+    if refused:
+        echo(f"{len(refused)} of {len(answers)} file(s) not answered: {', '.join(bad.source for bad in refused)} "
+             f"(why: the error lines on stderr)")
+    return code

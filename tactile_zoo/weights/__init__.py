@@ -36,12 +36,12 @@ from .manifest import (
     read_manifest,
     write_manifest,
 )
-from .predict import LENGTHS, Prediction, Recording, predict, read_recording
+from .predict import LENGTHS, ON_ERROR, Prediction, Recording, Refused, predict, read_recording
 
 __all__ = [
     "WeightEntry", "MANIFEST_FORMAT", "ENTRY_KEYS", "make_tag", "tag_key", "read_manifest", "parse_manifest",
     "write_manifest", "entry_from_record", "preprocessing_of", "DEFAULT_LICENCE", "WEIGHTS_GROUP", "WeightSource",
     "weight_sources", "list_weights", "find_weights", "reset_weights", "locate", "weights_cache", "head_name",
     "head_keys", "create_model", "list_models", "load_pretrained", "resolve_weights", "local_weights", "check_fit",
-    "predict", "read_recording", "Prediction", "Recording", "LENGTHS",
+    "predict", "read_recording", "Prediction", "Recording", "Refused", "LENGTHS", "ON_ERROR",
 ]

@@ -57,8 +57,10 @@ from __future__ import annotations
 import contextlib
 import copy
 import json
+import logging
 import math
 import os
+import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -76,7 +78,7 @@ from .graphs import ForwardGraph, StateTensor, StepGraph, _dtype_name, _for_expo
 
 __all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "ExportError", "StateTensor", "ForwardGraph", "StepGraph",
            "ExportResult", "export_model", "initial_state", "spec_for_dataset", "onnx_available",
-           "onnxruntime_available", "ONNX_INSTALL"]
+           "onnxruntime_available", "onnx_opsets", "check_opset", "ONNX_INSTALL"]
 
 #: The formats :func:`export_model` writes.
 FORMATS = ("torchscript", "onnx")
@@ -158,23 +160,58 @@ def _registered_name(model: nn.Module) -> str:
     return type(model).__name__
 
 
+#: The loggers the exporters talk through. What they say goes to tactile-zoo's debug log (``-v``), never straight to
+#: stderr: the ONNX version converter, for one, logs a whole traceback when it cannot convert and then carries on.
+_EXPORTER_LOGGERS = ("torch.onnx", "torch.export", "torch._export", "onnxscript", "onnx_ir", "onnx")
+logger = logging.getLogger(__name__)
+
+
+class _Collect(logging.Handler):
+    """Keeps the records' text, logged once the streams are restored (logging them at once would write into the
+    redirected stderr)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        text = record.getMessage()
+        if record.exc_info:
+            text += "\n" + logging.Formatter().formatException(record.exc_info)
+        self.lines.append(f"{record.name}: {text}")
+
+
 @contextlib.contextmanager
 def _quiet() -> Iterator[None]:
-    """Silence the exporters' chatter: torch.jit's deprecation and tracer warnings (every export is checked against
-    eager on other inputs instead) and the progress lines the ONNX exporter prints."""
+    """Keep the exporters' chatter off the user's terminal: torch.jit's deprecation and tracer warnings (every export
+    is checked against eager on other inputs instead), the progress lines the ONNX exporter prints, and the log
+    records of the exporters and the version converter, all moved to the debug log."""
     import io
-    import logging
-    from contextlib import redirect_stdout
+    from contextlib import redirect_stderr, redirect_stdout
 
-    onnx_logger = logging.getLogger("torch.onnx")
-    level = onnx_logger.level
-    onnx_logger.setLevel(logging.ERROR)
+    handler = _Collect()
+    saved = []
+    for name in _EXPORTER_LOGGERS:
+        other = logging.getLogger(name)
+        saved.append((other, other.handlers[:], other.propagate))
+        other.handlers[:] = [handler]
+        other.propagate = False  # not to the root logger's handlers, nor to logging.lastResort (stderr)
+    out, err = io.StringIO(), io.StringIO()
     try:
-        with warnings.catch_warnings(), redirect_stdout(io.StringIO()):
-            warnings.simplefilter("ignore")
+        with warnings.catch_warnings(record=True) as caught, redirect_stdout(out), redirect_stderr(err):
+            warnings.simplefilter("always")
             yield
     finally:
-        onnx_logger.setLevel(level)
+        for other, handlers, propagate in saved:
+            other.handlers[:] = handlers
+            other.propagate = propagate
+        for line in handler.lines:
+            logger.debug("%s", line)
+        for w in caught:
+            logger.debug("exporter warning: %s: %s", w.category.__name__, w.message)
+        for stream, text in (("stdout", out.getvalue()), ("stderr", err.getvalue())):
+            if text.strip():
+                logger.debug("exporter %s:\n%s", stream, text.rstrip())
 
 
 def _example(spec: Any, batch: int, steps: int | None, seed: int, dtype: torch.dtype) -> tuple[Tensor, Tensor | None]:
@@ -191,6 +228,33 @@ def _trace(graph: nn.Module, inputs: tuple[Tensor, ...]) -> torch.jit.ScriptModu
         return torch.jit.trace(graph, inputs, check_trace=False)
 
 
+def onnx_opsets() -> tuple[int, int]:
+    """The ONNX opsets :func:`export_model` writes: from the one torch's exporter writes natively (18) to the newest
+    the installed ``onnx`` knows. Older ones are attempted through onnx's version converter and refused when it
+    cannot convert the graph."""
+    import onnx
+
+    try:
+        from torch.onnx._internal.exporter._constants import TORCHLIB_OPSET as native
+    except ImportError:  # a torch that moved it: the value of torch 2.x
+        native = 18
+    return int(native), int(onnx.defs.onnx_opset_version())
+
+
+#: The oldest opset the version converter is asked for at all (torch's legacy exporter's minimum).
+_OLDEST_OPSET = 7
+
+
+def check_opset(opset: int | None, what: str = "ONNX opset") -> None:
+    """Refuse, before any work, an opset no exporter here can write (``what`` names it in the message)."""
+    if opset is None:
+        return
+    lo, hi = onnx_opsets()
+    if isinstance(opset, bool) or not isinstance(opset, int) or not _OLDEST_OPSET <= opset <= hi:
+        raise ConfigError(f"{what} {opset!r} is not supported: choose {lo} to {hi} (older ones down to "
+                          f"{_OLDEST_OPSET} only where onnx's version converter can convert the graph)")
+
+
 def _to_onnx(graph: nn.Module, inputs: tuple[Tensor, ...], path: Path, opset: int | None, optimize: bool) -> None:
     if not onnx_available():
         raise ExportError(f"ONNX export needs onnx and onnxscript: {ONNX_INSTALL}")
@@ -202,6 +266,16 @@ def _to_onnx(graph: nn.Module, inputs: tuple[Tensor, ...], path: Path, opset: in
     except Exception as exc:  # noqa: BLE001 - the exporter raises many types; the message says which model and why
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ExportError(f"ONNX export of {path.name} failed: {type(exc).__name__}: {first}") from exc
+    if opset is not None:
+        # the exporter writes opset 18 and converts; when the conversion fails it logs and keeps 18 (or whatever it
+        # reached): a file that does not carry the opset asked for is removed and refused, not shipped to a robot
+        # whose onnxruntime cannot load it
+        got = _opset_of(path)
+        if got != opset:
+            path.unlink(missing_ok=True)
+            lo, hi = onnx_opsets()
+            raise ExportError(f"ONNX export of {path.name} at opset {opset} failed: onnx's version converter could "
+                              f"not convert the graph (it stayed at opset {got}); supported opsets are {lo} to {hi}")
 
 
 def _onnx_runner(path: Path) -> Callable[..., list[Tensor]]:
@@ -307,7 +381,8 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
         check: load the files back and compare them with the eager model on seeded inputs (ONNX: when onnxruntime
             is installed); a difference beyond :data:`TOLERANCE` raises :class:`ExportError`.
         seed: seed of the example and check inputs.
-        opset: the ONNX opset (default: the exporter's).
+        opset: the ONNX opset (default: the exporter's); :func:`onnx_opsets` gives the range. The file carries it,
+            or :class:`ExportError` is raised (the version converter could not convert the graph).
         info: extra JSON-able keys for the description (the weights, the preprocessing, ...).
 
     Returns:
@@ -338,6 +413,8 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
     dtype = next((p.dtype for p in eager.parameters()), torch.float32)
     if "onnx" in formats and not onnx_available():  # before any work
         raise ExportError(f"ONNX export needs onnx and onnxscript: {ONNX_INSTALL}")
+    if "onnx" in formats:
+        check_opset(opset)
 
     if not forward and not (step and streams):
         raise ConfigError(f"nothing to export: forward=False, and {name} has no streaming step to export")
@@ -370,6 +447,11 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"cannot create the export folder {folder}: {exc.strerror or exc}") from None
+    try:  # an existing read-only folder: say so now, not through torch's message about a file inside it
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"the export folder {folder} is not writable ({exc.strerror or exc})") from None
     with torch.no_grad():
         full(*fwd_inputs)  # one eager call first: fills the models' caches, which tracing then reads as constants
         for graph_name, graph, inputs in graphs:

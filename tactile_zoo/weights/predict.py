@@ -2,8 +2,12 @@
 
 Input files are the bring-your-own recordings format (:mod:`tactile_zoo.data.datasets.recordings`): one row per time
 step; the columns are the taxel readings in row-major taxel order, all channels of a taxel together (``[ch0 ..
-chC-1]`` of taxel 0, then of taxel 1, ...), then the global features: ``N * C + G`` columns. A ``.csv`` may start with
-one row of column names; a ``.npy`` is a 2-D real array ``(T, N * C + G)``, read without unpickling. The values are
+chC-1]`` of taxel 0, then of taxel 1, ...), then the global features: ``N * C + G`` columns. A ``.csv`` (comma,
+semicolon or tab between values, ``.`` as the decimal mark) may start with one row of column names; a ``.npy`` is a
+2-D real array ``(T, N * C + G)``, or, for a dataset without globals, ``(T, N, C)``; it is memory-mapped and read
+without unpickling. Only the rows used are read (``crop`` and ``pad`` read the first T; ``resample`` and a stream read
+all); the others are counted. Files above the input size limit (``$TACTILE_ZOO_MAX_INPUT_MB``, default 2048) and
+anything that is not a regular file (a device, a FIFO, a socket) are refused. The values are
 what the weights' dataset feeds its models, in the same units: the entry's ``dataset_kwargs`` say which
 preprocessing that is (BioTac-DoS, for instance, subtracts each recording's first readings and divides by 1000;
 Augment8000 z-scores with the training statistics). A file of the dataset's own test sample, written row by row,
@@ -24,6 +28,7 @@ length, use ``tactile-zoo stream MODEL --pretrained ... --file FILE``.
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -34,14 +39,16 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..data.datasets._io import check_finite, load_npy, read_numeric_csv
+from ..data.datasets._io import check_finite, open_npy, read_csv_table
 from ..errors import ConfigError, DatasetError
 from .load import load_pretrained
 
-__all__ = ["LENGTHS", "Recording", "Prediction", "read_recording", "predict"]
+__all__ = ["LENGTHS", "ON_ERROR", "Recording", "Prediction", "Refused", "read_recording", "predict"]
 
 #: How a recording of another length is brought to the weights' number of steps (see the module docstring).
 LENGTHS = ("crop", "pad", "resample")
+#: What :func:`predict` does with an input it cannot read: raise its error, or report it in place of its prediction.
+ON_ERROR = ("raise", "report")
 
 
 @dataclass(frozen=True)
@@ -59,6 +66,18 @@ class Recording:
     g: torch.Tensor
     steps_read: int
     length: str
+
+
+@dataclass(frozen=True)
+class Refused:
+    """An input :func:`predict` could not read (with ``on_error="report"``): ``source`` (the file, or ``<array i>``)
+    and ``reason`` (the one-line error, which names the source)."""
+
+    source: str
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"file": self.source, "error": self.reason}
 
 
 @dataclass(frozen=True)
@@ -88,26 +107,57 @@ class Prediction:
                 "length": self.length, "probabilities": self.probabilities}
 
 
-def _read_table(path: Path) -> np.ndarray:
+def _as_table(array: np.ndarray, spec: Any, where: str, max_rows: int | None = None) -> np.ndarray:
+    """The first ``max_rows`` rows (all with ``None``) of an input array as a 2-D ``(T, N * C + G)`` table; a 3-D
+    ``(T, N, C)`` array is accepted without globals. Any other layout is refused, saying the expected one and, when
+    the axes are only in another order (the Ev-Touch zips keep ``(N, C, T)``), the transpose that fixes it. Rows are
+    taken before any reshape, so a memory-mapped file is only read where it is used."""
+    n, c, g = spec.num_nodes, spec.num_channels, spec.num_globals
+    if array.ndim == 2:
+        return array[:max_rows]
+    if array.ndim == 3 and array.shape[1:] == (n, c) and g == 0:
+        rows = array[:max_rows]
+        return rows.reshape(rows.shape[0], n * c)
+    expected = (f"expected 2-D (time steps, columns) = (T, {n * c + g}), {n} taxels x {c} channel(s) + {g} "
+                f"global(s)" + (f", or 3-D (T, N, C) = (T, {n}, {c})" if g == 0 else ""))
+    hint = ""
+    if array.ndim == 3:
+        # the order of the given axes that puts them as (T, N, C): the time axis is the one left over
+        order = next((p for p in itertools.permutations(range(3)) if (array.shape[p[1]], array.shape[p[2]]) == (n, c)),
+                     None)
+        if order is not None:
+            given = ", ".join("TNC"[order.index(axis)] for axis in range(3))
+            fix = "x" if order == (0, 1, 2) else f"x.transpose{order}"
+            if g == 0:
+                hint = f"; its axes look like ({given}): save {fix} instead" if order != (0, 1, 2) else ""
+            else:
+                steps = f"x.shape[{order[0]}]"
+                hint = (f"; its axes look like ({given}), without the {g} global(s): save "
+                        f"np.concatenate([{fix}.reshape({steps}, {n * c}), globals], axis=1) with globals of shape "
+                        f"(T, {g})")
+    raise DatasetError(f"{where}: array of shape {tuple(array.shape)}; {expected}{hint}")
+
+
+def _read_table(path: Path, spec: Any, max_rows: int | None) -> tuple[np.ndarray, int]:
+    """``(the first max_rows rows as float64, the rows in the file)``; the rows not used are not read."""
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        return read_numeric_csv(path, optional_header=True)
+        table = read_csv_table(path, optional_header=True, max_rows=max_rows)
+        return table.table, table.rows
     if suffix == ".npy":
-        array = load_npy(path)
-        if array.ndim != 2:
-            raise DatasetError(f"{path}: array of shape {array.shape}; expected 2-D (time steps, columns): one row "
-                               f"per time step")
-        array = array.astype(np.float64)
+        view = open_npy(path)  # memory-mapped: only the rows copied below are read
+        array = np.array(_as_table(view, spec, str(path), max_rows), dtype=np.float64)
         check_finite(array, path)
-        return array
+        return array, int(view.shape[0])
     if not path.exists():
         raise DatasetError(f"{path}: file not found")
     raise DatasetError(f"{path}: not a recording file (expected .csv or .npy)")
 
 
-def _check_width(table: np.ndarray, spec: Any, where: str) -> None:
+def _check_width(table: np.ndarray, rows: int, spec: Any, where: str) -> None:
+    """``rows``: the rows in the file (``table`` may hold only the first of them)."""
     n, c, g = spec.num_nodes, spec.num_channels, spec.num_globals
-    width, (rows, cols) = n * c + g, table.shape
+    width, cols = n * c + g, table.shape[1]
     if cols == width:
         return
     message = (f"{where}: {cols} columns, expected {width} = {n} taxels x {c} channel(s) + {g} global(s) (sensor "
@@ -119,8 +169,9 @@ def _check_width(table: np.ndarray, spec: Any, where: str) -> None:
     raise DatasetError(message)
 
 
-def _fit_length(table: np.ndarray, steps: int, length: str, where: str, dataset: str) -> tuple[np.ndarray, str]:
-    rows = table.shape[0]
+def _fit_length(table: np.ndarray, rows: int, steps: int, length: str, where: str, dataset: str
+                ) -> tuple[np.ndarray, str]:
+    """``table`` (its first ``steps`` rows, or all ``rows`` for resample) brought to ``steps`` rows."""
     if rows == 0:
         raise DatasetError(f"{where}: no rows (no time steps)")
     if length == "resample":
@@ -146,41 +197,43 @@ def read_recording(source: str | os.PathLike | np.ndarray, spec: Any, *, length:
     ``spec``'s number of steps.
 
     Args:
-        source: the file, or an array ``(T, N * C + G)``.
+        source: the file, or an array ``(T, N * C + G)`` (``(T, N, C)`` without globals).
         spec: the :class:`~tactile_zoo.data.spec.DatasetSpec` the model expects.
         length: ``"crop"``, ``"pad"`` or ``"resample"`` (see the module docstring); ``None`` keeps every row (a
             stream, which has no fixed length).
         name: what errors call an array (default ``<array>``).
 
     Shapes:
-        file or array ``(T_file, N * C + G)`` -> ``x (T, N, C)``, ``g (T, G)`` with ``T = spec.num_steps``
-        (``T = T_file`` with ``length=None``).
+        file or array ``(T_file, N * C + G)`` (or ``(T_file, N, C)`` when ``G = 0``) -> ``x (T, N, C)``, ``g (T, G)``
+        with ``T = spec.num_steps`` (``T = T_file`` with ``length=None``).
 
     Raises:
         DatasetError: naming the file and what is wrong: not numeric, NaN/Inf, wrong shape or taxel count, too short.
     """
     if length is not None and length not in LENGTHS:
         raise ConfigError(f"length must be one of {', '.join(LENGTHS)}, got {length!r}")
+    # crop and pad use the first T rows only: the rest of a file is not read
+    max_rows = spec.num_steps if length in ("crop", "pad") else None
     if isinstance(source, np.ndarray | torch.Tensor):
         where = name or "<array>"
         table = np.asarray(source.detach().cpu() if isinstance(source, torch.Tensor) else source)
-        if table.ndim != 2 or table.dtype.kind not in "biuf":
+        if table.ndim not in (2, 3) or table.dtype.kind not in "biuf":
             raise DatasetError(f"{where}: expected a 2-D real array (time steps, columns), got shape {table.shape} "
                                f"dtype {table.dtype}")
-        table = table.astype(np.float64)
+        table = _as_table(table, spec, where).astype(np.float64)
         check_finite(table, where)
+        steps_read = int(table.shape[0])
     else:
         path = Path(source).expanduser()
         where = str(path)
-        table = _read_table(path)
-    _check_width(table, spec, where)
-    steps_read = int(table.shape[0])
+        table, steps_read = _read_table(path, spec, max_rows)
+    _check_width(table, steps_read, spec, where)
     if length is None:
         if steps_read == 0:
             raise DatasetError(f"{where}: no rows (no time steps)")
         action = "as recorded"
     else:
-        table, action = _fit_length(table, spec.num_steps, length, where, spec.name)
+        table, action = _fit_length(table, steps_read, spec.num_steps, length, where, spec.name)
     data = torch.from_numpy(np.ascontiguousarray(table, dtype=np.float32))  # (T, N*C + G)
     n, c = spec.num_nodes, spec.num_channels
     return Recording(where, data[:, : n * c].reshape(-1, n, c), data[:, n * c:], steps_read, action)
@@ -208,7 +261,7 @@ def _spec_of(model: nn.Module, spec: Any) -> Any:
 
 def predict(model: str | nn.Module, inputs: Any, *, pretrained: Any = None, spec: Any = None, top_k: int = 5,
             length: str = "crop", device: str | torch.device | None = None, batch_size: int = 256,
-            **hparams: Any) -> list[Prediction]:
+            on_error: str = "raise", **hparams: Any) -> list[Any]:
     """The most probable classes of recorded grasps.
 
     Args:
@@ -221,11 +274,15 @@ def predict(model: str | nn.Module, inputs: Any, *, pretrained: Any = None, spec
         length: ``"crop"``, ``"pad"`` or ``"resample"`` (see the module docstring).
         device: where to run (default: where the model is; ``"auto"`` = CUDA when available).
         batch_size: recordings per forward pass.
+        on_error: an input that cannot be read (missing, not numeric, NaN, wrong shape, ...): ``"raise"`` (default)
+            raises its :class:`~tactile_zoo.errors.DatasetError` before any prediction; ``"report"`` answers every
+            other input and puts a :class:`Refused` in its place.
         **hparams: constructor overrides, with a model name.
 
     Returns:
-        one :class:`Prediction` per input, in order. Probabilities are the softmax of the logits, or the output spike
-        rates normalised to sum 1 for a model trained with ``mse_rate`` (SGnet), as :func:`tactile_zoo.evaluate` does.
+        one :class:`Prediction` (or, with ``on_error="report"``, :class:`Refused`) per input, in order.
+        Probabilities are the softmax of the logits, or the output spike rates normalised to sum 1 for a model
+        trained with ``mse_rate`` (SGnet), as :func:`tactile_zoo.evaluate` does.
     """
     from ..engine.evaluate import model_loss, predict_scores
     from ..engine.metrics import scores_to_probabilities
@@ -240,10 +297,23 @@ def predict(model: str | nn.Module, inputs: Any, *, pretrained: Any = None, spec
     spec = _spec_of(model, spec)
     if isinstance(top_k, bool) or not isinstance(top_k, int) or top_k < 1:
         raise ConfigError(f"top_k must be a positive integer, got {top_k!r}")
+    if on_error not in ON_ERROR:
+        raise ConfigError(f"on_error must be one of {', '.join(ON_ERROR)}, got {on_error!r}")
     items = _as_list(inputs)
     if not items:
         raise ConfigError("predict: no inputs")
-    recordings = [read_recording(item, spec, length=length, name=f"<array {i}>") for i, item in enumerate(items)]
+    read: list[Recording | Refused] = []
+    for i, item in enumerate(items):
+        try:
+            read.append(read_recording(item, spec, length=length, name=f"<array {i}>"))
+        except DatasetError as exc:  # what is wrong with this input only; anything else stops the whole call
+            if on_error == "raise":
+                raise
+            source = str(Path(item).expanduser()) if isinstance(item, str | os.PathLike) else f"<array {i}>"
+            read.append(Refused(source, str(exc)))
+    recordings = [r for r in read if isinstance(r, Recording)]
+    if not recordings:
+        return read
     x = torch.stack([r.x for r in recordings])  # (S, T, N, C)
     g = torch.stack([r.g for r in recordings])  # (S, T, G)
     dev = None
@@ -255,8 +325,13 @@ def predict(model: str | nn.Module, inputs: Any, *, pretrained: Any = None, spec
     probs = scores_to_probabilities(scores, model_loss(model))
     names = spec.class_names
     k = min(top_k, probs.shape[1])
-    out = []
-    for rec, score_row, prob_row in zip(recordings, scores, probs):
+    answers = iter(zip(recordings, scores, probs))
+    out: list[Prediction | Refused] = []
+    for item in read:
+        if isinstance(item, Refused):
+            out.append(item)
+            continue
+        rec, score_row, prob_row = next(answers)
         best = int(score_row.argmax())
         order = torch.argsort(prob_row, descending=True, stable=True)[:k].tolist()
         out.append(Prediction(rec.source, best, names[best], float(prob_row[best]),

@@ -14,6 +14,7 @@ from typing import Any
 import pytest
 from conftest import run_cli
 
+from tactile_zoo.bench.results import BENCH_FORMAT
 from tactile_zoo.cli import main
 
 pytestmark = pytest.mark.xdist_group("tiny_bench")
@@ -125,6 +126,7 @@ def test_a_failing_tracker_costs_a_warning_never_the_cell(tmp_path: Path, capsys
     pytest.importorskip("mlflow")
     out = tmp_path / "run"
     out.mkdir()
+    (out / "run.json").write_text(json.dumps({"format": BENCH_FORMAT}))  # a bench folder: --out accepts it
     (out / "mlruns").write_text("not a folder: the file store cannot be created here")
     assert run_cli([*ONE, "--tracker", "mlflow", "--out", str(out)]) == 0
     # the command line prints warnings as one line each (a TrackerWarning from the library)

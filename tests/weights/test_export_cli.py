@@ -105,3 +105,89 @@ def test_a_bad_argument_gets_one_line_naming_it(argv: list[str], named: str, tmp
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("tactile-zoo: error:") and named in err[0], err
     assert not out.exists()  # nothing written
+
+
+# ------------------------------------------------------------------------------------------- issue 28: opset, folder
+_SMALL = ["sgnet", "--spec-from", "sim_biotac_slip", "--steps", "4", "--format", "onnx"]
+
+
+def _opsets(path: Path) -> list[tuple[str, int]]:
+    import onnx
+
+    return [(o.domain, int(o.version)) for o in onnx.load(str(path)).opset_import if o.domain in ("", "ai.onnx")]
+
+
+@pytest.mark.skipif(not ONNX, reason="needs onnx, onnxscript and onnxruntime")
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # as outside pytest: SGnet's own torch.jit.script use
+def test_export_writes_the_opset_asked_for(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "out"
+    assert main(["export", *_SMALL, "--opset", "19", "--out", str(out)]) == 0
+    assert capsys.readouterr().err == ""  # nothing from the exporters on success
+    files = sorted(out.glob("*.onnx"))
+    assert [f.name for f in files] == ["sgnet.forward.onnx", "sgnet.step.onnx"]
+    assert all(_opsets(f) == [("", 19)] for f in files)
+    assert json.loads((out / "sgnet.export.json").read_text())["exporters"]["onnx_opset"] == 19
+
+
+@pytest.mark.skipif(not ONNX, reason="needs onnx, onnxscript and onnxruntime")
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_an_opset_the_exporter_cannot_write_is_refused_naming_the_range(tmp_path: Path,
+                                                                        capsys: pytest.CaptureFixture) -> None:
+    """Issue 28: ``--opset 13`` wrote an opset-18 file, said 18 in export.json, exited 0 and left the version
+    converter's traceback on stderr. Now: exit 2, one line naming the supported range, and no file at the wrong
+    opset (next test); an opset beyond what onnx knows is refused before anything is written."""
+    import onnx
+
+    newest = onnx.defs.onnx_opset_version()
+    out = tmp_path / "out"
+    assert main(["export", *_SMALL, "--opset", str(newest + 12), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"tactile-zoo: error: --opset {newest + 12} is not supported: choose 18 to {newest} (older ones "
+                   f"down to 7 only where onnx's version converter can convert the graph)"]
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not ONNX, reason="needs onnx, onnxscript and onnxruntime")
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_an_opset_the_graph_cannot_be_converted_to_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    import onnx
+
+    newest = onnx.defs.onnx_opset_version()
+    out = tmp_path / "out"
+    assert main(["export", *_SMALL, "--no-step", "--opset", "13", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == [f"tactile-zoo: error: ONNX export of sgnet.forward.onnx at opset 13 failed: onnx's version "
+                   f"converter could not convert the graph (it stayed at opset 18); supported opsets are 18 to "
+                   f"{newest}"]
+    assert list(out.iterdir()) == []  # neither the opset-18 file nor a description
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+def test_a_read_only_out_folder_is_named(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """Issue 28: only torch's internal message ("File ... cannot be opened") said what went wrong. Root ignores
+    permission bits, so for root the folder is made immutable instead (chattr +i)."""
+    import os
+    import stat
+    import subprocess
+
+    out = tmp_path / "robot"
+    out.mkdir()
+    out.chmod(stat.S_IRUSR | stat.S_IXUSR | stat.S_IRGRP | stat.S_IXGRP | stat.S_IROTH | stat.S_IXOTH)
+    immutable = os.geteuid() == 0 and subprocess.run(["chattr", "+i", str(out)], capture_output=True).returncode == 0
+    try:
+        try:
+            (out / "probe").touch()
+        except OSError:
+            pass
+        else:
+            pytest.skip("cannot make a folder read-only here (root without chattr)")
+        assert main(["export", "dcnn", "--spec-from", "sim_biotac_slip", "--format", "torchscript", "--out",
+                     str(out)]) == 2
+        err = capsys.readouterr().err.splitlines()
+        assert len(err) == 1, err
+        assert err[0].startswith(f"tactile-zoo: error: the export folder {out} is not writable (")
+        assert list(out.iterdir()) == []
+    finally:
+        if immutable:
+            subprocess.run(["chattr", "-i", str(out)], check=True)
+        out.chmod(stat.S_IRWXU)

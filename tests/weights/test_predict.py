@@ -125,3 +125,74 @@ def test_predict_refuses_what_it_cannot_answer(trained: Trained) -> None:
         tz.predict(trained.model, [sample_table(trained.test, 0)], pretrained=trained.manifest)
     with pytest.raises(ConfigError, match="no inputs"):
         tz.predict(trained.model, [])
+
+
+def test_a_batch_with_bad_files_answers_the_good_ones_in_place(trained: Trained, tmp_path: Path) -> None:
+    """Issue 28: one unreadable file used to refuse the whole batch. With ``on_error="report"`` each good input is
+    answered and each bad one is a Refused in its place, naming it and what is wrong; the default still raises."""
+    good = tmp_path / "good.npy"
+    np.save(good, sample_table(trained.test, 0))
+    nan = sample_table(trained.test, 1)
+    nan[2, 3] = np.nan
+    np.save(tmp_path / "nan.npy", nan)
+    inputs = [good, tmp_path / "nan.npy", tmp_path / "absent.csv", sample_table(trained.test, 2), np.zeros(3)]
+    answers = tz.predict(trained.model, inputs, on_error="report")
+    assert [type(a).__name__ for a in answers] == ["Prediction", "Refused", "Refused", "Prediction", "Refused"]
+    alone = tz.predict(trained.model, [good, sample_table(trained.test, 2)])
+    assert answers[0].probabilities == alone[0].probabilities and answers[3].probabilities == alone[1].probabilities
+    assert answers[1].source == str(tmp_path / "nan.npy")
+    assert answers[1].reason.startswith(f"{tmp_path / 'nan.npy'}: index (2, 3): non-finite reading nan")
+    assert answers[2].reason == f"{tmp_path / 'absent.csv'}: file not found"
+    assert answers[4].source == "<array 4>" and answers[4].reason.startswith("<array 4>: expected a 2-D real array")
+    assert answers[1].to_dict() == {"file": answers[1].source, "error": answers[1].reason}
+    with pytest.raises(DatasetError, match="nan.npy: index"):
+        tz.predict(trained.model, inputs)
+    with pytest.raises(ConfigError, match="on_error must be one of raise, report"):
+        tz.predict(trained.model, inputs, on_error="skip")
+
+
+def test_semicolon_tab_and_quoted_files_give_the_same_answer_as_comma(trained: Trained, tmp_path: Path) -> None:
+    table = sample_table(trained.test, 4)
+    comma = write_csv(tmp_path / "comma.csv", table)
+    files = [comma]
+    for name, sep, quote in (("semicolon", ";", ""), ("tab", "\t", ""), ("quoted", ",", '"')):
+        lines = [sep.join(f"{quote}c{j}{quote}" for j in range(table.shape[1]))]
+        lines += [sep.join(f"{quote}{v:.9g}{quote}" for v in row) for row in table]
+        files.append(tmp_path / f"{name}.csv")
+        files[-1].write_text("\n".join(lines) + "\n")
+    preds = tz.predict(trained.model, files)
+    assert all(p.probabilities == preds[0].probabilities for p in preds)
+    assert all(p.steps_read == 12 for p in preds)
+
+
+def test_a_frames_layout_is_read_or_refused_with_the_transpose_that_fixes_it(tmp_path: Path) -> None:
+    """The Ev-Touch zips keep each sample as (39 taxels, 2 channels, T). Issue 28: that layout got a rank error with
+    no word on how to transpose it; now (T, N, C) is read for a dataset without globals, and another order of the
+    same axes is refused naming the layout and the transpose."""
+    spec = tz.load_dataset("sim_evtouch", split="test", n_train_per_class=2, n_test_per_class=1).spec
+    assert (spec.num_nodes, spec.num_channels, spec.num_globals) == (39, 2, 0)
+    model = tz.create_model("sgnet", spec, graph_channels=4, hidden=[8]).eval()
+    frames = np.random.default_rng(0).random((spec.num_steps, 39, 2)).round(3).astype(np.float32)  # (T, N, C)
+    flat = tmp_path / "flat.npy"
+    np.save(flat, frames.reshape(spec.num_steps, 78))
+    ev = tmp_path / "ev.npy"
+    np.save(ev, frames.transpose(1, 2, 0))  # (N, C, T), as in the zips
+    with pytest.raises(DatasetError, match=rf"^{ev}: array of shape \(39, 2, {spec.num_steps}\); expected 2-D "
+                                           rf"\(time steps, columns\) = \(T, 78\), 39 taxels x 2 channel\(s\) \+ 0 "
+                                           rf"global\(s\), or 3-D \(T, N, C\) = \(T, 39, 2\); its axes look like "
+                                           rf"\(N, C, T\): save x\.transpose\(2, 0, 1\) instead$"):
+        tz.predict(model, [ev])
+    fixed = tmp_path / "fixed.npy"
+    np.save(fixed, np.load(ev).transpose(2, 0, 1))  # what the message says
+    preds = tz.predict(model, [fixed, flat, frames])
+    assert preds[0].probabilities == preds[1].probabilities == preds[2].probabilities
+    assert read_recording(fixed, spec).x.numpy().tolist() == frames.tolist()
+
+
+def test_a_frames_layout_without_the_globals_says_how_to_add_them(trained: Trained, tmp_path: Path) -> None:
+    frames = tmp_path / "frames.npy"
+    np.save(frames, trained.test.x[0].numpy().transpose(2, 1, 0))  # (C, N, T); the weights' data has 8 globals
+    with pytest.raises(DatasetError, match=r"its axes look like \(C, N, T\), without the 8 global\(s\): save "
+                                           r"np\.concatenate\(\[x\.transpose\(2, 1, 0\)\.reshape\(x\.shape\[2\], "
+                                           r"180\), globals\], axis=1\)"):
+        tz.predict(trained.model, [frames])

@@ -112,3 +112,33 @@ def test_stream_replays_a_file_through_a_train_checkpoint(tmp_path: Path, capsys
     assert trace["frame_period_s"] == pytest.approx(0.01)  # the dataset's 100 Hz, from its class
     expected = model.eval()(test.x[:1], None)[0]
     assert torch.allclose(torch.tensor(trace["final_scores"]), expected, atol=1e-6)
+
+
+def test_predict_answers_each_good_file_and_lists_the_bad_ones(trained: Trained, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture) -> None:
+    """Issue 28: ``predict good.npy nan.npy`` refused the whole batch. Now the good file is answered, each bad one
+    gets one line naming it and what is wrong, and the exit status is 1 (2 when no file could be read)."""
+    good = tmp_path / "good.npy"
+    np.save(good, sample_table(trained.test, 0))
+    table = sample_table(trained.test, 1)
+    table[3, 5] = np.nan
+    nan = tmp_path / "nan.npy"
+    np.save(nan, table)
+    missing = tmp_path / "missing.csv"
+    capsys.readouterr()
+    assert main(["predict", MODEL, *_local(trained), str(good), str(nan), str(missing)]) == 1
+    out, err = capsys.readouterr()
+    assert err.splitlines() == [f"tactile-zoo: error: {nan}: index (3, 5): non-finite reading nan (1 non-finite "
+                                f"value(s) in all); NaN/Inf readings are refused",
+                                f"tactile-zoo: error: {missing}: file not found"]
+    lines = out.splitlines()
+    assert lines[2] == f"{good} (12 steps)" and len(lines) == 2 + 1 + 3 + 1
+    assert lines[-1] == f"2 of 3 file(s) not answered: {nan}, {missing} (why: the error lines on stderr)"
+    assert main(["predict", MODEL, *_local(trained), str(good), str(nan), "--json"]) == 1
+    out, err = capsys.readouterr()
+    listed = json.loads(out)
+    assert [p["file"] for p in listed["predictions"]] == [str(good)]
+    assert listed["refused"] == [{"file": str(nan), "error": err.splitlines()[0].removeprefix("tactile-zoo: error: ")}]
+    assert main(["predict", MODEL, *_local(trained), str(nan), str(missing)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.splitlines()) == 2

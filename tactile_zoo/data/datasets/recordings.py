@@ -8,9 +8,11 @@ Folder format under the data home (one file per trial)::
 A trial is a table with one row per time step; its columns are the taxel readings in row-major taxel order, all
 channels of a taxel together (``[x, y, z]`` of taxel 0, then of taxel 1, ...), followed by the global features
 (joint angles, ...): ``N * C + G`` columns for a sensor with ``N`` taxels, ``C`` channels per taxel and ``G``
-globals. A ``.csv`` may start with one row of column names (a row in which no field is a number); a ``.npy`` is a
-2-D real array ``(T, N * C + G)``, read with ``allow_pickle=False``. Hidden files are ignored; anything else in a
-class folder is an error.
+globals. A ``.csv`` (comma, semicolon or tab between values, ``.`` as the decimal mark, quotes allowed) may start
+with one row of column names (a row in which no field is or looks like a number); a ``.npy`` is a 2-D real array
+``(T, N * C + G)``, read with ``allow_pickle=False``. A file above the input size limit (``$TACTILE_ZOO_MAX_INPUT_MB``,
+default 2048) or not a regular file is an error. Hidden files are ignored; anything else in a class folder is an
+error.
 
 Classes are the sorted class-folder names, or the ``classes=`` list (label = position in the list; then a folder not
 in the list is an error). All trials must have the same number of steps, unless ``num_steps`` is given: longer trials
