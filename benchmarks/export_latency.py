@@ -3,7 +3,7 @@ eager ``step()``.
 
 For every registered model with ``streaming=True`` metadata: the model is built for Ev-Objects' spec (NeuTouch, 39
 taxels, T = 250; weights from a seeded initialisation, which the timing does not depend on) and its step is exported
-with :func:`tactile_zoo.weights.export.export_model` (``forward=False``). One Ev-Objects test sample (synthetic
+with :func:`tactile_zoo.export.export_model` (``forward=False``). One Ev-Objects test sample (synthetic
 events of the same shape when the zip is absent) is then fed frame by frame, from the initial state, through three
 runtimes in turn, each call timed:
 
@@ -72,7 +72,7 @@ def _ort_session(path: Path) -> Any:
 def _streamers(model: torch.nn.Module, result: Any, with_onnx: bool) -> dict[str, Any]:
     """For each runtime, a function streaming frames ``(T, 1, N, C)`` from the initial state: per-step wall and CPU
     seconds and the scores after every step ``(T, K)``."""
-    from tactile_zoo.weights.export import initial_state
+    from tactile_zoo.export import initial_state
 
     start = initial_state(result.manifest)
 
@@ -125,8 +125,8 @@ def _streamers(model: torch.nn.Module, result: Any, with_onnx: bool) -> dict[str
 
 def run(ctx: Context, models: list[str] | None = None, steps: int | None = None) -> Path:
     from tactile_zoo.engine import seed_everything
+    from tactile_zoo.export import export_model, onnx_available, onnxruntime_available
     from tactile_zoo.registry import create_model, get_model_entry, list_models
-    from tactile_zoo.weights.export import export_model, onnx_available, onnxruntime_available
 
     data = ev_objects(ctx)
     test = data.test

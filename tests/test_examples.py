@@ -13,7 +13,7 @@ import pytest
 import torch
 
 import tactile_zoo as tz
-from tactile_zoo.weights.export import export_model, onnx_available, onnxruntime_available
+from tactile_zoo.export import export_model, onnx_available, onnxruntime_available
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "robot_loop.py"
 

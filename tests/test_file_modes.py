@@ -131,7 +131,7 @@ def test_a_processed_dataset_cache_is_0644_under_umask_022(umask: int, tmp_path:
 
 def test_export_files_are_0644_under_umask_022(umask: int, tmp_path: Path) -> None:
     import tactile_zoo as tz
-    from tactile_zoo.weights.export import export_model
+    from tactile_zoo.export import export_model
 
     spec = tz.load_dataset("sim_evtouch", split="train").spec
     model = tz.create_model("dcnn", spec)

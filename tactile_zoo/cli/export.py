@@ -4,7 +4,7 @@ The weights come from installed or local pretrained weights (``--pretrained``, `
 ``predict`` and ``stream`` take them), from a checkpoint of ``tactile-zoo train --save``, or, with ``--spec-from
 DATASET``, from a seeded random initialisation for that dataset's spec: the same files and names as trained
 weights, for building and testing the robot side before any training (the description says ``"weights": null``).
-The files and their names are described in :mod:`tactile_zoo.weights.export`.
+The files and their names are described in :mod:`tactile_zoo.export`.
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ def _positive(flag: str) -> Callable[[str], int]:
 
 
 def _formats(text: str) -> list[str]:
-    from ..weights.export import FORMATS
+    from ..export import FORMATS
 
     names = [t.strip().lower() for t in text.split(",") if t.strip()]
     unknown = [n for n in names if n not in FORMATS]
@@ -122,7 +122,7 @@ def _preprocessing(dataset: str | None, kwargs: dict[str, Any]) -> dict[str, Any
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from ..engine import seed_everything
-    from ..weights.export import check_opset, export_model, onnx_available, spec_for_dataset
+    from ..export import check_opset, export_model, onnx_available, spec_for_dataset
 
     formats = _formats(args.formats)
     if "onnx" in formats and onnx_available():  # before any weights are loaded

@@ -12,7 +12,7 @@ if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the check
     sys.path.insert(0, str(REPO))
 
 from benchmarks import BENCHMARKS, common, export_latency  # noqa: E402
-from tactile_zoo.weights.export import onnx_available, onnxruntime_available  # noqa: E402
+from tactile_zoo.export import onnx_available, onnxruntime_available  # noqa: E402
 
 
 def test_export_latency_writes_one_row_per_runtime(tmp_path: Path) -> None:

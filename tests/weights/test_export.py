@@ -1,4 +1,4 @@
-"""``tactile_zoo.weights.export``: TorchScript and ONNX files of every model against eager PyTorch.
+"""``tactile_zoo.export``: TorchScript and ONNX files of every model against eager PyTorch.
 
 Every registered model is exported once (module fixture) for a small simulator spec at batch 2, and its files are run
 on seeded simulator samples, not on the inputs the export traced. TorchScript runs the same kernels as eager, so its
@@ -24,7 +24,7 @@ import torch
 import tactile_zoo as tz
 from tactile_zoo import registry
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.weights.export import (
+from tactile_zoo.export import (
     EXPORT_FORMAT,
     ExportError,
     ExportResult,

@@ -13,7 +13,7 @@ from weights_helpers import DATA_ARGS, Trained
 import tactile_zoo as tz
 from tactile_zoo.cli import main
 from tactile_zoo.engine import save_checkpoint
-from tactile_zoo.weights.export import onnx_available, onnxruntime_available
+from tactile_zoo.export import onnx_available, onnxruntime_available
 
 ONNX = onnx_available() and onnxruntime_available()
 

@@ -1,68 +1,14 @@
-"""Export to TorchScript and ONNX: every model's full forward and, for streaming models, one step with its state as
-explicit tensors, so that a robot can run the model outside Python's training loop, one frame at a time.
-
-Two graphs per model, each as TorchScript (``torch.jit.trace``, ``.pt``) and ONNX (``.onnx``)::
-
-    MODEL.forward.{pt,onnx}   x (B, T, N, C) [, g (B, T, G)]                     -> scores (B, K)
-    MODEL.step.{pt,onnx}      x_t (B, N, C) [, g_t (B, G)], state_in_0 .. state_in_{S-1}
-                              -> scores (B, K), state_out_0 .. state_out_{S-1}
-    MODEL.export.json         names, shapes, dtypes, the state tensors and their initial values, the dataset spec,
-                              the preprocessing, and the checks against eager PyTorch
-
-Names, as the ONNX graphs and the JSON file carry them:
-
-- ``x``, ``g``: a whole recording, taxel readings and global features (``g`` only when the dataset has ``G > 0``);
-- ``x_t``, ``g_t``: one frame of them;
-- ``scores``: the class scores, logits for models trained with cross-entropy, output spike rates in [0, 1] for
-  SGnet (``"scores"`` in the JSON file says which); after step k they equal the forward on the first k frames;
-- ``state_in_i`` / ``state_out_i``: state tensor ``i``; ``state_out_i`` of one call is ``state_in_i`` of the next.
-  Before the first frame each holds its initial value, ``"initial"`` in the JSON file (``0.0``, or ``"-inf"`` for
-  X-Tacformer's running maximum of its frame scores; ``float()`` reads both), which :func:`initial_state` fills in.
-  Its ``"path"`` says what it is in the model's own state: ``mems[0]`` (SGnet's first LIF membrane), ``count``
-  (output spikes so far), ``core[...]`` (a binned model's state after its last complete bin: LIF membranes, spike
-  sums, LSTM ``(h, c)``, ...), ``pending_x`` / ``pending_g`` (the sums of the frames of the bin being filled).
-
-Python-side counters become tensors. SGnet's step count, a binned model's number of frames in its open bin
-(``pending``) and Tacformer's count of bins are ``(B, 1)`` float32 tensors holding whole numbers (exact up to
-2**24 frames), with ``"kind": "counter"``. The eager ``step()`` decides with a Python ``if`` when a bin is complete;
-the exported step computes both outcomes' states and picks one per row with ``torch.where``, which gives the same
-numbers and makes every row of the batch its own stream: to start a new grasp in row i, reset row i of every state
-tensor to its initial value (the batch dimension of each is ``"batch_dim"`` in the JSON file).
-
-Shapes are fixed at export: the batch size (``batch``, default 1) and, for the forward, the number of steps
-(``steps``, default the spec's ``num_steps``). Tracing records the Python arithmetic on shapes as constants (how
-many bins the frames make, the loops over frames, unrolled), so another shape needs another export.
-
-Exporters. Both formats are traced from a copy of the model whose LIF layers are written with plain tensor
-operations (``_PlainLIF``: the fused loop's numbers bit for bit, in a graph a fraction of the size). TorchScript
-files come from ``torch.jit.trace`` and compute what eager PyTorch computes, bit for bit (tested for every model).
-ONNX files come from ``torch.onnx.export(..., dynamo=True)``, the exporter built on :func:`torch.export.export` (it
-needs ``onnxscript``: ``pip install "tactile-zoo[export]"``); the step's graph is optimised, the forward's (unrolled
-over all T frames, where the optimiser's cost outgrows the graph) is left to onnxruntime's optimisation at load.
-The older TorchScript-based exporter (``dynamo=False``) got four of the six forwards wrong when tried on the models
-as they are: the fused LIF and ConvLSTM loops write into preallocated buffers with ``out=`` kernels, which it
-dropped, leaving graphs whose output no longer depends on ``x`` (SGnet, ConvLSTM: onnxruntime rejects the input
-as unused), and it exported the floor division that counts frame bins, ``-(-T // k)``, as a truncating one
-(Tacformer, X-Tacformer: a negative padding length). The ``torch.export`` path functionalises such kernels and
-keeps shape arithmetic as Python integers.
-
-Every export is checked before it is reported: the files are loaded back and run on seeded inputs other than the
-ones traced, the forward once and the step frame by frame over two bins and more, against the eager model (the
-ONNX files under onnxruntime when it is installed). The largest differences go into the JSON file; beyond
-:data:`TOLERANCE` the export fails with :class:`ExportError`.
-"""
+"""``export_model``: trace a model's forward and streaming step, write them as TorchScript and ONNX, load them back
+and check them against eager PyTorch, and describe them in ``MODEL.export.json`` (see :mod:`tactile_zoo.export`)."""
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import json
-import logging
 import math
 import os
 import tempfile
-import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -75,10 +21,19 @@ from .._files import atomic_write_text
 from .._version import __version__
 from ..errors import ConfigError, ExportError
 from .graphs import ForwardGraph, StateTensor, StepGraph, _dtype_name, _for_export, _registry_key
+from .onnx_io import (
+    ONNX_INSTALL,
+    check_opset,
+    onnx_available,
+    onnx_runner,
+    onnxruntime_available,
+    opset_of,
+    quiet,
+    to_onnx,
+)
 
 __all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "ExportError", "StateTensor", "ForwardGraph", "StepGraph",
-           "ExportResult", "export_model", "initial_state", "spec_for_dataset", "onnx_available",
-           "onnxruntime_available", "onnx_opsets", "check_opset", "ONNX_INSTALL"]
+           "ExportResult", "export_model", "initial_state", "spec_for_dataset"]
 
 #: The formats :func:`export_model` writes.
 FORMATS = ("torchscript", "onnx")
@@ -87,7 +42,6 @@ EXPORT_FORMAT = "tactile-zoo-export/1"
 #: Largest absolute difference (plus the same relative one) an export may show against eager PyTorch in its checks.
 TOLERANCE = 1e-5
 #: How to install what the ONNX export and its check need.
-ONNX_INSTALL = 'pip install "tactile-zoo[export]"  (onnx, onnxscript, onnxruntime)'
 
 _SUFFIX = {"torchscript": "pt", "onnx": "onnx"}
 
@@ -123,20 +77,6 @@ class ExportResult:
     manifest_path: Path
 
 
-def onnx_available() -> bool:
-    """Whether the ONNX exporter's dependencies (onnx, onnxscript) are installed."""
-    import importlib.util
-
-    return all(importlib.util.find_spec(m) is not None for m in ("onnx", "onnxscript"))
-
-
-def onnxruntime_available() -> bool:
-    """Whether onnxruntime (the check of the ONNX files) is installed."""
-    import importlib.util
-
-    return importlib.util.find_spec("onnxruntime") is not None
-
-
 def spec_for_dataset(name: str, root: str | os.PathLike | None = None) -> Any:
     """The :class:`~tactile_zoo.data.spec.DatasetSpec` of a registered dataset with its default options: from its
     registry metadata when that lists the whole spec (every built-in dataset: no data needed), else from its
@@ -162,58 +102,6 @@ def _registered_name(model: nn.Module) -> str:
 
 #: The loggers the exporters talk through. What they say goes to tactile-zoo's debug log (``-v``), never straight to
 #: stderr: the ONNX version converter, for one, logs a whole traceback when it cannot convert and then carries on.
-_EXPORTER_LOGGERS = ("torch.onnx", "torch.export", "torch._export", "onnxscript", "onnx_ir", "onnx")
-logger = logging.getLogger(__name__)
-
-
-class _Collect(logging.Handler):
-    """Keeps the records' text, logged once the streams are restored (logging them at once would write into the
-    redirected stderr)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.lines: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        text = record.getMessage()
-        if record.exc_info:
-            text += "\n" + logging.Formatter().formatException(record.exc_info)
-        self.lines.append(f"{record.name}: {text}")
-
-
-@contextlib.contextmanager
-def _quiet() -> Iterator[None]:
-    """Keep the exporters' chatter off the user's terminal: torch.jit's deprecation and tracer warnings (every export
-    is checked against eager on other inputs instead), the progress lines the ONNX exporter prints, and the log
-    records of the exporters and the version converter, all moved to the debug log."""
-    import io
-    from contextlib import redirect_stderr, redirect_stdout
-
-    handler = _Collect()
-    saved = []
-    for name in _EXPORTER_LOGGERS:
-        other = logging.getLogger(name)
-        saved.append((other, other.handlers[:], other.propagate))
-        other.handlers[:] = [handler]
-        other.propagate = False  # not to the root logger's handlers, nor to logging.lastResort (stderr)
-    out, err = io.StringIO(), io.StringIO()
-    try:
-        with warnings.catch_warnings(record=True) as caught, redirect_stdout(out), redirect_stderr(err):
-            warnings.simplefilter("always")
-            yield
-    finally:
-        for other, handlers, propagate in saved:
-            other.handlers[:] = handlers
-            other.propagate = propagate
-        for line in handler.lines:
-            logger.debug("%s", line)
-        for w in caught:
-            logger.debug("exporter warning: %s: %s", w.category.__name__, w.message)
-        for stream, text in (("stdout", out.getvalue()), ("stderr", err.getvalue())):
-            if text.strip():
-                logger.debug("exporter %s:\n%s", stream, text.rstrip())
-
-
 def _example(spec: Any, batch: int, steps: int | None, seed: int, dtype: torch.dtype) -> tuple[Tensor, Tensor | None]:
     """Seeded inputs ``x (B, T, N, C)`` in [0, 1) and ``g (B, T, G)`` (``None`` without globals)."""
     gen = torch.Generator().manual_seed(seed)
@@ -224,74 +112,8 @@ def _example(spec: Any, batch: int, steps: int | None, seed: int, dtype: torch.d
 
 
 def _trace(graph: nn.Module, inputs: tuple[Tensor, ...]) -> torch.jit.ScriptModule:
-    with _quiet():
+    with quiet():
         return torch.jit.trace(graph, inputs, check_trace=False)
-
-
-def onnx_opsets() -> tuple[int, int]:
-    """The ONNX opsets :func:`export_model` writes: from the one torch's exporter writes natively (18) to the newest
-    the installed ``onnx`` knows. Older ones are attempted through onnx's version converter and refused when it
-    cannot convert the graph."""
-    import onnx
-
-    try:
-        from torch.onnx._internal.exporter._constants import TORCHLIB_OPSET as native
-    except ImportError:  # a torch that moved it: the value of torch 2.x
-        native = 18
-    return int(native), int(onnx.defs.onnx_opset_version())
-
-
-#: The oldest opset the version converter is asked for at all (torch's legacy exporter's minimum).
-_OLDEST_OPSET = 7
-
-
-def check_opset(opset: int | None, what: str = "ONNX opset") -> None:
-    """Refuse, before any work, an opset no exporter here can write (``what`` names it in the message)."""
-    if opset is None:
-        return
-    lo, hi = onnx_opsets()
-    if isinstance(opset, bool) or not isinstance(opset, int) or not _OLDEST_OPSET <= opset <= hi:
-        raise ConfigError(f"{what} {opset!r} is not supported: choose {lo} to {hi} (older ones down to "
-                          f"{_OLDEST_OPSET} only where onnx's version converter can convert the graph)")
-
-
-def _to_onnx(graph: nn.Module, inputs: tuple[Tensor, ...], path: Path, opset: int | None, optimize: bool) -> None:
-    if not onnx_available():
-        raise ExportError(f"ONNX export needs onnx and onnxscript: {ONNX_INSTALL}")
-    try:
-        with _quiet():
-            torch.onnx.export(graph, inputs, str(path), dynamo=True, input_names=graph.input_names,
-                              output_names=graph.output_names, external_data=False, opset_version=opset,
-                              optimize=optimize, verbose=False)
-    except Exception as exc:  # noqa: BLE001 - the exporter raises many types; the message says which model and why
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ExportError(f"ONNX export of {path.name} failed: {type(exc).__name__}: {first}") from exc
-    if opset is not None:
-        # the exporter writes opset 18 and converts; when the conversion fails it logs and keeps 18 (or whatever it
-        # reached): a file that does not carry the opset asked for is removed and refused, not shipped to a robot
-        # whose onnxruntime cannot load it
-        got = _opset_of(path)
-        if got != opset:
-            path.unlink(missing_ok=True)
-            lo, hi = onnx_opsets()
-            raise ExportError(f"ONNX export of {path.name} at opset {opset} failed: onnx's version converter could "
-                              f"not convert the graph (it stayed at opset {got}); supported opsets are {lo} to {hi}")
-
-
-def _onnx_runner(path: Path) -> Callable[..., list[Tensor]]:
-    """A function running an ONNX file under onnxruntime on one CPU thread, tensors in and out."""
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = options.inter_op_num_threads = 1
-    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    names = [i.name for i in session.get_inputs()]
-
-    def run(*inputs: Tensor) -> list[Tensor]:
-        feeds = {n: v.detach().cpu().numpy() for n, v in zip(names, inputs)}
-        return [torch.from_numpy(o) for o in session.run(None, feeds)]
-
-    return run
 
 
 def _diff(a: Tensor, b: Tensor) -> float:
@@ -441,7 +263,7 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
             if not checks["eager.step"]["ok"]:
                 raise ExportError(f"{name}: the step with its state as tensors does not reproduce {name}.step() "
                                   f"({checks['eager.step']}); its state must be tensors and numbers that only enter "
-                                  f"arithmetic (see tactile_zoo.weights.export)")
+                                  f"arithmetic (see tactile_zoo.export)")
     folder = Path(out)
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -470,7 +292,7 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
                     # at every node) costs more than the graph grows: SGnet on Ev-Objects, 250 frames, took 500
                     # CPU-s with it, 50 without; onnxruntime optimises the graph when it loads it anyway. The step,
                     # small and the one a robot runs per frame, is optimised.
-                    _to_onnx(graph, inputs, path, opset, optimize=graph_name == "step")
+                    to_onnx(graph, inputs, path, opset, optimize=graph_name == "step")
                 files[(fmt, graph_name)] = path
                 if not check:
                     continue
@@ -478,7 +300,7 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
                     checks[f"{fmt}.{graph_name}"] = {"ok": None, "skipped": f"onnxruntime is not installed "
                                                                            f"({ONNX_INSTALL})"}
                     continue
-                run = torch.jit.load(str(path)) if fmt == "torchscript" else _onnx_runner(path)
+                run = torch.jit.load(str(path)) if fmt == "torchscript" else onnx_runner(path)
                 if graph_name == "forward":
                     result = _check_forward(run, full_ref, check_inputs)
                 else:
@@ -533,15 +355,5 @@ def _describe(name: str, spec: Any, meta: Mapping[str, Any], eager: nn.Module, f
         desc["step_note"] = "the streaming step was not exported (--no-step, step=False)"
     onnx_file = next((p for (fmt, _), p in files.items() if fmt == "onnx"), None)
     if onnx_file is not None:
-        desc["exporters"]["onnx_opset"] = _opset_of(onnx_file)
+        desc["exporters"]["onnx_opset"] = opset_of(onnx_file)
     return desc
-
-
-def _opset_of(path: Path) -> int | None:
-    try:
-        import onnx
-
-        model = onnx.load(str(path), load_external_data=False)
-        return next((int(o.version) for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
-    except Exception:  # noqa: BLE001 - the opset is informative; a file onnx cannot read was already checked
-        return None

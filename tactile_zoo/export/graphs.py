@@ -4,7 +4,7 @@
 Python numbers, into ``forward(x_t, [g_t,] *state) -> (scores, *new_state)`` with every piece of state a named tensor
 (:class:`StateTensor`), the form TorchScript and ONNX files need; :class:`ForwardGraph` gives the forward the same
 calling convention. Models reach the exporter through a copy whose LIF layers are :class:`_PlainLIF` (the same numbers
-in a compact graph). :mod:`tactile_zoo.weights.export` writes and checks the files.
+in a compact graph). :mod:`tactile_zoo.export` writes and checks the files.
 """
 
 from __future__ import annotations
