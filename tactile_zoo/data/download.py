@@ -59,8 +59,8 @@ def verify_sha256(path: str | os.PathLike, expected: str) -> str:
 
 
 def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60.0,
-          max_bytes: int = MAX_DOWNLOAD_BYTES, hint: str = "", retries: int = RETRIES,
-          backoff: float = BACKOFF_SECONDS, progress: bool | None = None) -> Path:
+          max_bytes: int = MAX_DOWNLOAD_BYTES, hint: str = "", retries: int | None = None,
+          backoff: float | None = None, progress: bool | None = None) -> Path:
     """Download ``url`` to ``dest`` if and only if its sha256 is ``sha256``.
 
     The bytes go to a temporary file in ``dest``'s folder and are renamed into place after the checksum matched, so
@@ -68,7 +68,8 @@ def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60
     raise a DatasetError that ends with ``hint`` (what to place where by hand).
 
     A transient failure (connection reset or dropped, timeout, HTTP 429 or 5xx) is retried up to ``retries`` more
-    times, waiting ``backoff``, then twice as long each time (or the server's ``Retry-After``, capped at 30 s); every
+    times (default :data:`RETRIES`), waiting ``backoff`` seconds (default :data:`BACKOFF_SECONDS`), then twice as
+    long each time (or the server's ``Retry-After``, capped at 30 s); every
     attempt rewrites the temporary file from its first byte. Other failures raise at once. ``progress``: a tqdm bar
     on stderr; None shows it when stderr is a terminal and the ``tactile_zoo`` logger is not silenced to warnings
     (``tactile-zoo -q``).
@@ -90,7 +91,8 @@ def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60
     try:
         with os.fdopen(fd, "wb") as out:
             digest = _download_with_retries(url, out, timeout=timeout, max_bytes=max_bytes, suffix=suffix,
-                                            retries=retries, backoff=backoff,
+                                            retries=RETRIES if retries is None else retries,
+                                            backoff=BACKOFF_SECONDS if backoff is None else backoff,
                                             progress=_show_progress() if progress is None else progress)
         got = digest.hexdigest()
         if got != sha256.lower():
