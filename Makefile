@@ -38,7 +38,7 @@ min-check:
 	$(PYTHON) -m venv $(MIN_VENV)
 	$(MIN_VENV)/bin/python -m pip install -q "$(TORCH)"
 	$(MIN_VENV)/bin/python -m pip install -q --only-binary=:all: -c constraints-min.txt -c constraints.txt \
-		-e ".[export]" "pytest>=7" "hypothesis>=6"
+		-e ".[export,dask,keras]" "pytest>=7" "hypothesis>=6"
 	OMP_NUM_THREADS=1 $(MIN_VENV)/bin/python -m pytest -q -p no:cacheprovider $$(grep -v '^#' tests/smoke.txt)
 
 lint: install
