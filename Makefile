@@ -30,7 +30,7 @@ test: install
 
 # CI, after `make test`: the built sdist and wheels, installed into a fresh virtualenv outside the checkout
 wheel-check: install
-	.ci/wheel-check $(BIN)/python
+	BASE_PYTHON=$(PYTHON) .ci/wheel-check $(BIN)/python
 
 # the declared minimum versions (constraints-min.txt) in a fresh virtualenv, running the smoke subset (tests/smoke.txt)
 MIN_VENV ?= $(or $(TMPDIR),/tmp)/tactile-zoo-min-venv
