@@ -5,16 +5,16 @@ BIN := $(VENV)/bin
 TORCH ?= torch==2.13.0
 TGT ?= torch-geometric-temporal==0.56.2
 
-.PHONY: install bench test lint benchmarks tables docs clean
+.PHONY: install bench test lint benchmarks tables docs clean wheel-check min-check
 
-$(BIN)/tactile-zoo: setup.cfg pyproject.toml constraints.txt
+$(BIN)/tactile-zoo: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	# torch first: the CPU build on disk; a looser requirement would drag in several GB of CUDA packages
 	$(BIN)/python -m pip install -q "$(TORCH)"
-	# [export]: onnx, onnxscript and onnxruntime, so that the suite checks every ONNX export under onnxruntime;
-	# [docs]: mkdocs, mkdocs-material and mkdocstrings, so that the suite builds the docs site (tests/test_docs.py)
-	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test,export,docs]"
+	# [test] holds every optional extra ([export]: onnx, onnxscript and onnxruntime, so the suite checks every ONNX
+	# export; [docs]: mkdocs-material and mkdocstrings, so the suite builds the docs site)
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
 	# x_tacformer's temporal_backend="tgt": --no-deps, its release requires torch-sparse (source-only, does not build
 	# against this torch); the one module we load (TGCN2) needs only torch and torch-geometric, installed above
 	$(BIN)/python -m pip install -q --no-deps "$(TGT)"
@@ -28,6 +28,19 @@ bench: install
 test: install
 	# one BLAS/OpenMP thread per xdist worker: two workers on two cores, no oversubscription
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadgroup
+
+# CI, after `make test`: the built sdist and wheels, installed into a fresh virtualenv outside the checkout
+wheel-check: install
+	BASE_PYTHON=$(PYTHON) .ci/wheel-check $(BIN)/python
+
+# the declared minimum versions (constraints-min.txt) in a fresh virtualenv, running the smoke subset (tests/smoke.txt)
+MIN_VENV ?= $(or $(TMPDIR),/tmp)/tactile-zoo-min-venv
+min-check:
+	$(PYTHON) -m venv $(MIN_VENV)
+	$(MIN_VENV)/bin/python -m pip install -q "$(TORCH)"
+	$(MIN_VENV)/bin/python -m pip install -q --only-binary=:all: -c constraints-min.txt -c constraints.txt \
+		-e ".[export,dask,keras]" "pytest>=7" "hypothesis>=6"
+	OMP_NUM_THREADS=1 $(MIN_VENV)/bin/python -m pytest -q -p no:cacheprovider $$(grep -v '^#' tests/smoke.txt)
 
 lint: install
 	$(BIN)/ruff check tactile_zoo tests benchmarks examples plugins

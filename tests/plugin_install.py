@@ -2,8 +2,8 @@
 
 pip builds it with the test environment's setuptools (``--no-index --no-deps --no-build-isolation``) into a
 temporary ``--target`` folder, which the caller puts on ``sys.path``: entry points then come from the plugin's own
-``setup.cfg`` and the code from the installed copy. The source is copied first, because building in place would leave
-``build/`` and ``*.egg-info`` in the repository.
+``pyproject.toml`` and the code from the installed copy. The source is copied first, because building in place would
+leave ``build/`` and ``*.egg-info`` in the repository.
 """
 
 from __future__ import annotations

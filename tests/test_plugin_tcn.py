@@ -3,7 +3,7 @@
 The module fixture builds and installs the distribution with pip (offline: ``--no-index --no-deps
 --no-build-isolation``, using the setuptools of the test environment) into a temporary ``--target`` folder that goes
 on ``sys.path``. So the test sees what a user's ``pip install`` produces: the entry point comes from the plugin's own
-``setup.cfg``, and the code is imported from the installed copy, not from the source tree. The source is copied
+``pyproject.toml``, and the code is imported from the installed copy, not from the source tree. The source is copied
 first, because building in place would leave ``build/`` and ``*.egg-info`` in the repository.
 """
 
@@ -27,7 +27,7 @@ from tactile_zoo.registry import create_model, get_model_entry, get_sensor, list
 pytestmark = pytest.mark.xdist_group("plugin_tcn")  # one worker installs it once
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "tactile-zoo-tcn"
-DIST, VERSION = "tactile-zoo-tcn", "0.1.0"
+DIST, VERSION = "tactile-zoo-tcn", "0.2.0"
 
 # (sensor, channels, globals) of the four sensor families
 FAMILIES = [("neutouch", 2, 0), ("biotac_sp", 1, 0), ("optoforce3", 4, 3), ("uskin_allegro", 3, 8)]

@@ -2,7 +2,10 @@
 
 * :func:`fetch` streams a URL into a temporary file next to its destination, hashes it on the way, and renames it
   into place only when the sha256 matches; a mismatch deletes the temporary file and raises. A half-finished or
-  forged download therefore never sits where a loader would find it.
+  forged download therefore never sits where a loader would find it. Transient failures (a dropped or reset
+  connection, a timeout, HTTP 429 or 5xx) are retried a few times with exponential backoff, each attempt starting
+  the file and its hash afresh; anything else (404, a refused connection, an unknown host) fails at once. A tqdm
+  bar on stderr shows the bytes when stderr is a terminal.
 * :func:`check_zip_member` refuses what a hostile archive uses to write outside its folder ("zip slip"): absolute
   paths, ``..`` components, symbolic links and other special files, plus encrypted members and members larger than
   a cap. :func:`safe_extract` checks every member before writing anything, then writes each one with an explicit
@@ -12,15 +15,21 @@
 from __future__ import annotations
 
 import hashlib
+import http.client
+import logging
 import os
 import re
 import stat
+import sys
+import time
 import urllib.error
 import urllib.parse
 import urllib.request
 import zipfile
 from pathlib import Path, PurePosixPath
 from typing import BinaryIO
+
+from tqdm import tqdm
 
 from .._files import open_temporary
 from ..errors import DatasetError
@@ -30,6 +39,11 @@ __all__ = ["fetch", "verify_sha256", "check_zip_member", "check_zip", "open_zip"
 
 MAX_DOWNLOAD_BYTES = 2 << 30  # 2 GiB: no release this zoo knows is larger; a server streaming forever is refused
 MAX_MEMBER_BYTES = 512 << 20  # one archive member, uncompressed (the Ev releases' members are ~100 kB)
+RETRIES = 3  # further attempts after a transient failure: a flaky mirror recovers, a dead one fails within ~7 s
+BACKOFF_SECONDS = 1.0  # the first wait; each later one doubles
+MAX_WAIT_SECONDS = 30.0  # cap on one wait, including a server's Retry-After
+
+log = logging.getLogger(__name__)
 
 
 def verify_sha256(path: str | os.PathLike, expected: str) -> str:
@@ -45,12 +59,20 @@ def verify_sha256(path: str | os.PathLike, expected: str) -> str:
 
 
 def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60.0,
-          max_bytes: int = MAX_DOWNLOAD_BYTES, hint: str = "") -> Path:
+          max_bytes: int = MAX_DOWNLOAD_BYTES, hint: str = "", retries: int | None = None,
+          backoff: float | None = None, progress: bool | None = None) -> Path:
     """Download ``url`` to ``dest`` if and only if its sha256 is ``sha256``.
 
     The bytes go to a temporary file in ``dest``'s folder and are renamed into place after the checksum matched, so
     ``dest`` is either absent or complete and verified. Network failures, a wrong checksum and oversized responses
     raise a DatasetError that ends with ``hint`` (what to place where by hand).
+
+    A transient failure (connection reset or dropped, timeout, HTTP 429 or 5xx) is retried up to ``retries`` more
+    times (default :data:`RETRIES`), waiting ``backoff`` seconds (default :data:`BACKOFF_SECONDS`), then twice as
+    long each time (or the server's ``Retry-After``, capped at 30 s); every
+    attempt rewrites the temporary file from its first byte. Other failures raise at once. ``progress``: a tqdm bar
+    on stderr; None shows it when stderr is a terminal and the ``tactile_zoo`` logger is not silenced to warnings
+    (``tactile-zoo -q``).
 
     Returns:
         ``dest`` as a Path.
@@ -67,14 +89,11 @@ def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60
         raise DatasetError(f"cannot write the download into {dest.parent} ({exc.strerror or exc}).{suffix}") from exc
     tmp = Path(tmp_name)
     try:
-        digest, size = hashlib.sha256(), 0
-        with os.fdopen(fd, "wb") as out, urllib.request.urlopen(url, timeout=timeout) as response:
-            while block := response.read(1 << 20):
-                size += len(block)
-                if size > max_bytes:
-                    raise DatasetError(f"download of {url} exceeds {max_bytes} bytes; refused and deleted.{suffix}")
-                digest.update(block)
-                out.write(block)
+        with os.fdopen(fd, "wb") as out:
+            digest = _download_with_retries(url, out, timeout=timeout, max_bytes=max_bytes, suffix=suffix,
+                                            retries=RETRIES if retries is None else retries,
+                                            backoff=BACKOFF_SECONDS if backoff is None else backoff,
+                                            progress=_show_progress() if progress is None else progress)
         got = digest.hexdigest()
         if got != sha256.lower():
             raise DatasetError(f"download of {url} has sha256 {got}, expected {sha256}; the file was refused and "
@@ -84,11 +103,85 @@ def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60
         raise DatasetError(f"could not download {url}: HTTP {exc.code} {exc.reason}.{suffix}") from exc
     except urllib.error.URLError as exc:
         raise DatasetError(f"could not download {url} (offline? {exc.reason}).{suffix}") from exc
-    except (OSError, TimeoutError) as exc:
-        raise DatasetError(f"could not download {url} ({type(exc).__name__}: {exc}).{suffix}") from exc
+    except (OSError, TimeoutError, http.client.HTTPException) as exc:
+        raise DatasetError(f"could not download {url} ({_describe(exc)}).{suffix}") from exc
     finally:
         tmp.unlink(missing_ok=True)
     return dest
+
+
+def _show_progress() -> bool:
+    quiet = not logging.getLogger("tactile_zoo").isEnabledFor(logging.INFO)
+    return not quiet and sys.stderr.isatty()
+
+
+def _transient(exc: BaseException) -> bool:
+    """Whether another attempt may succeed: the server or the path to it hiccuped, not the request being wrong."""
+    if isinstance(exc, urllib.error.HTTPError):
+        return exc.code == 429 or 500 <= exc.code <= 599
+    if isinstance(exc, urllib.error.URLError):
+        exc = exc.reason if isinstance(exc.reason, BaseException) else exc
+    # a refused connection or an unknown host is an offline machine or a wrong URL: retrying only delays the error
+    if isinstance(exc, ConnectionRefusedError):
+        return False
+    # reset/aborted/dropped (RemoteDisconnected is a ConnectionResetError), a body cut short, a timeout
+    return isinstance(exc, (ConnectionError, http.client.IncompleteRead, TimeoutError))
+
+
+def _wait_before_retry(exc: BaseException, attempt: int, backoff: float) -> float:
+    wait = backoff * 2 ** attempt
+    retry_after = exc.headers.get("Retry-After") if isinstance(exc, urllib.error.HTTPError) and exc.headers else None
+    if retry_after is not None and retry_after.strip().isdigit():  # the seconds form; an HTTP date is ignored
+        wait = max(wait, float(retry_after))
+    return min(wait, MAX_WAIT_SECONDS)
+
+
+def _download_with_retries(url: str, out: BinaryIO, *, timeout: float, max_bytes: int, suffix: str, retries: int,
+                           backoff: float, progress: bool) -> hashlib._Hash:
+    """Stream ``url`` into ``out`` (from its start) and return the sha256 of what was written."""
+    attempt = 0
+    while True:
+        out.seek(0)
+        out.truncate()  # a retry must not append to a partial body: the hash covers exactly the file's bytes
+        try:
+            return _download_once(url, out, timeout=timeout, max_bytes=max_bytes, suffix=suffix, progress=progress)
+        except (OSError, http.client.HTTPException) as exc:
+            if attempt >= retries or not _transient(exc):
+                raise
+            wait = _wait_before_retry(exc, attempt, backoff)
+            attempt += 1
+            log.warning("download of %s failed (%s); retry %d of %d in %.1f s", url, _describe(exc), attempt,
+                        retries, wait)
+            time.sleep(wait)
+
+
+def _download_once(url: str, out: BinaryIO, *, timeout: float, max_bytes: int, suffix: str,
+                   progress: bool) -> hashlib._Hash:
+    digest, size = hashlib.sha256(), 0
+    with urllib.request.urlopen(url, timeout=timeout) as response:
+        length = response.headers.get("Content-Length")
+        total = int(length) if length and length.isdigit() else None
+        name = Path(urllib.parse.urlsplit(url).path).name or url
+        with tqdm(total=total, desc=name, unit="B", unit_scale=True, unit_divisor=1024, leave=False,
+                  file=sys.stderr, disable=not progress) as bar:
+            while block := response.read(1 << 20):
+                size += len(block)
+                if size > max_bytes:
+                    raise DatasetError(f"download of {url} exceeds {max_bytes} bytes; refused and deleted.{suffix}")
+                digest.update(block)
+                out.write(block)
+                bar.update(len(block))
+        if total is not None and size < total:  # urllib returns a short body silently when the server drops it
+            raise http.client.IncompleteRead(b"", total - size)
+    return digest
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, urllib.error.HTTPError):
+        return f"HTTP {exc.code} {exc.reason}"
+    if isinstance(exc, urllib.error.URLError):
+        return str(exc.reason)
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
 _DRIVE = re.compile(r"^[A-Za-z]:")

@@ -12,8 +12,9 @@ starts later); the CLI turns it on before torch starts its thread pool, so multi
 Peak memory: on Linux the process's resident-set high-water mark (``VmHWM`` in ``/proc/self/status``) is reset at the
 start of a measurement by writing ``5`` to ``/proc/self/clear_refs``, so each cell reports its own peak even in a
 long-lived process or worker. Where that is impossible the value is ``resource.getrusage(...).ru_maxrss``, the peak
-since the process started (an upper bound for the cell); :attr:`PeakMemory.source` says which. On CUDA the peak of
-``torch.cuda.max_memory_allocated`` is recorded too.
+since the process started (an upper bound for the cell); without that too (Windows has neither ``/proc`` nor the
+``resource`` module) the peak is None and the cell runs all the same; :attr:`PeakMemory.source` says which. On CUDA
+the peak of ``torch.cuda.max_memory_allocated`` is recorded too.
 """
 
 from __future__ import annotations
@@ -112,6 +113,16 @@ def _vm_hwm_kb() -> int | None:
     return int(match.group(1)) if match else None
 
 
+def _ru_maxrss_kb() -> int | None:
+    """The process's peak RSS in kB from getrusage, or None where the resource module is missing (Windows)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # kB on Linux
+    return kb // 1024 if sys.platform == "darwin" else kb  # bytes there
+
+
 class PeakMemory:
     """Measure a block's peak memory: ``with PeakMemory(device) as peak: ...; peak.mb, peak.gpu_mb, peak.source``."""
 
@@ -134,13 +145,10 @@ class PeakMemory:
     def __exit__(self, *exc: Any) -> None:
         kb = _vm_hwm_kb() if self.source == "vmhwm" else None
         if kb is None:
-            import resource
-
-            kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # kB on Linux
-            if sys.platform == "darwin":  # bytes there
-                kb //= 1024
-            self.source = "ru_maxrss"
-        self.mb = round(kb / 1024, 1)
+            kb = _ru_maxrss_kb()
+            self.source = "ru_maxrss" if kb is not None else "unavailable"
+        # no /proc and no resource module (Windows): the cell still runs, with its peak memory unknown
+        self.mb = round(kb / 1024, 1) if kb is not None else None
         if self.device.type == "cuda":
             self.gpu_mb = round(torch.cuda.max_memory_allocated(self.device) / 2**20, 1)
 

@@ -6,6 +6,7 @@ import json
 import logging
 import os
 import time
+import tomllib
 import warnings
 from pathlib import Path
 from typing import Any
@@ -177,6 +178,6 @@ def test_py_typed_is_shipped() -> None:
     import tactile_zoo
 
     assert (Path(tactile_zoo.__file__).parent / "py.typed").is_file()
-    setup = (Path(__file__).resolve().parents[2] / "setup.cfg").read_text()
-    assert "[options.package_data]" in setup and "py.typed" in setup
+    project = tomllib.loads((Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())
+    assert project["tool"]["setuptools"]["package-data"]["tactile_zoo"] == ["py.typed"]
 

@@ -1,10 +1,9 @@
 """tactile-zoo-weights: pretrained weights for tactile-zoo's models, found through an entry point.
 
-tactile-zoo finds the weights through the entry point declared in this distribution's ``setup.cfg``::
+tactile-zoo finds the weights through the entry point declared in this distribution's ``pyproject.toml``::
 
-    [options.entry_points]
-    tactile_zoo.weights =
-        manifest = tactile_zoo_weights:manifest
+    [project.entry-points."tactile_zoo.weights"]
+    manifest = "tactile_zoo_weights:manifest"
 
 :func:`manifest` returns the path of ``manifest.json`` (format ``tactile-zoo-weights/1``, see
 ``tactile_zoo.weights.entry``), which lists every ``.safetensors`` file of this folder with its sha256, the model and
