@@ -98,8 +98,9 @@ def write_manifest(entries: Iterable[WeightEntry], path: str | os.PathLike, desc
 
 
 #: The base dataset's keywords: how a split is augmented or wrapped, never how its samples are made.
-_NOT_PREPROCESSING = frozenset({"root", "split", "fold", "download", "transform", "augment", "augment_factor",
-                                "augment_seed"})
+#: a user's own functions (``transform``, ``pre_transform``) are hooks, not a dataset option a weight entry can record
+_NOT_PREPROCESSING = frozenset({"root", "split", "fold", "download", "transform", "pre_transform", "augment",
+                                "augment_factor", "augment_seed"})
 
 
 def _json_value(value: Any) -> Any:
