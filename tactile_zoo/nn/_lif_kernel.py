@@ -25,6 +25,8 @@ compiled in memory on first use instead.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from llvmlite import ir
 from numba import njit, prange, types
@@ -42,12 +44,12 @@ _MODE = np.uint32(0xFFFFFFC0)  # MXCSR without its sticky exception flags (bits 
 
 
 @intrinsic
-def _fma(typingctx, a, b, c):  # noqa: ANN001, ANN202 -- numba intrinsic protocol
+def _fma(typingctx: object, a: types.Type, b: types.Type, c: types.Type) -> tuple | None:
     """``a * b + c`` rounded once (``llvm.fma.f32``): what ATen's ``fmadd`` and GCC's contraction compute."""
     if not (a == b == c == types.float32):
         return None
 
-    def codegen(context, builder, signature, args):  # noqa: ANN001, ANN202
+    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
         flt = ir.FloatType()
         fn = builder.module.declare_intrinsic("llvm.fma", [flt], ir.FunctionType(flt, [flt, flt, flt]))
         return builder.call(fn, args)
@@ -61,10 +63,10 @@ def _csr_fn(builder: ir.IRBuilder, name: str) -> tuple[ir.Function, ir.Type]:
 
 
 @intrinsic
-def _get_csr(typingctx):  # noqa: ANN001, ANN202
+def _get_csr(typingctx: object) -> tuple:
     """The calling thread's MXCSR (x86 SSE control and status register)."""
 
-    def codegen(context, builder, signature, args):  # noqa: ANN001, ANN202
+    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
         slot = cgutils.alloca_once(builder, ir.IntType(32))
         fn, ptr = _csr_fn(builder, "llvm.x86.sse.stmxcsr")
         builder.call(fn, [builder.bitcast(slot, ptr)])
@@ -74,12 +76,12 @@ def _get_csr(typingctx):  # noqa: ANN001, ANN202
 
 
 @intrinsic
-def _set_csr(typingctx, value):  # noqa: ANN001, ANN202
+def _set_csr(typingctx: object, value: types.Type) -> tuple | None:
     """Load ``value`` (an integer, truncated to 32 bits) into the calling thread's MXCSR."""
     if not isinstance(value, types.Integer):
         return None
 
-    def codegen(context, builder, signature, args):  # noqa: ANN001, ANN202
+    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
         slot = cgutils.alloca_once(builder, ir.IntType(32))
         builder.store(context.cast(builder, args[0], value, types.uint32), slot)
         fn, ptr = _csr_fn(builder, "llvm.x86.sse.ldmxcsr")
@@ -89,7 +91,7 @@ def _set_csr(typingctx, value):  # noqa: ANN001, ANN202
     return types.void(value), codegen
 
 
-def _jit(fn):  # noqa: ANN001, ANN202
+def _jit(fn: Callable) -> Callable:
     """``njit`` with an on-disk cache where one can be written (see the module docstring), in memory otherwise.
 
     ``error_model="numpy"``: a float division by zero gives inf as in torch, never a Python exception."""
@@ -104,7 +106,8 @@ def _jit(fn):  # noqa: ANN001, ANN202
 # so that LLVM vectorises it; the conditional expressions become selects.
 
 @_jit
-def _surrogate_row(mem, thr, kind, lo, hi, c1, c2, out):  # noqa: ANN001, ANN202
+def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, hi: np.float32, c1: np.float32,
+                   c2: np.float32, out: np.ndarray) -> None:
     """``out = S'(mem - thr)`` as :meth:`tactile_zoo.nn.surrogate.Surrogate.grad` computes it in float32: the
     ``rect`` mask ``lo < u < hi`` (``hardtanh_backward``), or ``atan``'s ``mul``, ``pow_(2)``, ``add_(1)``,
     ``reciprocal``, ``mul_`` (each rounded once)."""
@@ -121,7 +124,8 @@ def _surrogate_row(mem, thr, kind, lo, hi, c1, c2, out):  # noqa: ANN001, ANN202
 
 
 @_jit
-def _advance_row(prev, x, out, beta, thr, th_up, subtract):  # noqa: ANN001, ANN202
+def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.float32, thr: np.float32,
+                 th_up: np.float32, subtract: bool) -> None:
     """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif._advance``."""
     one, zero = np.float32(1.0), np.float32(0.0)
     if subtract:  # addcmul(x, U, ones, value=beta) then sub_(R, alpha=thr): fma(beta * U, 1, x), then fma(R, -thr, .)
@@ -139,7 +143,8 @@ def _advance_row(prev, x, out, beta, thr, th_up, subtract):  # noqa: ANN001, ANN
 
 
 @_jit
-def lif_forward(x, mem0, spikes, last, beta, thr, th_up, subtract, chunk):  # noqa: ANN001, ANN201
+def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.ndarray, beta: np.float32,
+                thr: np.float32, th_up: np.float32, subtract: bool, chunk: int) -> None:
     """Forward time loop. ``x (T, N)``, ``mem0 (N,)`` in; ``spikes (T, N)`` and ``last (N,)`` out (float32, C order).
     """
     steps, n = x.shape
@@ -162,8 +167,10 @@ def lif_forward(x, mem0, spikes, last, beta, thr, th_up, subtract, chunk):  # no
 
 
 @_jit
-def lif_backward(x, mem0, grad_spikes, has_grad_spikes, grad_last, has_grad_last, grad_x, grad_mem0,  # noqa: ANN001, ANN201
-                 beta, thr, th_up, subtract, detach_reset, kind, lo, hi, c1, c2, block, chunk):
+def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_grad_spikes: bool,
+                 grad_last: np.ndarray, has_grad_last: bool, grad_x: np.ndarray, grad_mem0: np.ndarray,
+                 beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, detach_reset: bool, kind: int,
+                 lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32, block: int, chunk: int) -> None:
     """Backward time loop. Recomputes each chunk's membranes from ``x`` and ``mem0`` (cheaper than storing them),
     then carries dL/dU back through time as :meth:`tactile_zoo.nn.lif._FusedLIF.backward` does, block boundaries
     included. ``grad_spikes (T, N)`` and ``grad_last (N,)`` are read only where their ``has_`` flag is set; writes
