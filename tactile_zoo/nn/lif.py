@@ -26,6 +26,15 @@ multiply-add per step backward, everything else vectorised over cache-sized bloc
 On CPU the two give bit-identical spikes (the same rounding, ``(beta * U) * (1 - R) + I``) and the same gradients to
 float rounding (tests/nn/test_lif.py); on GPU a fused multiply-add may round a membrane that lands within one ulp of
 the threshold differently. Surrogates: :mod:`tactile_zoo.nn.surrogate`.
+
+On CPU the fused backend runs as a compiled kernel where it can (:class:`_CompiledLIF`,
+:mod:`tactile_zoo.nn._lif_kernel`): the forward and the backward time loop are one numba-compiled call per sequence
+each, parallel over blocks of neurons on ``torch.get_num_threads()`` threads, with spikes, membranes and gradients
+bit-identical to the torch implementation of ``"fused"`` (tests/nn/test_lif_kernel.py). It applies to float32 CPU
+tensors with the ``rect`` or ``atan`` surrogate on x86-64 (ATen's AVX2/AVX512 kernels), numba installed; everything
+else, the GPU included, runs the torch implementation. The environment variable ``TACTILE_ZOO_LIF_BACKEND``
+(:data:`KERNEL_ENV`) chooses per call: ``auto`` (default), ``torch`` (never the kernel) or ``numba`` (the kernel, and
+an error where it is unavailable).
 """
 
 from __future__ import annotations
@@ -34,6 +43,7 @@ import functools
 import math
 import os
 import platform
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import ModuleType
@@ -246,16 +256,37 @@ def _kernel_threads(kernels: ModuleType) -> None:
         numba.set_num_threads(n)
 
 
+#: Serialises kernel launches where numba's threading layer cannot take two at once: its fallback layer
+#: ("workqueue", used where neither OpenMP nor TBB loads) aborts the process on concurrent launches from two threads.
+_LAUNCH_LOCK = threading.Lock()
+
+
+def _launch(kernels: ModuleType, kernel: Callable[..., None], *args: object) -> None:
+    """Call a compiled kernel on torch's thread count; under the lock until numba's threading layer is known (it is
+    chosen at the first launch) and for good if that layer is "workqueue"."""
+    import numba
+
+    _kernel_threads(kernels)
+    try:
+        serial = numba.threading_layer() == "workqueue"
+    except ValueError:  # no parallel launch yet
+        serial = True
+    if serial:
+        with _LAUNCH_LOCK:
+            kernel(*args)
+    else:
+        kernel(*args)
+
+
 def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
                     subtract: bool) -> tuple[Tensor, Tensor]:
     """Spikes ``[T, ...]`` and the last membrane from the compiled forward loop (contiguous float32 CPU inputs)."""
     steps = x.shape[0]
     spikes = memory.empty(x.shape, x)
     last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
-    _kernel_threads(kernels)
-    kernels.lif_forward(x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
-                        spikes.view(steps, -1).numpy(), last.view(-1).numpy(), *_f32(beta, threshold),
-                        _f32(_next_up(threshold, torch.float32))[0], subtract, kernels.CHUNK)
+    _launch(kernels, kernels.lif_forward, x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
+            spikes.view(steps, -1).numpy(), last.view(-1).numpy(), *_f32(beta, threshold),
+            _f32(_next_up(threshold, torch.float32))[0], subtract, kernels.CHUNK)
     return spikes, last
 
 
@@ -301,11 +332,10 @@ class _CompiledLIF(torch.autograd.Function):
             kind, lo, hi, c1, c2 = kernels.RECT, *_f32(-p / 2, p / 2), *_f32(0.0, 0.0)
         else:
             kind, lo, hi, c1, c2 = kernels.ATAN, *_f32(0.0, 0.0), *_f32(math.pi / 2 * p, p / 2)
-        _kernel_threads(kernels)
-        kernels.lif_backward(x.view(steps, -1).numpy(), mem0.view(-1).numpy(), gs, grad_spikes is not None, gm,
-                             grad_mem is not None, grad_x.view(steps, -1).numpy(), grad_mem0.view(-1).numpy(),
-                             *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset, kind, lo, hi,
-                             c1, c2, block, kernels.CHUNK)
+        _launch(kernels, kernels.lif_backward, x.view(steps, -1).numpy(), mem0.view(-1).numpy(), gs,
+                grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
+                grad_mem0.view(-1).numpy(), *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset,
+                kind, lo, hi, c1, c2, block, kernels.CHUNK)
         return grad_x, (grad_mem0 if ctx.needs_input_grad[1] else None), None, None, None, None, None, None
 
 
@@ -334,7 +364,8 @@ class MultiStepLIF(nn.Module):
         surrogate_slope: ``sigmoid`` slope (snnTorch default 25).
         detach_reset: ``True`` detaches the reset from the graph (snnTorch); ``False`` back-propagates through it
             (TactileSGNet).
-        backend: ``"fused"`` (one autograd node for the whole loop) or ``"snntorch"`` (steps ``snntorch.Leaky``).
+        backend: ``"fused"`` (one autograd node for the whole loop; on CPU the compiled kernel where it applies,
+            see :data:`KERNEL_ENV`) or ``"snntorch"`` (steps ``snntorch.Leaky``).
         input_scale: the input is multiplied by it first (``1/tau`` for the paper's neuron).
 
     Shapes:

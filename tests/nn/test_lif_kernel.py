@@ -4,6 +4,7 @@ membranes and every gradient bit-identical (torch.equal), over the module's opti
 from __future__ import annotations
 
 import itertools
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -185,6 +186,29 @@ def test_threads_follow_torch(monkeypatch: pytest.MonkeyPatch) -> None:
         torch.set_num_threads(before)
 
 
+@pytest.mark.slow  # a fresh process (loads the cached kernels)
+def test_concurrent_calls_under_the_workqueue_layer() -> None:
+    """numba's fallback threading layer aborts the process when two threads launch at once; the launches are
+    serialised there, so training or inference from several Python threads keeps working."""
+    script = ("import threading, torch\n"
+              "from tactile_zoo.nn.lif import MultiStepLIF\n"
+              "torch.set_num_threads(2)\n"
+              "x = torch.randn(50, 4, 700, requires_grad=True)\n"
+              "ref = MultiStepLIF()(x)\n"
+              "def work(out):\n"
+              "    for _ in range(40):\n"
+              "        y = MultiStepLIF()(x); y.sum().backward(); out.append(torch.equal(y, ref))\n"
+              "outs = [[], []]\n"
+              "threads = [threading.Thread(target=work, args=(o,)) for o in outs]\n"
+              "[t.start() for t in threads]; [t.join() for t in threads]\n"
+              "import numba; print(numba.threading_layer(), all(outs[0] + outs[1]), len(outs[0] + outs[1]))")
+    env = {**os.environ, "NUMBA_THREADING_LAYER": "workqueue", "TACTILE_ZOO_LIF_BACKEND": "numba"}
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.stdout.split() == ["workqueue", "True", "80"]
+
+
+@pytest.mark.slow  # compiles the forward kernel from scratch in a fresh process (several seconds)
 def test_read_only_install_compiles_in_memory(tmp_path: Path) -> None:
     """No cache folder can be made (beside the module, nor a per-user one): the kernel still compiles, in memory.
     Blocked by files where the folders would go, which stops root as well as anyone else."""
