@@ -26,6 +26,7 @@ compiled in memory on first use instead.
 from __future__ import annotations
 
 from collections.abc import Callable
+from types import FunctionType
 
 import numpy as np
 from llvmlite import ir
@@ -33,13 +34,16 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["lif_forward", "lif_backward", "RECT", "ATAN", "CHUNK"]
+__all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "RECT", "ATAN", "CHUNK",
+           "SERIAL_BELOW"]
 
 #: Surrogate kinds the kernels evaluate themselves (others stay on the torch path).
 RECT, ATAN = 0, 1
 #: Neurons per parallel work item: the backward keeps their (T + 1, CHUNK) membrane history in cache (250 KB at
 #: T = 250) and each step reads a contiguous run of CHUNK floats from every (T, N) array.
 CHUNK = 256
+#: Sequences with fewer elements (steps x neurons) than this run the serial builds even with several threads.
+SERIAL_BELOW = 1 << 16
 _MODE = np.uint32(0xFFFFFFC0)  # MXCSR without its sticky exception flags (bits 0-5): the mode to copy
 
 
@@ -91,15 +95,23 @@ def _set_csr(typingctx: object, value: types.Type) -> tuple | None:
     return types.void(value), codegen
 
 
-def _jit(fn: Callable) -> Callable:
+def _jit(fn: Callable, parallel: bool = False) -> Callable:
     """``njit`` with an on-disk cache where one can be written (see the module docstring), in memory otherwise.
 
     ``error_model="numpy"``: a float division by zero gives inf as in torch, never a Python exception."""
-    opts = dict(nogil=True, error_model="numpy", parallel=fn.__name__ in ("lif_forward", "lif_backward"))
+    opts = dict(nogil=True, error_model="numpy", parallel=parallel)
     try:
         return njit(cache=True, **opts)(fn)
     except RuntimeError:  # "cannot cache function ...: no locator available" (read-only install and home)
         return njit(cache=False, **opts)(fn)
+
+
+def _serial_copy(fn: Callable) -> Callable:
+    """``fn`` under the name ``<name>_serial``: compiled without ``parallel``, its ``prange`` is a plain loop. The
+    cache files are named after the function, so the serial build needs a name of its own."""
+    copy = FunctionType(fn.__code__, fn.__globals__, f"{fn.__name__}_serial", fn.__defaults__)
+    copy.__qualname__ = f"{fn.__qualname__}_serial"
+    return _jit(copy)
 
 
 # Row helpers: each is one loop over a chunk's neurons with no branch left inside it (the mode tests sit outside),
@@ -142,7 +154,6 @@ def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.floa
             out[j] = _fma(beta * p, keep, x[j])
 
 
-@_jit
 def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.ndarray, beta: np.float32,
                 thr: np.float32, th_up: np.float32, subtract: bool, chunk: int) -> None:
     """Forward time loop. ``x (T, N)``, ``mem0 (N,)`` in; ``spikes (T, N)`` and ``last (N,)`` out (float32, C order).
@@ -166,7 +177,6 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
         _set_csr(own)
 
 
-@_jit
 def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_grad_spikes: bool,
                  grad_last: np.ndarray, has_grad_last: bool, grad_x: np.ndarray, grad_mem0: np.ndarray,
                  beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, detach_reset: bool, kind: int,
@@ -242,3 +252,12 @@ def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_g
         for j in range(width):  # the carry out of the first block: dL/dmem0
             gm[j] = g_next[j] * beta if plain else (g_next[j] * decay[j]) * scale
         _set_csr(own)
+
+
+# Launching a parallel region wakes numba's worker threads, which costs tens of microseconds on a quiet machine and
+# can wait milliseconds for a time slice on a busy one: one-thread calls and small sequences (streaming steps) take
+# the serial builds instead.
+lif_forward_serial = _serial_copy(lif_forward)
+lif_backward_serial = _serial_copy(lif_backward)
+lif_forward = _jit(lif_forward, parallel=True)
+lif_backward = _jit(lif_backward, parallel=True)

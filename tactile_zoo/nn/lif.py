@@ -261,11 +261,17 @@ def _kernel_threads(kernels: ModuleType) -> None:
 _LAUNCH_LOCK = threading.Lock()
 
 
-def _launch(kernels: ModuleType, kernel: Callable[..., None], *args: object) -> None:
-    """Call a compiled kernel on torch's thread count; under the lock until numba's threading layer is known (it is
-    chosen at the first launch) and for good if that layer is "workqueue"."""
+def _launch(kernels: ModuleType, name: str, *args: object) -> None:
+    """Call compiled kernel ``name`` (``lif_forward`` or ``lif_backward``; ``args[0]`` is the ``(T, N)`` input) on
+    torch's thread count: its serial build on one thread, for one block of neurons or for small sequences (a parallel
+    launch costs more than it saves there), else the parallel build -- under the lock until numba's threading layer
+    is known (it is chosen at the first launch) and for good if that layer is "workqueue"."""
     import numba
 
+    steps, n = args[0].shape
+    if torch.get_num_threads() == 1 or n <= kernels.CHUNK or steps * n < kernels.SERIAL_BELOW:
+        getattr(kernels, f"{name}_serial")(*args)
+        return
     _kernel_threads(kernels)
     try:
         serial = numba.threading_layer() == "workqueue"
@@ -273,9 +279,9 @@ def _launch(kernels: ModuleType, kernel: Callable[..., None], *args: object) -> 
         serial = True
     if serial:
         with _LAUNCH_LOCK:
-            kernel(*args)
+            getattr(kernels, name)(*args)
     else:
-        kernel(*args)
+        getattr(kernels, name)(*args)
 
 
 def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
@@ -284,7 +290,7 @@ def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, t
     steps = x.shape[0]
     spikes = memory.empty(x.shape, x)
     last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
-    _launch(kernels, kernels.lif_forward, x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
+    _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
             spikes.view(steps, -1).numpy(), last.view(-1).numpy(), *_f32(beta, threshold),
             _f32(_next_up(threshold, torch.float32))[0], subtract, kernels.CHUNK)
     return spikes, last
@@ -332,7 +338,7 @@ class _CompiledLIF(torch.autograd.Function):
             kind, lo, hi, c1, c2 = kernels.RECT, *_f32(-p / 2, p / 2), *_f32(0.0, 0.0)
         else:
             kind, lo, hi, c1, c2 = kernels.ATAN, *_f32(0.0, 0.0), *_f32(math.pi / 2 * p, p / 2)
-        _launch(kernels, kernels.lif_backward, x.view(steps, -1).numpy(), mem0.view(-1).numpy(), gs,
+        _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), mem0.view(-1).numpy(), gs,
                 grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
                 grad_mem0.view(-1).numpy(), *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset,
                 kind, lo, hi, c1, c2, block, kernels.CHUNK)

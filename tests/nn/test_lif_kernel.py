@@ -3,10 +3,12 @@ membranes and every gradient bit-identical (torch.equal), over the module's opti
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -24,14 +26,17 @@ pytestmark = pytest.mark.skipif(lif_module._kernel_module() is None,
 def calls(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     """Counts the compiled forward and backward calls (so a comparison cannot pass by running torch twice)."""
     kernels, counts = lif_module._kernel_module(), {"forward": 0, "backward": 0}
-    for name in ("forward", "backward"):
-        fn = getattr(kernels, f"lif_{name}")
+    parallel = [0]  # launches of the parallel builds (the others run the serial ones)
+    monkeypatch.setattr(lif_module, "_parallel_launches", parallel, raising=False)
+    for name, build in itertools.product(("forward", "backward"), ("", "_serial")):
+        fn = getattr(kernels, f"lif_{name}{build}")
 
-        def counted(*args: object, _fn=fn, _name=name) -> None:  # noqa: ANN001
+        def counted(*args: object, _fn=fn, _name=name, _parallel=not build) -> None:  # noqa: ANN001
             counts[_name] += 1
+            parallel[0] += _parallel
             _fn(*args)
 
-        monkeypatch.setattr(kernels, f"lif_{name}", counted)
+        monkeypatch.setattr(kernels, f"lif_{name}{build}", counted)
     return counts
 
 
@@ -67,15 +72,29 @@ def _same(kw: dict, shape: tuple[int, ...], monkeypatch: pytest.MonkeyPatch, cal
 OPTIONS = list(itertools.product(["rect", "atan"], [False, True], ["zero", "subtract"]))
 
 
+@contextlib.contextmanager
+def _threads(n: int) -> Iterator[None]:
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 @pytest.mark.parametrize("surrogate,detach_reset,reset", OPTIONS)
-@pytest.mark.parametrize("shape,beta,threshold", [((40, 3, 5), 0.2, 0.5), ((1, 4), 0.9, 0.3),
-                                                  ((9, 2, 3, 4), 0.5, 1.0), ((33, 7, 301), 0.75, 0.35)])
+@pytest.mark.parametrize("shape,beta,threshold,threads", [
+    ((40, 3, 5), 0.2, 0.5, 1), ((1, 4), 0.9, 0.3, 1), ((9, 2, 3, 4), 0.5, 1.0, 2), ((33, 7, 301), 0.75, 0.35, 1),
+    ((33, 7, 301), 0.75, 0.35, 2)])
 def test_compiled_equals_fused(monkeypatch: pytest.MonkeyPatch, calls: dict[str, int], surrogate: str,
                                detach_reset: bool, reset: str, shape: tuple[int, ...], beta: float,
-                               threshold: float) -> None:
-    """Shapes below, at and above one chunk of neurons (2107 = 8 chunks + 59), thresholds that float32 rounds."""
+                               threshold: float, threads: int) -> None:
+    """Shapes below, at and above one chunk of neurons (2107 = 8 chunks + 59), thresholds that float32 rounds; the
+    serial builds (one thread, small sequences) and the parallel ones (two threads, 33 x 2107 steps x neurons)."""
     kw = dict(beta=beta, threshold=threshold, surrogate=surrogate, detach_reset=detach_reset, reset=reset)
-    _same(kw, shape, monkeypatch, calls)
+    with _threads(threads):
+        _same(kw, shape, monkeypatch, calls)
+    assert lif_module._parallel_launches[0] == (2 if threads == 2 and shape[0] == 33 else 0)
 
 
 @pytest.mark.parametrize("surrogate,detach_reset,reset", OPTIONS)
@@ -106,16 +125,19 @@ def test_under_flush_to_zero_with_denormals(monkeypatch: pytest.MonkeyPatch, cal
         pytest.skip("no flush-to-zero on this CPU")
     try:
         kw = dict(surrogate=surrogate, detach_reset=detach_reset, reset=reset, threshold=0.5, beta=0.2)
-        _same(kw, (120, 2, 300), monkeypatch, calls, scale=0.3, offset=0.0)  # sparse spikes, long quiet stretches
+        for threads in (1, 2):  # serial and parallel builds
+            with _threads(threads):
+                _same(kw, (120, 2, 300), monkeypatch, calls, scale=0.3, offset=0.0)  # sparse spikes, quiet stretches
+        assert lif_module._parallel_launches[0] == 2
     finally:
         torch.set_flush_denormal(False)
 
 
-def test_flush_to_zero_reaches_the_kernel(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_flush_to_zero_reaches_the_kernel(monkeypatch: pytest.MonkeyPatch, calls: dict[str, int]) -> None:
     """A membrane decaying into denormals is kept without flush-to-zero and flushed with it, by both paths alike, on
     every thread the kernel runs (numba's worker threads do not inherit the caller's flag)."""
-    x = torch.zeros(2, 2048)  # 8 chunks of neurons, shared by the threads
-    mem0 = torch.full((2048,), 1e-37)  # 2e-38, then 4e-39: denormal
+    x = torch.zeros(40, 2048)  # 8 chunks of neurons, shared by the threads (the parallel build)
+    mem0 = torch.full((2048,), 1e-37)  # 0.9 ** 40 * 1e-37 = 1.5e-39: denormal (from step 21 on)
     out, threads = {}, torch.get_num_threads()
     torch.set_num_threads(2)
     try:
@@ -123,11 +145,12 @@ def test_flush_to_zero_reaches_the_kernel(monkeypatch: pytest.MonkeyPatch) -> No
             monkeypatch.setenv(KERNEL_ENV, path)
             if flush and not torch.set_flush_denormal(True):
                 pytest.skip("no flush-to-zero on this CPU")
-            out[flush, path] = MultiStepLIF(beta=0.2)(x, mem0, return_mem=True)[1]
+            out[flush, path] = MultiStepLIF(beta=0.9)(x, mem0, return_mem=True)[1]
             torch.set_flush_denormal(False)
     finally:
         torch.set_flush_denormal(False)
         torch.set_num_threads(threads)
+    assert lif_module._parallel_launches[0] == 2
     assert bool((out[False, "numba"] > 0).all()) and bool((out[True, "numba"] == 0).all())
     assert torch.equal(out[False, "numba"], out[False, "torch"]) and torch.equal(out[True, "numba"], out[True, "torch"])
 
