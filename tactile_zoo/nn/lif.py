@@ -26,14 +26,27 @@ multiply-add per step backward, everything else vectorised over cache-sized bloc
 On CPU the two give bit-identical spikes (the same rounding, ``(beta * U) * (1 - R) + I``) and the same gradients to
 float rounding (tests/nn/test_lif.py); on GPU a fused multiply-add may round a membrane that lands within one ulp of
 the threshold differently. Surrogates: :mod:`tactile_zoo.nn.surrogate`.
+
+On CPU the fused backend runs as a compiled kernel where it can (:class:`_CompiledLIF`,
+:mod:`tactile_zoo.nn._lif_kernel`): the forward and the backward time loop are one numba-compiled call per sequence
+each, parallel over blocks of neurons on ``torch.get_num_threads()`` threads, with spikes, membranes and gradients
+bit-identical to the torch implementation of ``"fused"`` (tests/nn/test_lif_kernel.py). It applies to float32 CPU
+tensors with the ``rect`` or ``atan`` surrogate on x86-64 (ATen's AVX2/AVX512 kernels), numba installed; everything
+else, the GPU included, runs the torch implementation. The environment variable ``TACTILE_ZOO_LIF_BACKEND``
+(:data:`KERNEL_ENV`) chooses per call: ``auto`` (default), ``torch`` (never the kernel) or ``numba`` (the kernel, and
+an error where it is unavailable).
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import os
+import platform
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import ModuleType
 
 import torch
 from torch import Tensor, nn
@@ -46,6 +59,10 @@ __all__ = ["MultiStepLIF", "LIFConfig", "Surrogate", "make_surrogate"]  # the su
 
 _RESETS = ("zero", "subtract")
 _BACKENDS = ("fused", "snntorch")
+#: Environment variable choosing how the fused backend runs on CPU: ``auto`` (default: the compiled kernel where it
+#: applies, else torch), ``numba`` (the same, but an error where numba is missing) or ``torch`` (never the kernel).
+KERNEL_ENV = "TACTILE_ZOO_LIF_BACKEND"
+_KERNEL_CHOICES = ("auto", "numba", "torch")
 
 
 #: Sequences whose membrane history is at most this large keep it for the backward pass; longer ones keep one
@@ -197,6 +214,138 @@ class _FusedLIF(torch.autograd.Function):
 
 
 @functools.cache
+def _kernel_module() -> ModuleType | None:
+    """:mod:`tactile_zoo.nn._lif_kernel` where it reproduces the fused path bit for bit, else ``None``.
+
+    That is x86-64 with ATen's AVX2 or AVX512 kernels (their FMAs are the ones the kernel copies; the
+    ``ATEN_CPU_CAPABILITY=default`` build rounds without them, and other CPUs were not checked) and numba installed.
+    """
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return None
+    if torch.backends.cpu.get_cpu_capability() not in ("AVX2", "AVX512"):
+        return None
+    try:
+        from . import _lif_kernel
+    except ImportError:
+        return None
+    return _lif_kernel
+
+
+def _kernel_for(x: Tensor, mem: Tensor, surrogate: Surrogate) -> ModuleType | None:
+    """The compiled kernel module if it runs this call (see :data:`KERNEL_ENV`), else ``None`` (the torch path)."""
+    choice = os.environ.get(KERNEL_ENV, "auto") or "auto"
+    if choice not in _KERNEL_CHOICES:
+        raise ConfigError(f"{KERNEL_ENV} must be one of {_KERNEL_CHOICES}, got {choice!r}")
+    if choice == "torch" or x.device.type != "cpu" or mem.device.type != "cpu":
+        return None
+    if x.dtype != torch.float32 or mem.dtype != torch.float32 or surrogate.kind not in ("rect", "atan"):
+        return None  # float64, and surrogates evaluated by other ATen kernels (sigmoid's exp, custom), stay in torch
+    kernels = _kernel_module()
+    if kernels is None and choice == "numba":
+        raise ConfigError(f"{KERNEL_ENV}=numba, but the compiled LIF kernel is unavailable here (it needs numba, "
+                          f"x86-64 and ATen's AVX2 or AVX512 kernels)")
+    return kernels
+
+
+def _kernel_threads(kernels: ModuleType) -> None:
+    """Run the kernels on as many threads as torch is given (numba's own pool cannot grow past its start size)."""
+    import numba
+
+    n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    if numba.get_num_threads() != n:
+        numba.set_num_threads(n)
+
+
+#: Serialises kernel launches where numba's threading layer cannot take two at once: its fallback layer
+#: ("workqueue", used where neither OpenMP nor TBB loads) aborts the process on concurrent launches from two threads.
+_LAUNCH_LOCK = threading.Lock()
+
+
+def _launch(kernels: ModuleType, name: str, *args: object) -> None:
+    """Call compiled kernel ``name`` (``lif_forward`` or ``lif_backward``; ``args[0]`` is the ``(T, N)`` input) on
+    torch's thread count: its serial build on one thread, for one block of neurons or for small sequences (a parallel
+    launch costs more than it saves there), else the parallel build -- under the lock until numba's threading layer
+    is known (it is chosen at the first launch) and for good if that layer is "workqueue"."""
+    import numba
+
+    steps, n = args[0].shape
+    if torch.get_num_threads() == 1 or n <= kernels.CHUNK or steps * n < kernels.SERIAL_BELOW:
+        getattr(kernels, f"{name}_serial")(*args)
+        return
+    _kernel_threads(kernels)
+    try:
+        serial = numba.threading_layer() == "workqueue"
+    except ValueError:  # no parallel launch yet
+        serial = True
+    if serial:
+        with _LAUNCH_LOCK:
+            getattr(kernels, name)(*args)
+    else:
+        getattr(kernels, name)(*args)
+
+
+def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
+                    subtract: bool) -> tuple[Tensor, Tensor]:
+    """Spikes ``[T, ...]`` and the last membrane from the compiled forward loop (contiguous float32 CPU inputs)."""
+    steps = x.shape[0]
+    spikes = memory.empty(x.shape, x)
+    last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
+    _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
+            spikes.view(steps, -1).numpy(), last.view(-1).numpy(), *_f32(beta, threshold),
+            _f32(_next_up(threshold, torch.float32))[0], subtract, kernels.CHUNK)
+    return spikes, last
+
+
+def _f32(*values: float) -> tuple:
+    """Python floats rounded to float32 as ATen rounds a scalar operand of a float32 kernel."""
+    import numpy as np
+
+    return tuple(np.float32(v) for v in values)
+
+
+class _CompiledLIF(torch.autograd.Function):
+    """:class:`_FusedLIF` as two compiled calls per sequence (:mod:`tactile_zoo.nn._lif_kernel`): the forward loop,
+    and a backward that recomputes the membranes of each block of neurons instead of saving them (the fused path's
+    history would be as large as the input). The same inputs, outputs and bit-identical values."""
+
+    @staticmethod
+    def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
+                surrogate: Surrogate, kernels: ModuleType) -> tuple[Tensor, Tensor]:
+        x, mem0 = x.contiguous(), mem0.contiguous()
+        spikes, last = _kernel_forward(kernels, x, mem0, beta, threshold, subtract)
+        ctx.save_for_backward(x, mem0)
+        ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, kernels)
+        ctx.set_materialize_grads(False)
+        return spikes, last
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_spikes: Tensor | None, grad_mem: Tensor | None) -> tuple[Tensor | None, ...]:
+        import numpy as np
+
+        x, mem0 = ctx.saved_tensors
+        beta, th, subtract, detach_reset, surrogate, kernels = ctx.cfg
+        steps, n = x.shape[0], mem0.numel()
+        # the fused path's block of steps: its gradient crosses block boundaries with a different rounding
+        block = max(1, min(steps, BLOCK_BYTES // max(1, n * x.element_size())))
+        grad_x = memory.empty(x.shape, x)
+        grad_mem0 = torch.empty_like(mem0)
+        no_rows, no_row = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)  # stand-ins for absent gradients
+        gs = no_rows if grad_spikes is None else grad_spikes.contiguous().view(steps, -1).numpy()
+        gm = no_row if grad_mem is None else grad_mem.contiguous().reshape(-1).numpy()
+        p = surrogate.param
+        if surrogate.kind == "rect":
+            kind, lo, hi, c1, c2 = kernels.RECT, *_f32(-p / 2, p / 2), *_f32(0.0, 0.0)
+        else:
+            kind, lo, hi, c1, c2 = kernels.ATAN, *_f32(0.0, 0.0), *_f32(math.pi / 2 * p, p / 2)
+        _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), mem0.view(-1).numpy(), gs,
+                grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
+                grad_mem0.view(-1).numpy(), *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset,
+                kind, lo, hi, c1, c2, block, kernels.CHUNK)
+        return grad_x, (grad_mem0 if ctx.needs_input_grad[1] else None), None, None, None, None, None, None
+
+
+@functools.cache
 def _attached_leaky() -> type:
     """``snntorch.Leaky`` whose reset keeps its gradient (the only change): TactileSGNet's ``detach_reset=False``."""
     import snntorch
@@ -221,7 +370,8 @@ class MultiStepLIF(nn.Module):
         surrogate_slope: ``sigmoid`` slope (snnTorch default 25).
         detach_reset: ``True`` detaches the reset from the graph (snnTorch); ``False`` back-propagates through it
             (TactileSGNet).
-        backend: ``"fused"`` (one autograd node for the whole loop) or ``"snntorch"`` (steps ``snntorch.Leaky``).
+        backend: ``"fused"`` (one autograd node for the whole loop; on CPU the compiled kernel where it applies,
+            see :data:`KERNEL_ENV`) or ``"snntorch"`` (steps ``snntorch.Leaky``).
         input_scale: the input is multiplied by it first (``1/tau`` for the paper's neuron).
 
     Shapes:
@@ -273,11 +423,20 @@ class MultiStepLIF(nn.Module):
                               f"{tuple(x.shape[1:])}")
         if self.input_scale != 1.0:
             x = x * self.input_scale
-        if self.backend == "fused" and torch.is_grad_enabled() and (x.requires_grad or mem.requires_grad):
-            spikes, last = _FusedLIF.apply(x, mem, self.beta, self.threshold, self.reset == "subtract",
-                                           self.detach_reset, self.surrogate)
+        subtract = self.reset == "subtract"
+        kernels = _kernel_for(x, mem, self.surrogate) if self.backend == "fused" else None
+        grad = torch.is_grad_enabled() and (x.requires_grad or mem.requires_grad)
+        if kernels is not None and grad:
+            spikes, last = _CompiledLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
+                                              self.surrogate, kernels)
+        elif kernels is not None:  # nothing to differentiate: the compiled loop without the autograd node
+            spikes, last = _kernel_forward(kernels, x.contiguous(), mem.contiguous(), self.beta, self.threshold,
+                                           subtract)
+        elif self.backend == "fused" and grad:
+            spikes, last = _FusedLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
+                                           self.surrogate)
         elif self.backend == "fused":  # nothing to differentiate: the same loop without the autograd node
-            spikes, last, _, _ = _run(x, mem, self.beta, self.threshold, self.reset == "subtract", False)
+            spikes, last, _, _ = _run(x, mem, self.beta, self.threshold, subtract, False)
         else:
             spikes, last = self._snntorch_loop(x, mem)
         return (spikes, last) if return_mem else spikes

@@ -30,10 +30,12 @@ def test_lif_writes_csv_with_columns_and_environment(tmp_path: Path) -> None:
     assert path == tmp_path / "lif.csv"
     rows = _read(path)
     assert list(rows[0]) == ["benchmark", "case", *lif.COLUMNS, "note", *common.ENV_COLUMNS]
-    assert [r["case"] for r in rows] == ["sgnet", "snntorch_default"]
+    assert [r["case"] for r in rows] == [f"{case}{kind}" for case in ("sgnet", "snntorch_default")
+                                         for kind in ("", "_fused", "_compiled_vs_fused")]
     for row in rows:
-        assert float(row["ratio"]) > 0 and row["repeats"] == "1"
-        assert float(row["max_spike_diff"]) == 0.0  # the fused backend and snnTorch agree on every spike
+        assert float(row["ratio"]) > 0 and row["repeats"] == "1" and row["threads"] == "1"
+        assert float(row["max_spike_diff"]) == 0.0  # the compiled, fused and snnTorch paths agree on every spike
+        assert row["equal_to_fused"] == "True" and row["load_avg"]
         assert row["torch"] == torch.__version__ and row["device"] == "cpu" and row["quick"] == "True"
         assert row["cpu_model"] and row["snntorch"] and row["tactile_zoo"]
 

@@ -1,0 +1,266 @@
+"""Whole-sequence LIF kernels for CPU, compiled by numba: one call runs the forward (or backward) time loop of every
+neuron, in parallel over blocks of neurons.
+
+Imported lazily by :mod:`tactile_zoo.nn.lif` (numba's import and first compilation cost seconds); nothing here is
+public. The kernels reproduce the fused torch path of :class:`tactile_zoo.nn.lif._FusedLIF` operation for operation
+in float32, so that spikes, membranes and gradients are bit-identical to it. What that takes, from the ATen CPU
+kernels the fused path calls (checked on x86-64 builds, AVX2 and AVX512 capability; tests/nn/test_lif.py compares):
+
+- ``a.add_(b, alpha=c)`` is ``fma(b, c, a)`` and ``a.addcmul_(b, d, value=c)`` is ``fma(c * b, d, a)``: ATen's
+  vector code calls ``fmadd`` and GCC contracts its scalar tails into the same FMA. Plain ``mul``/``add``/``sub``
+  calls round once each. :func:`_fma` emits ``llvm.fma`` where torch fuses; nothing else is contracted, because
+  numba does not allow LLVM to fuse separate multiplies and adds without ``fastmath`` (not used here).
+- Python scalars are rounded to float32 before use; masks are ``lo < u < hi`` (so ``-inf`` or ``+inf`` never pass).
+- The fused backward carries the gradient between blocks of ``block`` steps as ``(g * decay) * scale`` added to the
+  next row, and inside a block as one FMA per step; the two round differently, so the kernel takes ``block`` and
+  does the same at the same steps.
+- Denormals: the engine trains under flush-to-zero / denormals-are-zero (``torch.set_flush_denormal``), which sets
+  the calling thread's MXCSR only. Each parallel chunk runs under the caller's MXCSR (read and set with the
+  ``stmxcsr``/``ldmxcsr`` intrinsics) and restores its own afterwards.
+
+The compiled code is cached on disk (``cache=True``): in ``__pycache__`` beside this file when writable, else in
+numba's per-user cache directory (``NUMBA_CACHE_DIR`` overrides both); where neither is writable the kernels are
+compiled in memory on first use instead.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from types import FunctionType
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+__all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "RECT", "ATAN", "CHUNK",
+           "SERIAL_BELOW"]
+
+#: Surrogate kinds the kernels evaluate themselves (others stay on the torch path).
+RECT, ATAN = 0, 1
+#: Neurons per parallel work item: the backward keeps their (T + 1, CHUNK) membrane history in cache (250 KB at
+#: T = 250) and each step reads a contiguous run of CHUNK floats from every (T, N) array.
+CHUNK = 256
+#: Sequences with fewer elements (steps x neurons) than this run the serial builds even with several threads.
+SERIAL_BELOW = 1 << 16
+_MODE = np.uint32(0xFFFFFFC0)  # MXCSR without its sticky exception flags (bits 0-5): the mode to copy
+
+
+@intrinsic
+def _fma(typingctx: object, a: types.Type, b: types.Type, c: types.Type) -> tuple | None:
+    """``a * b + c`` rounded once (``llvm.fma.f32``): what ATen's ``fmadd`` and GCC's contraction compute."""
+    if not (a == b == c == types.float32):
+        return None
+
+    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
+        flt = ir.FloatType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [flt], ir.FunctionType(flt, [flt, flt, flt]))
+        return builder.call(fn, args)
+
+    return types.float32(types.float32, types.float32, types.float32), codegen
+
+
+def _csr_fn(builder: ir.IRBuilder, name: str) -> tuple[ir.Function, ir.Type]:
+    ptr = ir.IntType(8).as_pointer()
+    return cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [ptr]), name), ptr
+
+
+@intrinsic
+def _get_csr(typingctx: object) -> tuple:
+    """The calling thread's MXCSR (x86 SSE control and status register)."""
+
+    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
+        slot = cgutils.alloca_once(builder, ir.IntType(32))
+        fn, ptr = _csr_fn(builder, "llvm.x86.sse.stmxcsr")
+        builder.call(fn, [builder.bitcast(slot, ptr)])
+        return builder.load(slot)
+
+    return types.uint32(), codegen
+
+
+@intrinsic
+def _set_csr(typingctx: object, value: types.Type) -> tuple | None:
+    """Load ``value`` (an integer, truncated to 32 bits) into the calling thread's MXCSR."""
+    if not isinstance(value, types.Integer):
+        return None
+
+    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
+        slot = cgutils.alloca_once(builder, ir.IntType(32))
+        builder.store(context.cast(builder, args[0], value, types.uint32), slot)
+        fn, ptr = _csr_fn(builder, "llvm.x86.sse.ldmxcsr")
+        builder.call(fn, [builder.bitcast(slot, ptr)])
+        return context.get_dummy_value()
+
+    return types.void(value), codegen
+
+
+def _jit(fn: Callable, parallel: bool = False) -> Callable:
+    """``njit`` with an on-disk cache where one can be written (see the module docstring), in memory otherwise.
+
+    ``error_model="numpy"``: a float division by zero gives inf as in torch, never a Python exception."""
+    opts = dict(nogil=True, error_model="numpy", parallel=parallel)
+    try:
+        return njit(cache=True, **opts)(fn)
+    except RuntimeError:  # "cannot cache function ...: no locator available" (read-only install and home)
+        return njit(cache=False, **opts)(fn)
+
+
+def _serial_copy(fn: Callable) -> Callable:
+    """``fn`` under the name ``<name>_serial``: compiled without ``parallel``, its ``prange`` is a plain loop. The
+    cache files are named after the function, so the serial build needs a name of its own."""
+    copy = FunctionType(fn.__code__, fn.__globals__, f"{fn.__name__}_serial", fn.__defaults__)
+    copy.__qualname__ = f"{fn.__qualname__}_serial"
+    return _jit(copy)
+
+
+# Row helpers: each is one loop over a chunk's neurons with no branch left inside it (the mode tests sit outside),
+# so that LLVM vectorises it; the conditional expressions become selects.
+
+@_jit
+def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, hi: np.float32, c1: np.float32,
+                   c2: np.float32, out: np.ndarray) -> None:
+    """``out = S'(mem - thr)`` as :meth:`tactile_zoo.nn.surrogate.Surrogate.grad` computes it in float32: the
+    ``rect`` mask ``lo < u < hi`` (``hardtanh_backward``), or ``atan``'s ``mul``, ``pow_(2)``, ``add_(1)``,
+    ``reciprocal``, ``mul_`` (each rounded once)."""
+    one, zero = np.float32(1.0), np.float32(0.0)
+    if kind == RECT:
+        for j in range(out.shape[0]):
+            u = mem[j] - thr
+            out[j] = one if (lo < u) & (u < hi) else zero
+    else:
+        for j in range(out.shape[0]):
+            t = (mem[j] - thr) * c1
+            t = t * t
+            out[j] = (one / (t + one)) * c2
+
+
+@_jit
+def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.float32, thr: np.float32,
+                 th_up: np.float32, subtract: bool) -> None:
+    """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif._advance``."""
+    one, zero = np.float32(1.0), np.float32(0.0)
+    if subtract:  # addcmul(x, U, ones, value=beta) then sub_(R, alpha=thr): fma(beta * U, 1, x), then fma(R, -thr, .)
+        inf, nthr = np.float32(np.inf), -thr
+        for j in range(out.shape[0]):
+            p = prev[j]
+            r = one if (thr < p) & (p < inf) else zero  # R = (U > thr)
+            out[j] = _fma(r, nthr, _fma(beta * p, one, x[j]))
+    else:  # addcmul(x, U, 1 - R, value=beta): fma(beta * U, 1 - R, x)
+        ninf = np.float32(-np.inf)
+        for j in range(out.shape[0]):
+            p = prev[j]
+            keep = one if (ninf < p) & (p < th_up) else zero  # 1 - R = (U <= thr)
+            out[j] = _fma(beta * p, keep, x[j])
+
+
+def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.ndarray, beta: np.float32,
+                thr: np.float32, th_up: np.float32, subtract: bool, chunk: int) -> None:
+    """Forward time loop. ``x (T, N)``, ``mem0 (N,)`` in; ``spikes (T, N)`` and ``last (N,)`` out (float32, C order).
+    """
+    steps, n = x.shape
+    csr = _get_csr() & _MODE
+    one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
+    for c in prange((n + chunk - 1) // chunk):
+        own = _get_csr()
+        _set_csr(csr)  # the caller's denormal and rounding modes
+        n0 = c * chunk
+        n1 = min(n, n0 + chunk)
+        # two membrane rows, swapped every step: updating one row in place would make LLVM's overlap check send the
+        # loop down its scalar path (measured 2x slower)
+        mem, nxt = mem0[n0:n1].copy(), np.empty(n1 - n0, dtype=np.float32)
+        for s in range(steps):
+            _advance_row(mem, x[s, n0:n1], nxt, beta, thr, th_up, subtract)
+            row = spikes[s, n0:n1]
+            for j in range(n1 - n0):
+                u = nxt[j]
+                row[j] = one if (thr < u) & (u < inf) else zero  # S = (U > thr): open_interval_mask(U, thr, inf)
+            mem, nxt = nxt, mem
+        last[n0:n1] = mem
+        _set_csr(own)
+
+
+def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_grad_spikes: bool,
+                 grad_last: np.ndarray, has_grad_last: bool, grad_x: np.ndarray, grad_mem0: np.ndarray,
+                 beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, detach_reset: bool, kind: int,
+                 lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32, block: int, chunk: int) -> None:
+    """Backward time loop. Recomputes each chunk's membranes from ``x`` and ``mem0`` (cheaper than storing them),
+    then carries dL/dU back through time as :meth:`tactile_zoo.nn.lif._FusedLIF.backward` does, block boundaries
+    included. ``grad_spikes (T, N)`` and ``grad_last (N,)`` are read only where their ``has_`` flag is set; writes
+    ``grad_x (T, N)`` and ``grad_mem0 (N,)``."""
+    steps, n = x.shape
+    csr = _get_csr() & _MODE
+    one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
+    # dU[t]/dU[t-1] is applied as fma(scale * g, decay, .); with a detached subtractive reset it is beta itself,
+    # applied as fma(g, beta, .) (add_(g, alpha=beta)) -- a different rounding, hence its own branches below
+    plain = subtract and detach_reset
+    scale = one if subtract else beta
+    nthr = -thr
+    for c in prange((n + chunk - 1) // chunk):
+        own = _get_csr()
+        _set_csr(csr)
+        n0 = c * chunk
+        n1 = min(n, n0 + chunk)
+        width = n1 - n0
+        hist = np.empty((steps + 1, width), dtype=np.float32)  # U[-1] = mem0, U[0], ..., U[T-1]
+        hist[0] = mem0[n0:n1]
+        for s in range(steps):
+            _advance_row(hist[s], x[s, n0:n1], hist[s + 1], beta, thr, th_up, subtract)
+        decay = np.zeros(width, dtype=np.float32)  # dU[s + 1]/dU[s] before the scale (unused when plain)
+        sg = np.empty(width, dtype=np.float32)  # S'(U[s])
+        _surrogate_row(hist[steps], thr, kind, lo, hi, c1, c2, sg)
+        g_next = decay  # dL/dU[s + 1]: a row of grad_x once s < T - 1
+        for s in range(steps - 1, -1, -1):
+            g = grad_x[s, n0:n1]
+            if has_grad_spikes:  # mul(grad_spikes, S'(U[s]))
+                gs = grad_spikes[s, n0:n1]
+                for j in range(width):
+                    g[j] = gs[j] * sg[j]
+            else:  # zero_()
+                g[:] = zero
+            if s + 1 == steps:  # add_(grad of the last membrane)
+                if has_grad_last:
+                    gl = grad_last[n0:n1]
+                    for j in range(width):
+                        g[j] = g[j] + gl[j]
+            elif (s + 1) % block == 0:  # U[s] ends a block: add_ the carry mul(mul(g, decay), scale) of the next
+                if plain:
+                    for j in range(width):
+                        g[j] = g[j] + g_next[j] * beta
+                else:
+                    for j in range(width):
+                        g[j] = g[j] + (g_next[j] * decay[j]) * scale
+            elif plain:  # add_(g[s+1], alpha=beta)
+                for j in range(width):
+                    g[j] = _fma(g_next[j], beta, g[j])
+            else:  # addcmul_(g[s+1], decay[s+1], value=scale)
+                for j in range(width):
+                    g[j] = _fma(scale * g_next[j], decay[j], g[j])
+            u_prev = hist[s]  # U[s-1]
+            _surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
+            if subtract and not plain:  # mul(S'(U[s-1]), -thr).add_(beta): two roundings
+                for j in range(width):
+                    decay[j] = sg[j] * nthr + beta
+            elif not subtract:  # 1 - R[s] = (U[s-1] <= thr), then addcmul_(U[s-1], S'(U[s-1]), value=-1)
+                if detach_reset:
+                    for j in range(width):
+                        m = u_prev[j]
+                        decay[j] = one if (ninf < m) & (m < th_up) else zero
+                else:
+                    for j in range(width):
+                        m = u_prev[j]
+                        decay[j] = _fma(-m, sg[j], one if (ninf < m) & (m < th_up) else zero)
+            g_next = g
+        gm = grad_mem0[n0:n1]
+        for j in range(width):  # the carry out of the first block: dL/dmem0
+            gm[j] = g_next[j] * beta if plain else (g_next[j] * decay[j]) * scale
+        _set_csr(own)
+
+
+# Launching a parallel region wakes numba's worker threads, which costs tens of microseconds on a quiet machine and
+# can wait milliseconds for a time slice on a busy one: one-thread calls and small sequences (streaming steps) take
+# the serial builds instead.
+lif_forward_serial = _serial_copy(lif_forward)
+lif_backward_serial = _serial_copy(lif_backward)
+lif_forward = _jit(lif_forward, parallel=True)
+lif_backward = _jit(lif_backward, parallel=True)
