@@ -16,4 +16,5 @@ BENCHMARKS = {
     "scaling": "scaling",
     "bench_wall": "bench_wall",
     "progress_overhead": "progress_overhead",
+    "vs_pinned": "vs_pinned",
 }
