@@ -14,7 +14,9 @@ import sys
 import time
 from typing import Any
 
-import torch
+# the version's package before torch, as the command line imports it: whatever it sets up before torch loads counts
+# (torch itself is imported inside the functions, after it)
+import tactile_zoo  # noqa: F401
 
 #: the Ev-Objects training samples (the released train folder: train + val splits)
 EV_TRAIN_SAMPLES = 576
@@ -22,6 +24,8 @@ EV_EVENT_DENSITY = 0.128  # as benchmarks.common: synthetic stand-in events when
 
 
 def _train_split(root: str | None) -> tuple[Any, str]:
+    import torch
+
     from tactile_zoo.engine import TensorSplit
     from tactile_zoo.engine.cell import load_splits
     from tactile_zoo.engine.tensors import concat
@@ -45,6 +49,8 @@ def _train_split(root: str | None) -> tuple[Any, str]:
 
 
 def measure(job: dict[str, Any]) -> dict[str, Any]:
+    import torch
+
     from tactile_zoo.engine import fit, resolve_recipe, seed_everything, take
     from tactile_zoo.engine.runtime import flush_denormals
     from tactile_zoo.recipe import named_recipe_for
