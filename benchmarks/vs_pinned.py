@@ -60,7 +60,9 @@ def _run_child(root: Path, job: dict[str, Any]) -> dict[str, Any]:
     """One timed epoch of ``job["model"]`` with the ``tactile_zoo`` under ``root``, in a fresh process."""
     threads = str(job["threads"])
     # OpenMP's pool must not outnumber the cores torch is given: more threads than that spin against each other
-    env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads}
+    # no bytecode written: a --pinned checkout is read, never changed
+    env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads,
+           "PYTHONDONTWRITEBYTECODE": "1"}
     # -P: the script's folder (benchmarks/) stays off sys.path, so only ``root``'s packages are importable
     proc = subprocess.run([sys.executable, "-P", str(CHILD), json.dumps(job)],
                           cwd=root, env=env, capture_output=True, text=True, check=False)
@@ -107,6 +109,7 @@ def compare(ctx: Context, pinned: Path, commit: str, models: tuple[str, ...] = M
                               f"{first['samples_timed']} samples timed, scaled to {EV_TRAIN_SAMPLES}")
                      + f"; data {first['data']}"})
         ctx.log(f"  {name}: current {cur:.2f} s, pinned {pin:.2f} s per epoch: {pin / cur:.2f}x")
+        write_csv(ctx, NAME, COLUMNS, rows)  # after every model: a long run stopped early keeps what it measured
     return rows
 
 
