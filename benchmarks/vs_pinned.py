@@ -44,7 +44,7 @@ COLUMNS = ("model", "batch_size", "samples_timed", "pinned_commit", "current_med
            "current_min_s", "pinned_min_s", "current_cpu_s", "pinned_cpu_s", "ratio_cpu", "repeats", "target",
            "loadavg_before", "loadavg_after", "cpu_capability")
 
-__all__ = ["run", "compare", "pinned_tree", "NAME", "TITLE"]
+__all__ = ["run", "compare", "pinned_tree", "child_env", "NAME", "TITLE"]
 
 
 def pinned_tree(commit: str, dest: Path) -> Path:
@@ -56,13 +56,24 @@ def pinned_tree(commit: str, dest: Path) -> Path:
     return dest
 
 
+def child_env(root: Path, threads: int) -> dict[str, str]:
+    """The environment of a child timing the version under ``root``: this process's, less what importing this
+    checkout's ``tactile_zoo`` added to it (its huge-page setting must not reach the pinned version)."""
+    import tactile_zoo
+
+    env = dict(os.environ)
+    if getattr(tactile_zoo, "_THP_DEFAULTED", False):
+        env.pop("THP_MEM_ALLOC_ENABLE", None)  # each version's own package decides, as from a clean shell
+    # OpenMP's pool must not outnumber the cores torch is given: more threads than that spin against each other;
+    # no bytecode written: a --pinned checkout is read, never changed
+    env.update(PYTHONPATH=str(root), OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads),
+               PYTHONDONTWRITEBYTECODE="1")
+    return env
+
+
 def _run_child(root: Path, job: dict[str, Any]) -> dict[str, Any]:
     """One timed epoch of ``job["model"]`` with the ``tactile_zoo`` under ``root``, in a fresh process."""
-    threads = str(job["threads"])
-    # OpenMP's pool must not outnumber the cores torch is given: more threads than that spin against each other
-    # no bytecode written: a --pinned checkout is read, never changed
-    env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": threads, "MKL_NUM_THREADS": threads,
-           "PYTHONDONTWRITEBYTECODE": "1"}
+    env = child_env(root, job["threads"])
     # -P: the script's folder (benchmarks/) stays off sys.path, so only ``root``'s packages are importable
     proc = subprocess.run([sys.executable, "-P", str(CHILD), json.dumps(job)],
                           cwd=root, env=env, capture_output=True, text=True, check=False)

@@ -52,3 +52,15 @@ def test_rows_alternate_versions_and_divide_medians(tmp_path: Path, monkeypatch:
     assert float(row["current_median_s"]) == 2.0 and float(row["pinned_median_s"]) == 5.0
     assert float(row["ratio"]) == 2.5 and float(row["ratio_cpu"]) == 2.5
     assert row["target"] == ">= 2.0x" and row["cpu_capability"] == "AVX2" and row["loadavg_before"]
+
+
+def test_children_start_without_this_checkouts_huge_page_setting(monkeypatch: pytest.MonkeyPatch) -> None:
+    import tactile_zoo
+
+    monkeypatch.setattr(tactile_zoo, "_THP_DEFAULTED", True)
+    monkeypatch.setenv("THP_MEM_ALLOC_ENABLE", "1")  # as importing tactile_zoo left it
+    env = vs_pinned.child_env(Path("/pinned"), 2)
+    assert "THP_MEM_ALLOC_ENABLE" not in env  # the pinned version must not inherit the current one's setting
+    assert (env["PYTHONPATH"], env["OMP_NUM_THREADS"]) == ("/pinned", "2")
+    monkeypatch.setattr(tactile_zoo, "_THP_DEFAULTED", False)  # set by the user: both versions get it
+    assert vs_pinned.child_env(Path("/pinned"), 2)["THP_MEM_ALLOC_ENABLE"] == "1"
