@@ -4,10 +4,6 @@ Run everything with ``python -m benchmarks.run`` (``make benchmarks``); see benc
 shared machine drift; the ratios of side-by-side medians are what the suite reports.
 """
 
-# tactile_zoo before torch, as its command line imports them: what the package sets up before torch loads (huge
-# pages for large tensors, tactile_zoo/__init__.py) then holds for every benchmark, fast and naive paths alike
-import tactile_zoo  # noqa: F401
-
 #: benchmark name -> module (under ``benchmarks``), in the order ``benchmarks.run`` runs them
 BENCHMARKS = {
     "lif": "lif",

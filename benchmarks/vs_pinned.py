@@ -56,14 +56,10 @@ def pinned_tree(commit: str, dest: Path) -> Path:
     return dest
 
 
-def child_env(root: Path, threads: int) -> dict[str, str]:
-    """The environment of a child timing the version under ``root``: this process's, less what importing this
-    checkout's ``tactile_zoo`` added to it (its huge-page setting must not reach the pinned version)."""
-    import tactile_zoo
-
-    env = dict(os.environ)
-    if getattr(tactile_zoo, "_THP_DEFAULTED", False):
-        env.pop("THP_MEM_ALLOC_ENABLE", None)  # each version's own package decides, as from a clean shell
+def child_env(root: Path, threads: int, extra: dict[str, str] | None = None) -> dict[str, str]:
+    """The environment of a child timing the version under ``root``: this process's, plus ``extra`` (settings
+    given to one version only, e.g. ``THP_MEM_ALLOC_ENABLE=1``: see ``--env-current``)."""
+    env = {**os.environ, **(extra or {})}
     # OpenMP's pool must not outnumber the cores torch is given: more threads than that spin against each other;
     # no bytecode written: a --pinned checkout is read, never changed
     env.update(PYTHONPATH=str(root), OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads),
@@ -71,9 +67,9 @@ def child_env(root: Path, threads: int) -> dict[str, str]:
     return env
 
 
-def _run_child(root: Path, job: dict[str, Any]) -> dict[str, Any]:
+def _run_child(root: Path, job: dict[str, Any], extra: dict[str, str] | None = None) -> dict[str, Any]:
     """One timed epoch of ``job["model"]`` with the ``tactile_zoo`` under ``root``, in a fresh process."""
-    env = child_env(root, job["threads"])
+    env = child_env(root, job["threads"], extra)
     # -P: the script's folder (benchmarks/) stays off sys.path, so only ``root``'s packages are importable
     proc = subprocess.run([sys.executable, "-P", str(CHILD), json.dumps(job)],
                           cwd=root, env=env, capture_output=True, text=True, check=False)
@@ -83,7 +79,7 @@ def _run_child(root: Path, job: dict[str, Any]) -> dict[str, Any]:
 
 
 def compare(ctx: Context, pinned: Path, commit: str, models: tuple[str, ...] = MODELS, batches: int | None = None,
-            repeats: int | None = None) -> list[dict[str, Any]]:
+            repeats: int | None = None, env_current: dict[str, str] | None = None) -> list[dict[str, Any]]:
     """The CSV rows: for each model, ``repeats`` rounds of (current, pinned) in rotating order."""
     root = data_root(ctx)
     reps = repeats or ctx.reps(3, 1)
@@ -97,7 +93,7 @@ def compare(ctx: Context, pinned: Path, commit: str, models: tuple[str, ...] = M
         for r in range(reps):
             order = ["current", "pinned"] if r % 2 == 0 else ["pinned", "current"]
             for version in order:
-                res = _run_child(versions[version], job)
+                res = _run_child(versions[version], job, env_current if version == "current" else None)
                 got[version].append(res)
                 ctx.log(f"  {name} [{version}] {res['epoch_s']:.2f} s/epoch (load {res['loadavg'][0]:.2f})")
         load_after = os.getloadavg()
@@ -118,14 +114,16 @@ def compare(ctx: Context, pinned: Path, commit: str, models: tuple[str, ...] = M
                      "threads": ctx.threads,
                      "note": ("one whole epoch" if first["samples_timed"] == EV_TRAIN_SAMPLES else
                               f"{first['samples_timed']} samples timed, scaled to {EV_TRAIN_SAMPLES}")
-                     + f"; data {first['data']}"})
+                     + f"; data {first['data']}"
+                     + (f"; current run with {' '.join(f'{k}={v}' for k, v in env_current.items())}"
+                        if env_current else "")})
         ctx.log(f"  {name}: current {cur:.2f} s, pinned {pin:.2f} s per epoch: {pin / cur:.2f}x")
         write_csv(ctx, NAME, COLUMNS, rows)  # after every model: a long run stopped early keeps what it measured
     return rows
 
 
 def run(ctx: Context, commit: str = PINNED_COMMIT, pinned: Path | None = None, models: tuple[str, ...] = MODELS,
-        batches: int | None = None, repeats: int | None = None) -> Path:
+        batches: int | None = None, repeats: int | None = None, env_current: dict[str, str] | None = None) -> Path:
     if ctx.quick and batches is None:
         batches = 2
     tmp = None
@@ -134,7 +132,7 @@ def run(ctx: Context, commit: str = PINNED_COMMIT, pinned: Path | None = None, m
             tmp = Path(tempfile.mkdtemp(prefix="tactile-zoo-pinned-"))
             pinned = pinned_tree(commit, tmp / "tree")
             ctx.log(f"  pinned copy of {commit} in {pinned}")
-        rows = compare(ctx, pinned, commit, models, batches, repeats)
+        rows = compare(ctx, pinned, commit, models, batches, repeats, env_current)
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -151,6 +149,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=2, help="torch threads in the children (default 2)")
     p.add_argument("--root", type=Path, default=None, help="data home with ev_objects/raw/Ev-Objects.zip")
     p.add_argument("--out", type=Path, default=None, help="folder of the CSV (default benchmarks/results/)")
+    p.add_argument("--env-current", action="append", default=[], metavar="VAR=VALUE",
+                   help="set VAR for the current version's children only (repeatable), e.g. THP_MEM_ALLOC_ENABLE=1")
     return p
 
 
@@ -161,8 +161,9 @@ def main(argv: list[str] | None = None) -> int:
     with flush_denormals() as flushing:
         ctx = Context(threads=args.threads, root=args.root, flush_denormals=flushing,
                       **({"out": args.out} if args.out else {}))
+        env_current = dict(item.split("=", 1) for item in args.env_current)
         path = run(ctx, args.commit, args.pinned, tuple(m.strip() for m in args.models.split(",") if m.strip()),
-                   args.batches, args.repeats)
+                   args.batches, args.repeats, env_current or None)
     print(f"wrote {path}")
     return 0
 

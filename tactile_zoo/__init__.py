@@ -9,19 +9,7 @@ pretrained weights) are discovered lazily through entry points on the first list
 
 from __future__ import annotations
 
-import os
 from typing import Any
-
-# Transparent huge pages for torch's large CPU tensors, set before torch is first imported (c10 reads the variable
-# once, at its first allocation, so it does nothing when torch was imported before tactile_zoo). Without it every
-# block over glibc's mmap threshold arrives as fresh 4 KiB pages that the kernel faults in and zeroes on first
-# write, in every training step: D-CNN's Ev-Objects step (activations of (128, 128, 125, 39), 312 MiB each) took
-# 2.1 million page faults per two batches, 1.9 s of system time; with 2 MiB pages 35 thousand (profiled,
-# docs/pending/recurrences.md). Only where memory comes from changes, never a value. THP_MEM_ALLOC_ENABLE=0 in the
-# environment keeps torch's default. Processes started from this one inherit the variable; _THP_DEFAULTED says it
-# was set here (benchmarks.vs_pinned removes it again for the pinned version's processes).
-_THP_DEFAULTED = "THP_MEM_ALLOC_ENABLE" not in os.environ
-os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
 
 from . import data, models  # noqa: E402,F401  (import registers the built-ins)
 from ._version import __version__  # noqa: E402

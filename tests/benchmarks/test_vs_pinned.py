@@ -37,16 +37,18 @@ def test_rows_alternate_versions_and_divide_medians(tmp_path: Path, monkeypatch:
     calls: list[tuple[str, str]] = []
     seconds = {"current": iter([1.0, 3.0, 2.0]), "pinned": iter([4.0, 6.0, 5.0])}
 
-    def stub(root: Path, job: dict[str, Any]) -> dict[str, Any]:
+    def stub(root: Path, job: dict[str, Any], extra: dict[str, str] | None = None) -> dict[str, Any]:
         version = "current" if root == vs_pinned.REPO else "pinned"
         calls.append((job["model"], version))
+        assert extra == ({"X": "1"} if version == "current" else None)  # --env-current reaches one side only
         s = next(seconds[version])
         return {"epoch_s": s, "epoch_cpu_s": 2 * s, "batch_size": 8, "samples_timed": 576, "loadavg": [0.5, 0.5, 0.5],
                 "cpu_capability": "AVX2", "data": "synthetic"}
 
     monkeypatch.setattr(vs_pinned, "_run_child", stub)
     ctx = common.Context(threads=1, out=tmp_path, log=lambda _msg: None)
-    path = vs_pinned.run(ctx, pinned=tmp_path / "pinned", models=("sgnet",), repeats=3)
+    path = vs_pinned.run(ctx, pinned=tmp_path / "pinned", models=("sgnet",), repeats=3,
+                         env_current={"X": "1"})
     assert calls == [("sgnet", v) for v in ("current", "pinned", "pinned", "current", "current", "pinned")]
     (row,) = csv.DictReader(path.open())
     assert float(row["current_median_s"]) == 2.0 and float(row["pinned_median_s"]) == 5.0
@@ -54,13 +56,9 @@ def test_rows_alternate_versions_and_divide_medians(tmp_path: Path, monkeypatch:
     assert row["target"] == ">= 2.0x" and row["cpu_capability"] == "AVX2" and row["loadavg_before"]
 
 
-def test_children_start_without_this_checkouts_huge_page_setting(monkeypatch: pytest.MonkeyPatch) -> None:
-    import tactile_zoo
-
-    monkeypatch.setattr(tactile_zoo, "_THP_DEFAULTED", True)
-    monkeypatch.setenv("THP_MEM_ALLOC_ENABLE", "1")  # as importing tactile_zoo left it
+def test_child_env_gives_extra_settings_to_one_version_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("THP_MEM_ALLOC_ENABLE", raising=False)
     env = vs_pinned.child_env(Path("/pinned"), 2)
-    assert "THP_MEM_ALLOC_ENABLE" not in env  # the pinned version must not inherit the current one's setting
-    assert (env["PYTHONPATH"], env["OMP_NUM_THREADS"]) == ("/pinned", "2")
-    monkeypatch.setattr(tactile_zoo, "_THP_DEFAULTED", False)  # set by the user: both versions get it
-    assert vs_pinned.child_env(Path("/pinned"), 2)["THP_MEM_ALLOC_ENABLE"] == "1"
+    assert "THP_MEM_ALLOC_ENABLE" not in env
+    assert (env["PYTHONPATH"], env["OMP_NUM_THREADS"], env["PYTHONDONTWRITEBYTECODE"]) == ("/pinned", "2", "1")
+    assert vs_pinned.child_env(Path("/cur"), 2, {"THP_MEM_ALLOC_ENABLE": "1"})["THP_MEM_ALLOC_ENABLE"] == "1"
