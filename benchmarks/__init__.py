@@ -17,4 +17,6 @@ BENCHMARKS = {
     "bench_wall": "bench_wall",
     "progress_overhead": "progress_overhead",
     "dcnn_memory": "dcnn_memory",
+    "vs_pinned": "vs_pinned",
+    "profile_models": "profile_models",
 }
