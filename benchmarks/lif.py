@@ -118,7 +118,8 @@ def run(ctx: Context, batch: int = 32, steps: int = 250, nodes: int = 39, featur
 
 
 def _run(ctx: Context, batch: int, steps: int, nodes: int, features: int) -> Path:
-    from tactile_zoo.nn.lif import MultiStepLIF, _kernel_module
+    from tactile_zoo.nn.lif import MultiStepLIF
+    from tactile_zoo.nn.lif_compiled import _kernel_module
 
     dev = ctx.device
     compiled_path = "numba" if dev.type == "cpu" and _kernel_module() is not None else None

@@ -2,9 +2,9 @@
 neuron, in parallel over blocks of neurons.
 
 Imported lazily by :mod:`tactile_zoo.nn.lif` (numba's import and first compilation cost seconds); nothing here is
-public. The kernels reproduce the fused torch path of :class:`tactile_zoo.nn.lif._FusedLIF` operation for operation
-in float32, so that spikes, membranes and gradients are bit-identical to it. What that takes, from the ATen CPU
-kernels the fused path calls (checked on x86-64 builds, AVX2 and AVX512 capability; tests/nn/test_lif.py compares):
+public. The kernels reproduce the fused torch path of :class:`tactile_zoo.nn.lif_fused._FusedLIF` operation for
+operation in float32, so that spikes, membranes and gradients are bit-identical to it. What that takes, from the ATen
+CPU kernels the fused path calls (checked on x86-64 builds, AVX2 and AVX512 capability; tests/nn/test_lif.py compares):
 
 - ``a.add_(b, alpha=c)`` is ``fma(b, c, a)`` and ``a.addcmul_(b, d, value=c)`` is ``fma(c * b, d, a)``: ATen's
   vector code calls ``fmadd`` and GCC contracts its scalar tails into the same FMA. Plain ``mul``/``add``/``sub``
@@ -138,7 +138,7 @@ def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, 
 @_jit
 def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.float32, thr: np.float32,
                  th_up: np.float32, subtract: bool) -> None:
-    """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif._advance``."""
+    """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif_fused._advance``."""
     one, zero = np.float32(1.0), np.float32(0.0)
     if subtract:  # addcmul(x, U, ones, value=beta) then sub_(R, alpha=thr): fma(beta * U, 1, x), then fma(R, -thr, .)
         inf, nthr = np.float32(np.inf), -thr
@@ -185,7 +185,7 @@ def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_g
                  beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, detach_reset: bool, kind: int,
                  lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32, block: int, chunk: int) -> None:
     """Backward time loop. Recomputes each chunk's membranes from ``x`` and ``mem0`` (cheaper than storing them),
-    then carries dL/dU back through time as :meth:`tactile_zoo.nn.lif._FusedLIF.backward` does, block boundaries
+    then carries dL/dU back through time as :meth:`tactile_zoo.nn.lif_fused._FusedLIF.backward` does, block boundaries
     included. ``grad_spikes (T, N)`` and ``grad_last (N,)`` are read only where their ``has_`` flag is set; writes
     ``grad_x (T, N)`` and ``grad_mem0 (N,)``."""
     steps, n = x.shape

@@ -8,7 +8,7 @@ import pytest
 import torch
 from snntorch import surrogate as snn_surrogate
 
-import tactile_zoo.nn.lif as lif_module
+import tactile_zoo.nn.lif_fused as fused
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.nn.lif import MultiStepLIF
 
@@ -53,8 +53,8 @@ def test_fused_equals_stepping_snntorch_leaky(surrogate: str, detach_reset: bool
 def test_blocked_and_recomputed_backward(monkeypatch: pytest.MonkeyPatch, save_limit: int, block_bytes: int,
                                          detach_reset: bool) -> None:
     """Long sequences keep per-block checkpoints and recompute; blocks that do not divide T; blocks of one step."""
-    monkeypatch.setattr(lif_module, "SAVE_LIMIT_BYTES", save_limit)
-    monkeypatch.setattr(lif_module, "BLOCK_BYTES", block_bytes)
+    monkeypatch.setattr(fused, "SAVE_LIMIT_BYTES", save_limit)
+    monkeypatch.setattr(fused, "BLOCK_BYTES", block_bytes)
     for reset in ("zero", "subtract"):
         _compare(dict(surrogate="atan", detach_reset=detach_reset, reset=reset), (23, 3, 5), seed=1)
 

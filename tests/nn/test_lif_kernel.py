@@ -15,17 +15,19 @@ import pytest
 import torch
 
 import tactile_zoo.nn.lif as lif_module
+import tactile_zoo.nn.lif_compiled as compiled
+import tactile_zoo.nn.lif_fused as fused
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.nn.lif import KERNEL_ENV, MultiStepLIF
 
-pytestmark = pytest.mark.skipif(lif_module._kernel_module() is None,
+pytestmark = pytest.mark.skipif(compiled._kernel_module() is None,
                                 reason="the compiled LIF kernel needs numba on x86-64 with ATen AVX2/AVX512 kernels")
 
 
 @pytest.fixture
 def calls(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     """Counts the compiled forward and backward calls (so a comparison cannot pass by running torch twice)."""
-    kernels, counts = lif_module._kernel_module(), {"forward": 0, "backward": 0}
+    kernels, counts = compiled._kernel_module(), {"forward": 0, "backward": 0}
     parallel = [0]  # launches of the parallel builds (the others run the serial ones)
     monkeypatch.setattr(lif_module, "_parallel_launches", parallel, raising=False)
     for name, build in itertools.product(("forward", "backward"), ("", "_serial")):
@@ -102,8 +104,8 @@ def test_compiled_equals_fused(monkeypatch: pytest.MonkeyPatch, calls: dict[str,
 def test_block_boundaries(monkeypatch: pytest.MonkeyPatch, calls: dict[str, int], surrogate: str,
                           detach_reset: bool, reset: str, block_bytes: int) -> None:
     """The fused backward rounds differently where it carries the gradient from one block of steps to the next."""
-    monkeypatch.setattr(lif_module, "BLOCK_BYTES", block_bytes)
-    monkeypatch.setattr(lif_module, "SAVE_LIMIT_BYTES", 0)  # and recomputes its blocks
+    monkeypatch.setattr(fused, "BLOCK_BYTES", block_bytes)
+    monkeypatch.setattr(fused, "SAVE_LIMIT_BYTES", 0)  # and recomputes its blocks
     _same(dict(surrogate=surrogate, detach_reset=detach_reset, reset=reset), (23, 3, 5), monkeypatch, calls, seed=1)
 
 
@@ -111,7 +113,7 @@ def test_block_boundaries(monkeypatch: pytest.MonkeyPatch, calls: dict[str, int]
 @pytest.mark.parametrize("reset", ["zero", "subtract"])
 def test_one_output_without_gradient(monkeypatch: pytest.MonkeyPatch, calls: dict[str, int], spike_grad: bool,
                                      mem_grad: bool, reset: str) -> None:
-    monkeypatch.setattr(lif_module, "BLOCK_BYTES", 4 * 15 * 4)
+    monkeypatch.setattr(fused, "BLOCK_BYTES", 4 * 15 * 4)
     _same(dict(surrogate="atan", reset=reset), (17, 3, 5), monkeypatch, calls, spike_grad=spike_grad,
           mem_grad=mem_grad)
 
@@ -187,7 +189,7 @@ def test_backend_variable(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(ConfigError, match=KERNEL_ENV):
         MultiStepLIF()(torch.randn(3, 2))
     monkeypatch.setenv(KERNEL_ENV, "numba")
-    monkeypatch.setattr(lif_module, "_kernel_module", lambda: None)  # as where numba is not installed
+    monkeypatch.setattr(compiled, "_kernel_module", lambda: None)  # as where numba is not installed
     with pytest.raises(ConfigError, match="unavailable"):
         MultiStepLIF()(torch.randn(3, 2))
     monkeypatch.setenv(KERNEL_ENV, "auto")  # auto falls back to torch quietly
@@ -197,13 +199,13 @@ def test_backend_variable(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_threads_follow_torch(monkeypatch: pytest.MonkeyPatch) -> None:
     import numba
 
-    kernels, before = lif_module._kernel_module(), torch.get_num_threads()
+    kernels, before = compiled._kernel_module(), torch.get_num_threads()
     try:
         torch.set_num_threads(1)
-        lif_module._kernel_threads(kernels)
+        compiled._kernel_threads(kernels)
         assert numba.get_num_threads() == 1
         torch.set_num_threads(64)  # more than numba's pool: capped there
-        lif_module._kernel_threads(kernels)
+        compiled._kernel_threads(kernels)
         assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
     finally:
         torch.set_num_threads(before)
@@ -237,7 +239,7 @@ def test_read_only_install_compiles_in_memory(tmp_path: Path) -> None:
     Blocked by files where the folders would go, which stops root as well as anyone else."""
     pkg, blocker = tmp_path / "pkg", tmp_path / "not-a-folder"
     pkg.mkdir()
-    (pkg / "_lif_kernel.py").write_text(Path(lif_module.__file__).with_name("_lif_kernel.py").read_text())
+    (pkg / "_lif_kernel.py").write_text(Path(compiled.__file__).with_name("_lif_kernel.py").read_text())
     (pkg / "__pycache__").write_text("")
     blocker.write_text("")
     script = ("import numpy as np, _lif_kernel as k\n"

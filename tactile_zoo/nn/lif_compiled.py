@@ -1,0 +1,159 @@
+"""The compiled LIF path: the forward and the backward time loops as one numba call per sequence each
+(:mod:`._lif_kernel`), bit-identical to the fused torch path (:mod:`.lif_fused`), which it falls back to where it
+does not apply. :data:`KERNEL_ENV` chooses between them."""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import platform
+import threading
+from types import ModuleType
+
+import torch
+from torch import Tensor
+
+from ..errors import ConfigError
+from . import lif_fused, memory
+from .lif_fused import _next_up
+from .surrogate import Surrogate
+
+#: Environment variable choosing how the fused backend runs on CPU: ``auto`` (default: the compiled kernel where it
+#: applies, else torch), ``numba`` (the same, but an error where numba is missing) or ``torch`` (never the kernel).
+KERNEL_ENV = "TACTILE_ZOO_LIF_BACKEND"
+_KERNEL_CHOICES = ("auto", "numba", "torch")
+
+
+@functools.cache
+def _kernel_module() -> ModuleType | None:
+    """:mod:`tactile_zoo.nn._lif_kernel` where it reproduces the fused path bit for bit, else ``None``.
+
+    That is x86-64 with ATen's AVX2 or AVX512 kernels (their FMAs are the ones the kernel copies; the
+    ``ATEN_CPU_CAPABILITY=default`` build rounds without them, and other CPUs were not checked) and numba installed.
+    """
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return None
+    if torch.backends.cpu.get_cpu_capability() not in ("AVX2", "AVX512"):
+        return None
+    try:
+        from . import _lif_kernel
+    except ImportError:
+        return None
+    return _lif_kernel
+
+
+def _kernel_for(x: Tensor, mem: Tensor, surrogate: Surrogate) -> ModuleType | None:
+    """The compiled kernel module if it runs this call (see :data:`KERNEL_ENV`), else ``None`` (the torch path)."""
+    choice = os.environ.get(KERNEL_ENV, "auto") or "auto"
+    if choice not in _KERNEL_CHOICES:
+        raise ConfigError(f"{KERNEL_ENV} must be one of {_KERNEL_CHOICES}, got {choice!r}")
+    if choice == "torch" or x.device.type != "cpu" or mem.device.type != "cpu":
+        return None
+    if x.dtype != torch.float32 or mem.dtype != torch.float32 or surrogate.kind not in ("rect", "atan"):
+        return None  # float64, and surrogates evaluated by other ATen kernels (sigmoid's exp, custom), stay in torch
+    kernels = _kernel_module()
+    if kernels is None and choice == "numba":
+        raise ConfigError(f"{KERNEL_ENV}=numba, but the compiled LIF kernel is unavailable here (it needs numba, "
+                          f"x86-64 and ATen's AVX2 or AVX512 kernels)")
+    return kernels
+
+
+def _kernel_threads(kernels: ModuleType) -> None:
+    """Run the kernels on as many threads as torch is given (numba's own pool cannot grow past its start size)."""
+    import numba
+
+    n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    if numba.get_num_threads() != n:
+        numba.set_num_threads(n)
+
+
+#: Serialises kernel launches where numba's threading layer cannot take two at once: its fallback layer
+#: ("workqueue", used where neither OpenMP nor TBB loads) aborts the process on concurrent launches from two threads.
+_LAUNCH_LOCK = threading.Lock()
+
+
+def _launch(kernels: ModuleType, name: str, *args: object) -> None:
+    """Call compiled kernel ``name`` (``lif_forward`` or ``lif_backward``; ``args[0]`` is the ``(T, N)`` input) on
+    torch's thread count: its serial build on one thread, for one block of neurons or for small sequences (a parallel
+    launch costs more than it saves there), else the parallel build -- under the lock until numba's threading layer
+    is known (it is chosen at the first launch) and for good if that layer is "workqueue"."""
+    import numba
+
+    steps, n = args[0].shape
+    if torch.get_num_threads() == 1 or n <= kernels.CHUNK or steps * n < kernels.SERIAL_BELOW:
+        getattr(kernels, f"{name}_serial")(*args)
+        return
+    _kernel_threads(kernels)
+    try:
+        serial = numba.threading_layer() == "workqueue"
+    except ValueError:  # no parallel launch yet
+        serial = True
+    if serial:
+        with _LAUNCH_LOCK:
+            getattr(kernels, name)(*args)
+    else:
+        getattr(kernels, name)(*args)
+
+
+def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
+                    subtract: bool) -> tuple[Tensor, Tensor]:
+    """Spikes ``[T, ...]`` and the last membrane from the compiled forward loop (contiguous float32 CPU inputs)."""
+    steps = x.shape[0]
+    spikes = memory.empty(x.shape, x)
+    last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
+    _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
+            spikes.view(steps, -1).numpy(), last.view(-1).numpy(), *_f32(beta, threshold),
+            _f32(_next_up(threshold, torch.float32))[0], subtract, kernels.CHUNK)
+    return spikes, last
+
+
+def _f32(*values: float) -> tuple:
+    """Python floats rounded to float32 as ATen rounds a scalar operand of a float32 kernel."""
+    import numpy as np
+
+    return tuple(np.float32(v) for v in values)
+
+
+class _CompiledLIF(torch.autograd.Function):
+    """:class:`_FusedLIF` as two compiled calls per sequence (:mod:`tactile_zoo.nn._lif_kernel`): the forward loop,
+    and a backward that recomputes the membranes of each block of neurons instead of saving them (the fused path's
+    history would be as large as the input). The same inputs, outputs and bit-identical values."""
+
+    @staticmethod
+    def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
+                surrogate: Surrogate, kernels: ModuleType) -> tuple[Tensor, Tensor]:
+        x, mem0 = x.contiguous(), mem0.contiguous()
+        spikes, last = _kernel_forward(kernels, x, mem0, beta, threshold, subtract)
+        ctx.save_for_backward(x, mem0)
+        ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, kernels)
+        ctx.set_materialize_grads(False)
+        return spikes, last
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_spikes: Tensor | None, grad_mem: Tensor | None) -> tuple[Tensor | None, ...]:
+        import numpy as np
+
+        x, mem0 = ctx.saved_tensors
+        beta, th, subtract, detach_reset, surrogate, kernels = ctx.cfg
+        steps, n = x.shape[0], mem0.numel()
+        # the fused path's block of steps: its gradient crosses block boundaries with a different rounding
+        block = max(1, min(steps, lif_fused.BLOCK_BYTES // max(1, n * x.element_size())))
+        grad_x = memory.empty(x.shape, x)
+        grad_mem0 = torch.empty_like(mem0)
+        no_rows, no_row = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)  # stand-ins for absent gradients
+        gs = no_rows if grad_spikes is None else grad_spikes.contiguous().view(steps, -1).numpy()
+        gm = no_row if grad_mem is None else grad_mem.contiguous().reshape(-1).numpy()
+        p = surrogate.param
+        if surrogate.kind == "rect":
+            kind, lo, hi, c1, c2 = kernels.RECT, *_f32(-p / 2, p / 2), *_f32(0.0, 0.0)
+        else:
+            kind, lo, hi, c1, c2 = kernels.ATAN, *_f32(0.0, 0.0), *_f32(math.pi / 2 * p, p / 2)
+        _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), mem0.view(-1).numpy(), gs,
+                grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
+                grad_mem0.view(-1).numpy(), *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset,
+                kind, lo, hi, c1, c2, block, kernels.CHUNK)
+        return grad_x, (grad_mem0 if ctx.needs_input_grad[1] else None), None, None, None, None, None, None
+
+
