@@ -50,6 +50,10 @@ def _kernel_for(x: Tensor, mem: Tensor, surrogate: Surrogate) -> ModuleType | No
         raise ConfigError(f"{KERNEL_ENV} must be one of {_KERNEL_CHOICES}, got {choice!r}")
     if choice == "torch" or x.device.type != "cpu" or mem.device.type != "cpu":
         return None
+    # a tracer's tensors (torch.export's fake and functional tensors, torch.compile's) hold no memory numba can read:
+    # traced graphs record the torch path, which computes the same numbers
+    if type(x) is not torch.Tensor or type(mem) is not torch.Tensor or torch.compiler.is_compiling():
+        return None
     if x.dtype != torch.float32 or mem.dtype != torch.float32 or surrogate.kind not in ("rect", "atan"):
         return None  # float64, and surrogates evaluated by other ATen kernels (sigmoid's exp, custom), stay in torch
     kernels = _kernel_module()
