@@ -3,6 +3,8 @@ and tested below the ones that use it."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import grimp
 import networkx as nx
 import pytest
@@ -30,3 +32,23 @@ def test_a_circle_is_found(tmp_path, monkeypatch) -> None:
     (pkg / "b.py").write_text("def g():\n    from .a import f\n    return f\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     assert import_cycles("zt_circle") == [["zt_circle.a", "zt_circle.b"]]
+
+
+#: the longest a module of the package may grow: past it, a module holds more than one concept
+MAX_MODULE_LINES = 450
+PACKAGE = Path(__file__).resolve().parents[1] / "tactile_zoo"
+
+
+def long_modules(root: Path, limit: int = MAX_MODULE_LINES) -> list[str]:
+    return sorted(f"{p.relative_to(root)}: {n} lines" for p in root.rglob("*.py")
+                  if (n := len(p.read_text().splitlines())) > limit)
+
+
+def test_no_module_of_the_package_is_over_450_lines() -> None:
+    assert long_modules(PACKAGE) == []
+
+
+def test_a_long_module_is_found(tmp_path: Path) -> None:
+    (tmp_path / "short.py").write_text("x = 1\n" * 450)
+    (tmp_path / "long.py").write_text("x = 1\n" * 451)
+    assert long_modules(tmp_path) == ["long.py: 451 lines"]
