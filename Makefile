@@ -50,8 +50,8 @@ benchmarks: install
 
 # after committing new cells: the fidelity ledger, Table I (docs/table1.md) and the README's headline, checked by the suite
 tables: install
-	$(BIN)/python -m benchmarks.fidelity
-	$(BIN)/python -m benchmarks.paper_table1 --readme
+	$(BIN)/python -m tools.fidelity
+	$(BIN)/python -m tools.paper_table1 --readme
 
 # the docs site, into site/ (gitignored); --strict: a broken link or anchor, or a page left out of the nav, fails
 docs: install

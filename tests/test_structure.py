@@ -18,7 +18,7 @@ def import_cycles(*packages: str) -> list[list[str]]:
     return sorted(sorted(c) for c in nx.strongly_connected_components(edges) if len(c) > 1)
 
 
-@pytest.mark.parametrize("packages", [("tactile_zoo",)])
+@pytest.mark.parametrize("packages", [("tactile_zoo",), ("benchmarks", "tools")])
 def test_no_import_circle(packages: tuple[str, ...]) -> None:
     assert import_cycles(*packages) == []
 

@@ -4,7 +4,7 @@ comparison (:mod:`tactile_zoo.bench.paired`).
 **What the interval is for.** A confidence interval for the *expected accuracy of this training procedure on this
 task*: the mean, over training seeds (and validation folds, where they rotate), of the accuracy a trained model has
 on the population the test set was drawn from. The training data are held fixed; the seeds and the test set are the
-two sources of chance. ``benchmarks/interval_coverage.py`` simulates such experiments and measures how often the 95 %
+two sources of chance. ``tools/interval_coverage.py`` simulates such experiments and measures how often the 95 %
 interval covers that expectation (its note: ``benchmarks/results/interval_coverage.md``).
 
 **Why not one bootstrap over seeds and test units.** Every seed is scored on the *same* test set, so the test-sampling

@@ -15,7 +15,7 @@ The statistic is the mean over the pairs of ``acc_b - acc_a``; the interval is t
 
 The one-sided p-value (H0: b is not better than a) inverts the same construction: p is the ``alpha`` at which the
 one-sided lower bound ``d - sqrt(t_{S-1}(1-alpha)^2 v_seed + t_{U-1}(1-alpha)^2 v_test)`` reaches 0, so "p < 0.05"
-and "the one-sided 95 % lower bound is above 0" say the same. ``benchmarks/interval_coverage.py`` measures its
+and "the one-sided 95 % lower bound is above 0" say the same. ``tools/interval_coverage.py`` measures its
 false-positive rate under a true difference of zero.
 
 When several recipes are tried against one baseline, the smallest of their p-values is small by chance alone;

@@ -257,7 +257,7 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
             "the test units (samples, or recordings where a dataset cuts recordings into windows) per resample, "
             "shared by the runs scored on that test set, plus the runs' spread with its small-sample t quantile "
             "(`tactile_zoo.bench.intervals`). In simulated experiments it covered the truth 93-96 % of the time "
-            "(`benchmarks/interval_coverage.py`). Models whose intervals overlap widely are not told apart by these "
+            "(`tools/interval_coverage.py`). Models whose intervals overlap widely are not told apart by these "
             "cells.", ""]
     intervals = _intervals(records)
     rows = [[s["model"], s["recipe"], s["dataset"], str(s["n_cells"]),

@@ -1,10 +1,10 @@
-"""The intervals cover by simulation: experiments with a known expected accuracy (benchmarks.interval_coverage)."""
+"""The intervals cover by simulation: experiments with a known expected accuracy (tools.interval_coverage)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.interval_coverage import SETTINGS, Setting, coverage, false_positive_rate, per_seed_draw, simulate
+from tools.interval_coverage import SETTINGS, Setting, coverage, false_positive_rate, per_seed_draw, simulate
 
 EXPERIMENTS = 500  # binomial standard error of a coverage near 0.95: 0.010
 RESAMPLES = 300  # per interval; the test part's variance to about 8 %, plenty next to the binomial error

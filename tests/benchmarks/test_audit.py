@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 import tiny_zoo
 
-from benchmarks.audit import audit, audit_plan
 from tactile_zoo import registry
 from tactile_zoo.engine.cell import resolve_cell
 from tactile_zoo.recipe import full_recipe
+from tools.audit import audit, audit_plan
 
 ZOO = {**tiny_zoo.TINY_RECIPE, "lr": 0.02, "label_smoothing": 0.1}
 FULL = full_recipe(ZOO, {"tiny_blobs": 3})
@@ -112,7 +112,7 @@ def test_the_freeze_scopes_the_seed_rule_to_the_zoo_trial_folders_but_every_tria
 
 
 def test_write_freeze_records_the_registered_recipes_and_refuses_an_unknown_folder(tmp_path: Path) -> None:
-    from benchmarks.audit import write_freeze
+    from tools.audit import write_freeze
 
     (tmp_path / "lr").mkdir()
     frozen = json.loads(write_freeze(tmp_path, "zoo", ["lr"]).read_text())
@@ -124,7 +124,7 @@ def test_write_freeze_records_the_registered_recipes_and_refuses_an_unknown_fold
 
 
 def test_the_audit_prints_what_each_frozen_recipe_changes(repo: Path) -> None:
-    from benchmarks.audit import recipe_changes
+    from tools.audit import recipe_changes
 
     lines, _ = audit(repo / "tuning", repo / "final", "zoo", repo=repo)
     assert "- audit_mlp against `source`: everywhere: label_smoothing None -> 0.1, lr 0.03 -> 0.02" in lines

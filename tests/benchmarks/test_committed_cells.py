@@ -1,7 +1,7 @@
 """Committed Table I cells describe what the current code runs: the same resolved configuration and hash.
 
 The cells under ``benchmarks/results/paper-table1`` were computed before cell hashes covered the code's revisions
-(hash format 1) and re-keyed by ``python -m benchmarks.check_cells --migrate`` after the check below passed; each
+(hash format 1) and re-keyed by ``python -m tools.check_cells --migrate`` after the check below passed; each
 records its format-1 hash in ``migrated_from``. A change to a model's or dataset's code bumps its revision, and the
 cells then fail here until they are rerun.
 """
@@ -17,8 +17,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from benchmarks import check_cells  # noqa: E402
 from tactile_zoo.bench.grid import config_hash  # noqa: E402
+from tools import check_cells  # noqa: E402
 
 CELLS = sorted((REPO / "benchmarks" / "results" / "paper-table1" / "cells").glob("*.json")) + sorted(
     (REPO / "benchmarks" / "results" / "paper-table1-revision1" / "cells").glob("*.json"))  # stale: older code

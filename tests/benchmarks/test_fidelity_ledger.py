@@ -1,4 +1,4 @@
-"""docs/fidelity.md's tables are what the committed results give (``python -m benchmarks.fidelity`` rewrites them)."""
+"""docs/fidelity.md's tables are what the committed results give (``python -m tools.fidelity`` rewrites them)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from benchmarks import fidelity  # noqa: E402
+from tools import fidelity  # noqa: E402
 
 
 def test_the_ledger_is_regenerated_from_the_committed_results() -> None:
-    assert fidelity.main(["--check"]) == 0, "run python -m benchmarks.fidelity and commit docs/fidelity.md"
+    assert fidelity.main(["--check"]) == 0, "run python -m tools.fidelity and commit docs/fidelity.md"
 
 
 def test_the_ledger_has_a_row_for_every_builtin_model() -> None:

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.paper_table1 import main, table
 from tactile_zoo import registry
 from tactile_zoo.bench.intervals import records_interval
+from tools.paper_table1 import main, table
 
 
 def _predictions(accuracy: float, n: int, groups: list[int] | None = None) -> dict:
@@ -85,11 +85,11 @@ def test_a_missing_cells_folder_is_one_clear_error(tmp_path: Path, capsys: pytes
 
 
 def test_the_table_page_and_the_readme_headline_are_regenerated_from_the_committed_cells() -> None:
-    assert main(["--check"]) == 0, "run python -m benchmarks.paper_table1 --readme and commit docs/table1.md, README.md"
+    assert main(["--check"]) == 0, "run python -m tools.paper_table1 --readme and commit docs/table1.md, README.md"
 
 
 def test_the_check_fails_when_either_block_is_stale(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import benchmarks.paper_table1 as pt
+    import tools.paper_table1 as pt
 
     committed = {"PAGE": pt.PAGE.read_text(), "README": pt.README.read_text()}
     for name in ("PAGE", "README"):
@@ -105,7 +105,7 @@ def test_the_check_fails_when_either_block_is_stale(tmp_path: Path, monkeypatch:
 
 
 def test_render_replaces_only_the_marked_block(tmp_path: Path) -> None:
-    from benchmarks.paper_table1 import BEGIN, END, render
+    from tools.paper_table1 import BEGIN, END, render
 
     _cell(tmp_path, "sgnet", "ev_objects", 0, accuracy=0.9)
     text = f"intro\n{BEGIN}\nold table\n{END}\noutro\n"
@@ -117,7 +117,7 @@ def test_render_replaces_only_the_marked_block(tmp_path: Path) -> None:
 
 
 def test_the_readme_holds_the_headline_not_the_tables() -> None:
-    from benchmarks.paper_table1 import BEGIN, HEADLINE_BEGIN, HEADLINE_END, PAGE, README
+    from tools.paper_table1 import BEGIN, HEADLINE_BEGIN, HEADLINE_END, PAGE, README
 
     readme, page = README.read_text(), PAGE.read_text()
     assert BEGIN not in readme and BEGIN in page and page.startswith("# Reproducing Table I\n")
@@ -126,7 +126,7 @@ def test_the_readme_holds_the_headline_not_the_tables() -> None:
 
 
 def test_the_headline_picks_the_better_honest_recipe_and_places_the_paper(tmp_path: Path) -> None:
-    from benchmarks.paper_table1 import headline
+    from tools.paper_table1 import headline
 
     source, zoo = tmp_path / "t1", tmp_path / "t1-zoo"
     for seed in (0, 1, 2):

@@ -1,4 +1,4 @@
-"""``benchmarks.weights_pack``'s selection rules, on made-up cell records (no weights are read): which cell gives a
+"""``tools.weights_pack``'s selection rules, on made-up cell records (no weights are read): which cell gives a
 model x dataset its weights, when a rerun may stand in for a Table I cell, and why a pair has none."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from benchmarks import weights_pack  # noqa: E402
+from tools import weights_pack  # noqa: E402
 
 HASH = "0123456789abcdef"
 

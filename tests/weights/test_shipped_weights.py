@@ -1,6 +1,6 @@
 """The weights shipped in ``plugins/tactile-zoo-weights`` are exactly their committed cells' trained models.
 
-Without data (CI): ``python -m benchmarks.weights_pack --check`` passes (manifest, files, sha256, accuracy, config hash,
+Without data (CI): ``python -m tools.weights_pack --check`` passes (manifest, files, sha256, accuracy, config hash,
 expected logits and the README table are what the committed cell records give), and every shipped model reproduces
 the logits committed in ``expected_logits.json`` on the seeded probe inputs. Tolerance: ``rtol = atol = 1e-6``
 (``|got - expected| <= 1e-6 + 1e-6 |expected|``), not bit equality: the builder and this test run the same code with
@@ -46,7 +46,7 @@ from tactile_zoo.weights import WeightEntry, create_model, head_name, read_manif
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
-from benchmarks import weights_pack  # noqa: E402
+from tools import weights_pack  # noqa: E402
 
 SHARED_DATA = Path(os.environ.get("TACTILE_ZOO_SHARED_DATA", REPO.parent / "shared" / "data"))  # as tests/conftest.py
 ENTRIES = read_manifest(weights_pack.PACK / weights_pack.MANIFEST)
@@ -67,7 +67,7 @@ def _logits(entry: WeightEntry, model: torch.nn.Module | None = None) -> tuple[t
     stored = LOGITS["entries"][entry.tag]
     x, g = weights_pack.probe_inputs(entry.spec, entry.dataset, LOGITS["samples"], LOGITS["seed"])
     assert weights_pack.inputs_sha256(x, g) == stored["inputs"]["sha256"], \
-        "the probe inputs changed (benchmarks.weights_pack.probe_inputs), not the weights: rebuild the pack"
+        "the probe inputs changed (tools.weights_pack.probe_inputs), not the weights: rebuild the pack"
     model = model if model is not None else create_model(entry.model, pretrained=entry)
     with flush_denormals():  # as the builder (and evaluate) computed them
         return predict_scores(model, x, g), stored

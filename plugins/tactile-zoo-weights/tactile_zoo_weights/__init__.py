@@ -9,7 +9,7 @@ tactile-zoo finds the weights through the entry point declared in this distribut
 ``tactile_zoo.weights.entry``), which lists every ``.safetensors`` file of this folder with its sha256, the model and
 dataset, the spec the weights expect, the recipe, the cell's config hash, the test accuracy, the commit and the
 licences. ``expected_logits.json`` holds each model's logits on seeded probe inputs (tactile-zoo's test suite
-reproduces them). Everything here is built from committed benchmark cells by ``python -m benchmarks.weights_pack`` in a
+reproduces them). Everything here is built from committed benchmark cells by ``python -m tools.weights_pack`` in a
 tactile-zoo checkout. Importing this package has no side effects; tactile-zoo imports it on the first ``tactile-zoo
 weights``, ``create_model(..., pretrained=...)`` or ``predict`` call.
 """

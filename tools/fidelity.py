@@ -1,7 +1,7 @@
 """The fidelity ledger's tables (``docs/fidelity.md``), regenerated from committed results only.
 
-    python -m benchmarks.fidelity            # rewrite the tables between the ledger's markers
-    python -m benchmarks.fidelity --check    # exit 1 if docs/fidelity.md is not what the results give
+    python -m tools.fidelity            # rewrite the tables between the ledger's markers
+    python -m tools.fidelity --check    # exit 1 if docs/fidelity.md is not what the results give
 
 Sources read (nothing is trained here):
 
@@ -36,7 +36,7 @@ from tactile_zoo.engine.cell import recipe_name_of
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 LEDGER = REPO / "docs" / "fidelity.md"
-BEGIN, END = "<!-- ledger tables: begin (python -m benchmarks.fidelity) -->", "<!-- ledger tables: end -->"
+BEGIN, END = "<!-- ledger tables: begin (python -m tools.fidelity) -->", "<!-- ledger tables: end -->"
 NAMES = {"sgnet": "SGnet", "dcnn": "D-CNN", "convlstm": "ConvLSTM", "cnn_lstm": "CNN-LSTM", "tacformer": "Tacformer",
          "x_tacformer": "X-Tacformer"}
 EV = ("ev_objects", "ev_containers")
@@ -157,10 +157,10 @@ def render(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.fidelity", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m tools.fidelity", description=__doc__.split("\n")[0])
     parser.add_argument("--check", action="store_true", help="exit 1 if docs/fidelity.md is out of date")
     args = parser.parse_args(argv)
-    return update_page(LEDGER, render(LEDGER.read_text()), args.check, "python -m benchmarks.fidelity")
+    return update_page(LEDGER, render(LEDGER.read_text()), args.check, "python -m tools.fidelity")
 
 
 def update_page(path: Path, new: str, check: bool, command: str) -> int:

@@ -24,9 +24,9 @@ the record's, in order; the numbers are not touched.
 numbers, bit for bit: metrics, predictions and probabilities of every split, the training curve (timings aside), the
 selected epoch and the early-classification prefixes.
 
-    python -m benchmarks.check_cells benchmarks/results/paper-table1 --root ../shared/data [--migrate]
-    python -m benchmarks.check_cells benchmarks/results/paper-table1 --compare /tmp/rerun
-    python -m benchmarks.check_cells benchmarks/results/convlstm-biotac/e2-source --root ../shared/data --add-groups
+    python -m tools.check_cells benchmarks/results/paper-table1 --root ../shared/data [--migrate]
+    python -m tools.check_cells benchmarks/results/paper-table1 --compare /tmp/rerun
+    python -m tools.check_cells benchmarks/results/convlstm-biotac/e2-source --root ../shared/data --add-groups
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Table I (``docs/table1.md``): one table per dataset, the X-Tacformer paper's figure next to ours with a 95 %
 interval, and the README's headline of it.
 
-    python -m benchmarks.paper_table1 [DIR]      # print it (default DIR: benchmarks/results/paper-table1)
-    python -m benchmarks.paper_table1 --readme   # rewrite docs/table1.md's tables and the README's headline block
-    python -m benchmarks.paper_table1 --check    # exit 1 if either block is not what the cells give
+    python -m tools.paper_table1 [DIR]      # print it (default DIR: benchmarks/results/paper-table1)
+    python -m tools.paper_table1 --readme   # rewrite docs/table1.md's tables and the README's headline block
+    python -m tools.paper_table1 --check    # exit 1 if either block is not what the cells give
 
 Reads the cell files of ``DIR/cells`` (nothing is trained) and prints Markdown: for Ev-Objects, Ev-Containers and
 BioTac-DoS, per model the paper's figure, our mean ± sample std of test accuracy over the finished runs (seeds, or
@@ -14,7 +14,7 @@ runs and the mean training time of a cell; then the Augment8000 table, whose onl
 weights' (``benchmarks/results/dcnn_released.csv``).
 
 Only ok cells of the ``source`` recipe computed by the current revision of their model's and dataset's code count
-(the filter of :func:`benchmarks.fidelity.cells`); the others are counted in a footnote. A model whose cells on one
+(the filter of :func:`tools.fidelity.cells`); the others are counted in a footnote. A model whose cells on one
 dataset hold more than one configuration is an error: one table row must be one configuration.
 
 The paper's figures are its Table I (test accuracy; how the epoch was selected is not stated). Its BioTac-DoS column
@@ -34,7 +34,7 @@ from typing import Any
 from tactile_zoo.bench.intervals import bootstrap_accuracy, records_interval
 from tactile_zoo.bench.paired import holm, records_paired
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 MODELS = ("sgnet", "convlstm", "cnn_lstm", "tacformer", "x_tacformer", "dcnn")
 NAMES = {"sgnet": "SGnet", "convlstm": "ConvLSTM", "cnn_lstm": "CNN-LSTM", "tacformer": "Tacformer",
          "x_tacformer": "X-Tacformer", "dcnn": "D-CNN"}
@@ -280,7 +280,7 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[
 def table(folder: Path, zoo_folder: Path | None = None) -> str:
     """The tables of ``folder``'s ``source`` cells; where ``zoo_folder`` (default: the sibling ``<folder>-zoo``, as
     ``paper-table1-zoo`` beside ``paper-table1``) holds ``zoo`` cells, each dataset's comparison follows its table."""
-    from benchmarks.fidelity import cells
+    from tools.fidelity import cells
 
     current = cells(folder)
     zoo_folder = folder.parent / f"{folder.name}-zoo" if zoo_folder is None else zoo_folder
@@ -306,7 +306,7 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
 def headline(folder: Path, zoo_folder: Path | None = None) -> str:
     """The README's headline: per Ev dataset and model with a paper figure, the paper against our best honest recipe
     (of ``source`` and ``zoo``, the one with the higher mean test accuracy) with its 95 % interval."""
-    from benchmarks.fidelity import cells
+    from tools.fidelity import cells
 
     source = cells(folder)
     zoo_folder = folder.parent / f"{folder.name}-zoo" if zoo_folder is None else zoo_folder
@@ -335,27 +335,27 @@ def headline(folder: Path, zoo_folder: Path | None = None) -> str:
 
 PAGE = RESULTS.parents[1] / "docs" / "table1.md"
 README = RESULTS.parents[1] / "README.md"
-BEGIN, END = "<!-- table1: begin (python -m benchmarks.paper_table1 --readme) -->", "<!-- table1: end -->"
-HEADLINE_BEGIN = "<!-- headline: begin (python -m benchmarks.paper_table1 --readme) -->"
+BEGIN, END = "<!-- table1: begin (python -m tools.paper_table1 --readme) -->", "<!-- table1: end -->"
+HEADLINE_BEGIN = "<!-- headline: begin (python -m tools.paper_table1 --readme) -->"
 HEADLINE_END = "<!-- headline: end -->"
 
 
 def render(text: str, folder: Path) -> str:
     """``text`` (docs/table1.md) with the block between the markers replaced by the current tables."""
-    from benchmarks.fidelity import replace_block
+    from tools.fidelity import replace_block
 
     return replace_block(text, BEGIN, END, table(folder), PAGE)
 
 
 def render_headline(text: str, folder: Path) -> str:
     """``text`` (the README) with the headline block replaced by the current headline."""
-    from benchmarks.fidelity import replace_block
+    from tools.fidelity import replace_block
 
     return replace_block(text, HEADLINE_BEGIN, HEADLINE_END, headline(folder), README)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.paper_table1", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m tools.paper_table1", description=__doc__.split("\n")[0])
     p.add_argument("folder", nargs="?", type=Path, default=RESULTS / "paper-table1")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--readme", action="store_true",
@@ -368,9 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.readme or args.check):
         print(table(args.folder))
         return 0
-    from benchmarks.fidelity import update_page
+    from tools.fidelity import update_page
 
-    command = "python -m benchmarks.paper_table1 --readme"
+    command = "python -m tools.paper_table1 --readme"
     page = update_page(PAGE, render(PAGE.read_text(), args.folder), args.check, command)
     readme = update_page(README, render_headline(README.read_text(), args.folder), args.check, command)
     return max(page, readme)

@@ -1,10 +1,10 @@
 """The recipe audit: were the zoo recipes chosen on validation only, frozen before the final cells, and was every
 final cell's test split read exactly once? A script checks it from committed files and the git history.
 
-    python -m benchmarks.audit                     # tuning trials, the frozen recipes, the final zoo cells
-    python -m benchmarks.audit --final DIR --recipe zoo --tuning DIR
-    python -m benchmarks.audit --freeze zoo-biotac zoo-ev   # write tuning/freeze.json from the registered recipes
-    python -m benchmarks.audit --plan DIR --plan-recipe full  # only the planned round in DIR (PLAN.md)
+    python -m tools.audit                     # tuning trials, the frozen recipes, the final zoo cells
+    python -m tools.audit --final DIR --recipe zoo --tuning DIR
+    python -m tools.audit --freeze zoo-biotac zoo-ev   # write tuning/freeze.json from the registered recipes
+    python -m tools.audit --plan DIR --plan-recipe full  # only the planned round in DIR (PLAN.md)
 
 What it reads:
 
@@ -242,7 +242,7 @@ def write_freeze(tuning: Path, recipe: str, trial_folders: list[str]) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.audit", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m tools.audit", description=__doc__.split("\n")[0])
     p.add_argument("--tuning", type=Path, default=RESULTS / "tuning")
     p.add_argument("--final", type=Path, default=RESULTS / "paper-table1-zoo")
     p.add_argument("--recipe", default="zoo")

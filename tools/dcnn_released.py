@@ -1,6 +1,6 @@
 """D-CNN with the published weights: the ten Keras models released with Augment8000 on its 120 real-life samples.
 
-``python -m benchmarks.dcnn_released --root ../shared/data`` reads
+``python -m tools.dcnn_released --root ../shared/data`` reads
 ``<root>/augment8000/released_models/VGG16_scaling_time_warp{1..10}.h5`` (the file name says VGG16; the model inside
 is the D-CNN) through :func:`tactile_zoo.models.dcnn.from_keras`, and ``<root>/augment8000/raw/000_real_life_data.csv``
 through our ``augment8000`` loader with the release's preprocessing: the object-weight compensation and the
@@ -67,7 +67,7 @@ def run(ctx: Context, root: Path) -> tuple[Path, int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.dcnn_released", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m tools.dcnn_released", description=__doc__.split("\n\n")[0])
     p.add_argument("--root", type=Path, default=Path("../shared/data"),
                    help="data home with augment8000/raw/ and augment8000/released_models/ (default ../shared/data)")
     p.add_argument("--out", type=Path, default=RESULTS, help="folder of the CSV (default benchmarks/results)")

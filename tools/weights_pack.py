@@ -1,9 +1,9 @@
 """The weight pack ``plugins/tactile-zoo-weights``: built from committed benchmark cells, and checked against them.
 
-    python -m benchmarks.weights_pack            # (re)build the pack from every source cell that has weights
-    python -m benchmarks.weights_pack --list     # which model x dataset has a source cell with weights; which not, why
-    python -m benchmarks.weights_pack --check    # exit 1, naming each mismatch, if the pack is not what the cells give
-    python -m benchmarks.weights_pack --cells benchmarks/results/rerun-x    # another folder of reruns
+    python -m tools.weights_pack            # (re)build the pack from every source cell that has weights
+    python -m tools.weights_pack --list     # which model x dataset has a source cell with weights; which not, why
+    python -m tools.weights_pack --check    # exit 1, naming each mismatch, if the pack is not what the cells give
+    python -m tools.weights_pack --cells benchmarks/results/rerun-x    # another folder of reruns
 
 Nothing is trained here. For each model on Ev-Objects, Ev-Containers and BioTac-DoS the weights are those of one cell
 of the Table I folder of the model's default recipe (:data:`TABLES`: ``benchmarks/results/paper-table1`` holds
@@ -93,9 +93,9 @@ DECLINED = {
 }
 MODELS = ("sgnet", "dcnn", "convlstm", "cnn_lstm", "tacformer", "x_tacformer")
 DATASETS = ("ev_objects", "ev_containers", "biotac_dos")
-BEGIN, END = "<!-- shipped weights: begin (python -m benchmarks.weights_pack) -->", "<!-- shipped weights: end -->"
+BEGIN, END = "<!-- shipped weights: begin (python -m tools.weights_pack) -->", "<!-- shipped weights: end -->"
 DESCRIPTION = ("Pretrained weights of tactile-zoo's models: each file is the trained model of one committed seed-0, "
-               "fold-0 benchmark cell (tactile-zoo bench --save-weights); built by python -m benchmarks.weights_pack.")
+               "fold-0 benchmark cell (tactile-zoo bench --save-weights); built by python -m tools.weights_pack.")
 LOGITS_FORMAT = "tactile-zoo-expected-logits/1"
 #: probe inputs: samples per entry, the seed of their generator, and the share of 1s in event data
 PROBE_SAMPLES, PROBE_SEED, PROBE_EVENT_RATE = 4, 0, 0.1
@@ -365,7 +365,7 @@ def expected_logits(entries: Sequence[WeightEntry]) -> dict[str, Any]:
                           "logits": [[float(v) for v in row] for row in logits.tolist()]}
     return {"format": LOGITS_FORMAT,
             "description": f"Logits of each shipped model on {PROBE_SAMPLES} seeded inputs shaped like its dataset's "
-                           f"samples (benchmarks.weights_pack.probe_inputs, seed {PROBE_SEED}), one torch thread; "
+                           f"samples (tools.weights_pack.probe_inputs, seed {PROBE_SEED}), one torch thread; "
                            f"tests/weights/test_shipped_weights.py reproduces them.",
             "samples": PROBE_SAMPLES, "seed": PROBE_SEED, "entries": out}
 
@@ -395,7 +395,7 @@ def readme_table(entries: Sequence[WeightEntry], slots: Sequence[Slot]) -> str:
         if slot.source is None:
             by_reason.setdefault(_short(slot.reason), {}).setdefault(slot.dataset, []).append(f"`{slot.model}`")
     if by_reason:
-        lines += ["", "Not shipped yet (`python -m benchmarks.weights_pack --list` says why in full):", ""]
+        lines += ["", "Not shipped yet (`python -m tools.weights_pack --list` says why in full):", ""]
         for reason, where in by_reason.items():
             pairs = "; ".join(", ".join(models) + f" on `{dataset}`" for dataset, models in where.items())
             lines.append(f"- {pairs}: {reason}")
@@ -410,7 +410,7 @@ def _short(reason: str) -> str:
 
 
 def render_readme(text: str, entries: Sequence[WeightEntry], slots: Sequence[Slot]) -> str:
-    from benchmarks.fidelity import replace_block
+    from tools.fidelity import replace_block
 
     return replace_block(text, BEGIN, END, readme_table(entries, slots), README)
 
@@ -470,7 +470,7 @@ def build(reruns: Sequence[Path] = (), pack: Path = PACK, readme: Path = README)
         print(f"{entry.tag:<34} accuracy {entry.accuracy:.4f}  {_mb(entry.bytes):>8}  {entry.cell_id}{via}")
     print(f"wrote {len(shipped)} entries to {_rel(pack)}: {_mb(total)} in the distribution (limit "
           f"{_mb(LIMIT_BYTES)}); {sum(s.source is None for s in slots)} model x dataset pairs not shipped "
-          f"(python -m benchmarks.weights_pack --list)")
+          f"(python -m tools.weights_pack --list)")
     _warn_uncommitted([src for src, _ in chosen])
     return 0
 
@@ -525,7 +525,7 @@ def check(reruns: Sequence[Path] = (), pack: Path = PACK, readme: Path = README)
         return [str(exc)]
     for tag in sorted(set(expected) - set(shipped)):
         problems.append(f"{tag}: cell {expected[tag].cell_id} has weights, but the pack does not ship them "
-                        f"(run python -m benchmarks.weights_pack)")
+                        f"(run python -m tools.weights_pack)")
     for tag in sorted(set(shipped) - set(expected)):
         why = next((s.reason for s in slots if make_tag(s.model, s.dataset, default_recipe(s.model)) == tag
                     and s.source is None), "no source cell gives it")
@@ -558,7 +558,7 @@ def check(reruns: Sequence[Path] = (), pack: Path = PACK, readme: Path = README)
         else:
             if current != readme.read_text():
                 problems.append(f"{_rel(readme)}: the table of shipped weights is out of date (run python -m "
-                                f"benchmarks.weights_pack)")
+                                f"tools.weights_pack)")
     total = distribution_bytes(pack.parent)
     if total > LIMIT_BYTES:
         problems.append(f"{_rel(pack.parent)} holds {_mb(total)}, over the limit of {_mb(LIMIT_BYTES)}")
@@ -624,7 +624,7 @@ def list_slots(reruns: Sequence[Path] = ()) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.weights_pack", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m tools.weights_pack", description=__doc__.split("\n")[0])
     p.add_argument("--cells", action="append", type=Path, default=[], metavar="DIR",
                    help="a bench folder of reruns (with --save-weights) of Table I cells; benchmarks/results/weights-* "
                         "are read without it")
