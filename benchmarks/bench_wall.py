@@ -21,7 +21,6 @@ passes ``--epochs N`` (the full grid shortened to fit a time budget, as ``benchm
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -29,6 +28,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from tactile_zoo.bench.records import run_records
 
 from .common import Context, write_csv
 
@@ -51,13 +52,6 @@ except (OSError, IndexError):
     pass
 sys.exit(code)
 """
-
-
-def _record(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return {"status": "unreadable"}
 
 
 def bench_args(ctx: Context, out: Path, models: str = "all", datasets: str | None = None,
@@ -95,7 +89,7 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
                 raise
             wall = time.perf_counter() - start
         proc.returncode = code = os.waitstatus_to_exitcode(status)  # reaped here, so Popen must not wait again
-        records = [_record(p) for p in sorted((tmp_path / "out" / "cells").glob("*.json"))]
+        records = run_records(tmp_path / "out")
         statuses = [str(r.get("status")) for r in records]
         cells, failed = statuses.count("ok"), sum(1 for s in statuses if s != "ok")
         cell_peaks = [r["peak_memory_mb"] for r in records if r.get("peak_memory_mb") is not None]

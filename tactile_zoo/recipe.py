@@ -55,7 +55,7 @@ from typing import Any
 from .errors import ConfigError
 
 __all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "RECIPE_SECTIONS", "resolve_recipe", "named_recipe_for",
-           "check_named_recipe", "lr_factor", "cap_epochs", "full_recipe"]
+           "check_named_recipe", "lr_factor", "cap_epochs", "full_recipe", "recipe_name_of"]
 
 LOSSES = ("ce", "mse_rate")
 OPTIMIZERS = ("adam", "adamw", "sgd")
@@ -400,3 +400,12 @@ def lr_factor(recipe: Recipe, epoch: int) -> float:
     if warmup and epoch < warmup:
         factor *= (epoch + 1) / warmup
     return float(factor)
+
+
+def recipe_name_of(config: Mapping[str, Any]) -> str:
+    """The recipe name of a cell's stored configuration. Records from before named recipes ran the registered recipe,
+    which a built-in model now calls ``"source"`` and a plugin's lone recipe ``"default"``. It lives here, at the
+    bottom of the layers, so that every layer can read it; results code gets it from :mod:`tactile_zoo.bench.records`.
+    """
+    legacy = "source" if config.get("model_source", "builtin") == "builtin" else "default"
+    return str(config.get("recipe_name") or legacy)

@@ -3,6 +3,7 @@ and tested below the ones that use it."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import grimp
@@ -52,3 +53,33 @@ def test_a_long_module_is_found(tmp_path: Path) -> None:
     (tmp_path / "short.py").write_text("x = 1\n" * 450)
     (tmp_path / "long.py").write_text("x = 1\n" * 451)
     assert long_modules(tmp_path) == ["long.py: 451 lines"]
+
+
+#: the one module that knows where a bench folder keeps its cell files
+RECORDS = PACKAGE / "bench" / "records.py"
+
+
+def cell_globs(*roots: Path) -> list[str]:
+    """Every line outside the records module that globs for cell files (a ``glob``/``rglob`` call on a line that
+    names ``cells``): each such line is a second reader of the records, which ``tactile_zoo.bench.records`` is for."""
+    hits = []
+    for root in roots:
+        for path in sorted(root.rglob("*.py")):
+            if path.resolve() == RECORDS.resolve():
+                continue
+            for number, line in enumerate(path.read_text().splitlines(), 1):
+                if re.search(r"\br?glob\(", line) and "cells" in line:
+                    hits.append(f"{path.relative_to(root.parent)}:{number}")
+    return hits
+
+
+def test_cell_files_are_read_through_the_records_module_only() -> None:
+    repo = PACKAGE.parent
+    assert cell_globs(PACKAGE, repo / "benchmarks", repo / "tools") == []
+
+
+def test_a_cell_glob_is_found(tmp_path: Path) -> None:
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "ok.py").write_text('progress = sorted(folder.glob("*.json"))\n')
+    (tmp_path / "pkg" / "reader.py").write_text('records = sorted((run / "cells").glob("*.json"))\n')
+    assert cell_globs(tmp_path / "pkg") == ["pkg/reader.py:1"]

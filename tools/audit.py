@@ -48,7 +48,15 @@ from pathlib import Path
 from typing import Any
 
 from tactile_zoo import registry
-from tactile_zoo.engine.cell import recipe_name_of, resolve_cell
+from tactile_zoo.bench.records import (
+    InvalidCell,
+    InvalidCellsError,
+    cell_files,
+    read_record,
+    recipe_name_of,
+    run_records,
+)
+from tactile_zoo.engine.cell import resolve_cell
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
@@ -59,15 +67,17 @@ def _git(repo: Path, *args: str) -> subprocess.CompletedProcess:
 
 
 def _records(folder: Path) -> list[dict[str, Any]]:
-    return [json.loads(p.read_text()) for p in sorted(folder.rglob("cells/*.json"))]
+    return run_records(folder, recursive=True)
 
 
 def trials(tuning: Path) -> dict[tuple[str, str], dict[str, list[dict[str, Any]]]]:
     """(model, dataset) -> config hash -> the trial's cells; each record gains ``_folder``, its trial folder relative
     to ``tuning`` (``""`` for cells directly under it)."""
     out: dict[tuple[str, str], dict[str, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
-    for path in sorted(tuning.rglob("cells/*.json")):
-        rec = json.loads(path.read_text())
+    for path in cell_files(tuning, recursive=True):
+        rec = read_record(path)
+        if isinstance(rec, InvalidCell):
+            raise InvalidCellsError([rec], tuning, "the audit reads every trial")
         folder = path.parent.parent.relative_to(tuning).as_posix()
         rec["_folder"] = "" if folder == "." else folder
         out[(rec["model"], rec["dataset"])][rec["config_hash"]].append(rec)

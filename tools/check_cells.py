@@ -39,8 +39,8 @@ from typing import Any
 
 from tactile_zoo.bench import BenchConfig, build_grid
 from tactile_zoo.bench.grid import HASH_FORMAT, cell_id, config_hash
+from tactile_zoo.bench.records import cell_files, recipe_name_of, run_records
 from tactile_zoo.bench.results import atomic_write_json
-from tactile_zoo.engine.cell import recipe_name_of
 
 REVISION_KEYS = ("model_revision", "dataset_revision")
 
@@ -115,8 +115,8 @@ def compare(folder: Path, other: Path) -> int:
     def key(record: dict[str, Any]) -> tuple[str, str, int, int]:
         return record["model"], record["dataset"], record["fold"], record["seed"]
 
-    ours = {key(r): r for r in (json.loads(p.read_text()) for p in sorted((folder / "cells").glob("*.json")))}
-    theirs = [json.loads(p.read_text()) for p in sorted((other / "cells").glob("*.json"))]
+    ours = {key(r): r for r in run_records(folder)}
+    theirs = run_records(other)
     differing = 0
     for record in theirs:
         base = ours.get(key(record))
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.compare is not None:
         return compare(args.folder, args.compare)
-    paths = sorted((args.folder / "cells").glob("*.json"))
+    paths = cell_files(args.folder)
     if not paths:
         print(f"no cell records under {args.folder / 'cells'}", file=sys.stderr)
         return 2

@@ -22,16 +22,14 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import statistics
 import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from tactile_zoo import registry
 from tactile_zoo.bench.intervals import records_interval
-from tactile_zoo.engine.cell import recipe_name_of
+from tactile_zoo.bench.records import qualifying_cells
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
@@ -50,26 +48,10 @@ CONVLSTM_SOURCE = 0.8256  # Zapata-Impata, Gil and Torres, Sensors 2019: unseen 
 DCNN_SOURCE = (871, 1200)  # 0.7258: the mean of the ten released models, the X-Tacformer paper's D-CNN figure
 
 
-def _current(record: dict[str, Any]) -> bool:
-    cfg = record.get("config") or {}
-    try:
-        model = registry.revision_of(registry.get_model_entry(record["model"]))
-        data = registry.revision_of(registry.get_dataset_entry(record["dataset"]))
-    except registry.UnknownNameError:
-        return False
-    return cfg.get("model_revision", 1) >= model and cfg.get("dataset_revision", 1) >= data
-
-
 def cells(folder: Path, evaluation: str = "validation", recipe: str = "source") -> list[dict[str, Any]]:
-    """The ok, current cells of ``folder`` that trained with the named ``recipe`` under ``evaluation``."""
-    out = []
-    for path in sorted((folder / "cells").glob("*.json")):
-        rec = json.loads(path.read_text())
-        cfg = rec.get("config") or {}
-        if rec.get("status") == "ok" and _current(rec) and recipe_name_of(cfg) == recipe \
-                and cfg.get("evaluation", "validation") == evaluation:
-            out.append(rec)
-    return out
+    """The ok, current cells of ``folder`` that trained with the named ``recipe`` under ``evaluation``
+    (:func:`tactile_zoo.bench.records.qualifying_cells`)."""
+    return qualifying_cells(folder, recipe=recipe, evaluation=evaluation)
 
 
 def _pick(records: Iterable[dict[str, Any]], model: str, dataset: str) -> list[dict[str, Any]]:

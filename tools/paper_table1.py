@@ -33,6 +33,7 @@ from typing import Any
 
 from tactile_zoo.bench.intervals import bootstrap_accuracy, records_interval
 from tactile_zoo.bench.paired import holm, records_paired
+from tactile_zoo.bench.records import run_records
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 MODELS = ("sgnet", "convlstm", "cnn_lstm", "tacformer", "x_tacformer", "dcnn")
@@ -296,7 +297,7 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     lines += augment8000_table() + ["", READING, ""] + cost_table(current)
     if zoo:
         lines += [""] + cost_table(zoo, f"the `zoo` cells in `{zoo_folder.name}/`")
-    left_out = len(list((folder / "cells").glob("*.json"))) - len(current)
+    left_out = len(run_records(folder)) - len(current)
     if left_out:
         lines.append(f"\n{left_out} cell file(s) are left out: not ok, another recipe, or computed by an older "
                      f"revision of their model's code (to be rerun).")

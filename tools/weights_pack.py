@@ -60,9 +60,9 @@ import numpy as np
 import torch
 
 from tactile_zoo import registry
+from tactile_zoo.bench.records import recipe_name_of, revision_gaps, run_records
 from tactile_zoo.bench.tables import leaderboard_rows
 from tactile_zoo.data.base import file_sha256
-from tactile_zoo.engine.cell import recipe_name_of
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.weights import WeightEntry, entry_from_record, make_tag, read_manifest, write_manifest
 
@@ -134,7 +134,7 @@ class Slot:
 
 def read_cells(folder: Path) -> list[dict[str, Any]]:
     """The cell records of a bench folder (``cells/*.json``), in file-name order."""
-    return [json.loads(p.read_text()) for p in sorted((folder / "cells").glob("*.json"))]
+    return run_records(folder)
 
 
 def default_recipe(model: str) -> str:
@@ -144,16 +144,10 @@ def default_recipe(model: str) -> str:
 
 def _stale(record: dict[str, Any]) -> str | None:
     """Why the record was computed by older code than the registered one, or ``None`` when it is current."""
-    config = record.get("config") or {}
-    for kind, lookup in (("model", registry.get_model_entry), ("dataset", registry.get_dataset_entry)):
-        try:
-            now = registry.revision_of(lookup(record[kind]))
-        except registry.UnknownNameError:
-            return f"{kind} {record[kind]!r} is not registered"
-        then = config.get(f"{kind}_revision", registry.DEFAULT_REVISION)
-        if then < now:
-            return f"stale: {kind} revision {then}, the code is now revision {now}"
-    return None
+    gaps = revision_gaps(record)
+    if gaps is None:
+        return f"model {record['model']!r} or dataset {record['dataset']!r} is not registered"
+    return f"stale: {gaps[0]}" if gaps else None
 
 
 def _excluded(record: dict[str, Any]) -> str | None:

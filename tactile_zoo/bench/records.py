@@ -26,12 +26,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import ResultsError
+from .. import registry
+from ..errors import ResultsError, TactileZooError
+from ..recipe import recipe_name_of
 
-__all__ = ["CELL_STATUSES", "DAMAGED_DIR", "InvalidCell", "CellScan", "InvalidCellsError", "check_record",
-           "read_record", "scan_cells", "move_aside"]
+__all__ = ["CELL_STATUSES", "CELLS_DIR", "DAMAGED_DIR", "InvalidCell", "CellScan", "InvalidCellsError", "check_record",
+           "read_record", "scan_cells", "move_aside", "cell_files", "run_records", "revision_gaps", "qualifying_cells",
+           "recipe_name_of"]
 
 CELL_STATUSES = ("ok", "failed", "skipped")
+#: a bench folder's folder of cell records, one ``<cell id>.json`` each
+CELLS_DIR = "cells"
 #: where ``bench`` moves a damaged cell file before recomputing the cell (inside ``cells/``)
 DAMAGED_DIR = "damaged"
 #: the per-split metrics the tables read; each, when present, is a fraction
@@ -265,3 +270,54 @@ def move_aside(path: str | os.PathLike) -> Path:
         n += 1
     os.replace(path, target)
     return target
+
+
+# ----------------------------------------------------------------------------------------------- results folders
+def cell_files(folder: str | os.PathLike, recursive: bool = False) -> list[Path]:
+    """The cell files of the bench folder ``folder`` (``cells/*.json``; with ``recursive``, those of every bench
+    folder under it), in path order; ``cells/damaged/`` holds none. The one place the layout is spelt out."""
+    folder = Path(folder)
+    found = folder.rglob(f"{CELLS_DIR}/*.json") if recursive else (folder / CELLS_DIR).glob("*.json")
+    return sorted(p for p in found if p.is_file())
+
+
+def run_records(folder: str | os.PathLike, recursive: bool = False) -> list[dict[str, Any]]:
+    """The valid cell records of the bench folder ``folder`` (its ``cells/``; with ``recursive``, of every ``cells/``
+    under it), in path order. A damaged cell file raises :class:`InvalidCellsError` naming each one: a table built from
+    committed results never silently leaves a cell out."""
+    records: list[dict[str, Any]] = []
+    invalid: list[InvalidCell] = []
+    for path in cell_files(folder, recursive):
+        result = read_record(path)
+        (invalid if isinstance(result, InvalidCell) else records).append(result)
+    if invalid:
+        raise InvalidCellsError(invalid, Path(folder), "no table is built from a folder with damaged cells")
+    return records
+
+
+def revision_gaps(record: Mapping[str, Any]) -> list[str] | None:
+    """How the code that computed ``record`` is older than the code registered now: one line per model or dataset
+    whose revision has moved on (``[]``: current), or ``None`` when one of them is no longer registered, so there is
+    nothing to compare with. A record without revisions predates them: revision 1."""
+    config = record.get("config") or {}
+    gaps = []
+    for kind, lookup in (("model", registry.get_model_entry), ("dataset", registry.get_dataset_entry)):
+        try:
+            now = registry.revision_of(lookup(str(record[kind])))
+        except TactileZooError:  # an unknown name, or a plugin that no longer loads
+            return None
+        then = config.get(f"{kind}_revision")
+        then = registry.DEFAULT_REVISION if then is None else then
+        if isinstance(then, int) and then < now:
+            gaps.append(f"{kind} revision {then}, now {now}")
+    return gaps
+
+
+def qualifying_cells(folder: str | os.PathLike, recipe: str = "source", evaluation: str = "validation"
+                     ) -> list[dict[str, Any]]:
+    """The cells of ``folder`` a results table counts: ``ok``, computed by the current code, trained with the named
+    ``recipe`` under ``evaluation``."""
+    return [rec for rec in run_records(folder) if rec.get("status") == "ok" and revision_gaps(rec) == []
+            and recipe_name_of(rec.get("config") or {}) == recipe
+            and (rec.get("config") or {}).get("evaluation", "validation") == evaluation]
+

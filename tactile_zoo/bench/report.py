@@ -33,11 +33,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .. import registry
-from ..engine.cell import recipe_name_of
-from ..errors import ResultsError, TactileZooError
+from ..errors import ResultsError
 from .plots import write_plots
-from .records import CellScan, InvalidCell, InvalidCellsError
+from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, revision_gaps
 from .results import RunDir, atomic_write_text
 from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
 
@@ -121,27 +119,14 @@ def _mixed_configs(records: list[dict[str, Any]]) -> list[str]:
 
 def _outdated_cells(records: list[dict[str, Any]]) -> list[str]:
     """One line per model, dataset and reason where cells were computed by an older revision of the model's or the
-    dataset's code than the one registered now. A record without revisions predates them (revision 1); a name no
-    longer registered, or an unreadable revision, has nothing to compare with and is not flagged."""
-    registered: dict[tuple[str, str], int | None] = {}
+    dataset's code than the one registered now (:func:`~tactile_zoo.bench.records.revision_gaps`); a name no longer
+    registered has nothing to compare with and is not flagged."""
     stale: dict[tuple[str, str, str], list[str]] = {}
     for rec in records:
-        config, reasons = rec.get("config") or {}, []
-        for kind in ("model", "dataset"):
-            key = (kind, str(rec[kind]))
-            if key not in registered:
-                lookup = registry.get_model_entry if kind == "model" else registry.get_dataset_entry
-                try:
-                    registered[key] = registry.revision_of(lookup(key[1]))
-                except TactileZooError:  # unknown name, or a plugin that no longer loads
-                    registered[key] = None
-            then = config.get(f"{kind}_revision")
-            then = registry.DEFAULT_REVISION if then is None else then
-            if registered[key] is not None and isinstance(then, int) and then < registered[key]:
-                reasons.append(f"{kind} revision {then}, now {registered[key]}")
-        if reasons:
+        gaps = revision_gaps(rec)
+        if gaps:
             where = f"fold {_f(rec.get('fold'))} seed {_f(rec.get('seed'))}"
-            stale.setdefault((rec["model"], rec["dataset"], "; ".join(reasons)), []).append(where)
+            stale.setdefault((rec["model"], rec["dataset"], "; ".join(gaps)), []).append(where)
     return [f"- {m} on {d}, {len(cells)} cell(s) ({', '.join(cells)}): {why}"
             for (m, d, why), cells in sorted(stale.items())]
 

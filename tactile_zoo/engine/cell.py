@@ -22,7 +22,7 @@ import torch
 from .. import registry
 from ..data.guard import tuning
 from ..errors import ConfigError
-from ..recipe import Recipe, cap_epochs, resolve_recipe
+from ..recipe import Recipe, cap_epochs, recipe_name_of, resolve_recipe
 from .build import SPLITS, build_model, load_splits
 from .evaluate import DEFAULT_PREFIXES, EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
 from .runtime import PeakMemory, flush_denormals, resolve_device
@@ -30,7 +30,7 @@ from .tensors import concat, take
 from .train import FitResult, train_model
 
 __all__ = ["CellConfig", "CellResult", "EVALUATIONS", "MERGED_EVALUATIONS", "UNHASHED_KEYS", "resolve_cell",
-           "train_cell", "recipe_name_of"]
+           "train_cell"]
 
 #: Keys of a stored cell configuration that are labels, not settings: the cell hash leaves them out.
 UNHASHED_KEYS = ("causal", "recipe_name")
@@ -99,13 +99,6 @@ class CellConfig:
                    model_revision=int(values.get("model_revision", registry.DEFAULT_REVISION)),
                    dataset_revision=int(values.get("dataset_revision", registry.DEFAULT_REVISION)),
                    evaluation=str(values.get("evaluation", "validation")))
-
-
-def recipe_name_of(config: Mapping[str, Any]) -> str:
-    """The recipe name of a cell's stored configuration. Records from before named recipes ran the registered
-    recipe, which a built-in model now calls ``"source"`` and a plugin's lone recipe ``"default"``."""
-    legacy = "source" if config.get("model_source", "builtin") == "builtin" else "default"
-    return str(config.get("recipe_name") or legacy)
 
 
 def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any] | str | None = None,

@@ -202,7 +202,7 @@ def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | No
             dataset_licence = str(get_dataset_entry(record["dataset"]).meta.get("licence", ""))
         except Exception:  # noqa: BLE001 - a dataset no longer registered: the caller can still pass the terms
             dataset_licence = ""
-    from ..engine.cell import recipe_name_of
+    from ..recipe import recipe_name_of
 
     test = (record.get("metrics") or {}).get("test") or {}
     fold, seed = int(record.get("fold", 0)), int(record.get("seed", 0))

@@ -44,7 +44,8 @@ def _commit(repo: Path, message: str) -> str:
 def _cell(folder: Path, name: str, **fields: object) -> None:
     config = resolve_cell("audit_mlp", "tiny_blobs", recipe_name="zoo").to_dict()
     record = {"cell_id": name, "model": "audit_mlp", "dataset": "tiny_blobs", "fold": 0, "seed": 0, "status": "ok",
-              "config_hash": name, "config": config, "metrics": {"val": {"accuracy": 0.5}}, "test_reads": 1}
+              "config_hash": name, "config": config, "metrics": {"val": {"accuracy": 0.5}}, "test_reads": 1,
+              "epochs_run": 1, "best_epoch": 1, "train_seconds": 1.0}
     for key, value in fields.items():
         if key == "evaluation":
             config["evaluation"] = value
@@ -137,7 +138,9 @@ def test_the_audit_prints_what_each_frozen_recipe_changes(repo: Path) -> None:
 def _full_cell(folder: Path, name: str, commit: str, cpu: str = "EPYC", **config: object) -> None:
     cfg = {**resolve_cell("audit_mlp", "tiny_blobs", recipe_name="full").to_dict(), **config}
     record = {"cell_id": name, "model": "audit_mlp", "dataset": "tiny_blobs", "fold": 0, "seed": 0, "status": "ok",
-              "config": cfg, "test_reads": 1, "commit": commit, "cpu": cpu, "cpu_isa": {"capability": "AVX512"}}
+              "config": cfg, "test_reads": 1, "commit": commit, "cpu": cpu, "cpu_isa": {"capability": "AVX512"},
+              "config_hash": name, "metrics": {"test": {"accuracy": 0.5}}, "epochs_run": 1, "best_epoch": 1,
+              "train_seconds": 1.0}
     (folder / "cells").mkdir(parents=True, exist_ok=True)
     (folder / "cells" / f"{name}.json").write_text(json.dumps(record))
 

@@ -23,8 +23,10 @@ def _cell(folder: Path, model: str, dataset: str, seed: int, status: str = "ok",
           seconds: float = 60.0, revision: int | None = None, fold: int = 0, config_hash: str = "h",
           extra: dict | None = None) -> dict:
     current = registry.revision_of(registry.get_model_entry(model))
-    record = {"model": model, "dataset": dataset, "fold": fold, "seed": seed, "status": status,
-              "config_hash": config_hash, "train_seconds": seconds, "metrics": {"test": {"accuracy": accuracy}},
+    record = {"cell_id": f"{model}__{dataset}__f{fold}__s{seed}__{status}__{revision}__{config_hash}",
+              "model": model, "dataset": dataset, "fold": fold, "seed": seed, "status": status,
+              "config_hash": config_hash, "train_seconds": seconds, "epochs_run": 1, "best_epoch": 1,
+              "metrics": {"test": {"accuracy": accuracy}},
               "predictions": {"test": _predictions(accuracy, 20)},
               "config": {"model_revision": current if revision is None else revision, "dataset_revision": 1,
                          "recipe_name": "source"}}

@@ -23,7 +23,7 @@ def _record(model: str = "cnn_lstm", dataset: str = "biotac_dos", *, fold: int =
             config_hash: str = HASH, weights: bool = True, **config: Any) -> dict[str, Any]:
     cell_id = f"{model}__{dataset}__f{fold}__s{seed}__{config_hash}"
     record = {"cell_id": cell_id, "model": model, "dataset": dataset, "fold": fold, "seed": seed,
-              "config_hash": config_hash, "status": "ok",
+              "config_hash": config_hash, "status": "ok", "epochs_run": 1, "best_epoch": 1, "train_seconds": 1.0,
               "config": {"recipe_name": weights_pack.default_recipe(model), "evaluation": "validation",
                          "subset": None, "model_revision": 1, "dataset_revision": 1, **config},
               "metrics": {"test": {"accuracy": 0.5}},
@@ -83,7 +83,7 @@ def test_each_model_reads_the_table_of_its_default_recipe(tmp_path: Path, monkey
     ({"config": {"recipe_name": "fast"}}, "recipe 'fast', not the default 'zoo'"),
     ({"config": {"evaluation": "reference"}}, "evaluation 'reference'"),
     ({"config": {"subset": {"train": 64}}}, "ran on a subset"),
-    ({"config": {"model_revision": 0}}, "stale: model revision 0, the code is now revision 1"),
+    ({"config": {"model_revision": 0}}, "stale: model revision 0, now 1"),
 ])
 def test_a_cell_that_cannot_be_the_cell_of_record_says_why(tmp_path: Path, change: dict[str, Any],
                                                            reason: str) -> None:
