@@ -16,7 +16,6 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
 import pytest
 import tiny_zoo
 import torch
@@ -118,12 +117,7 @@ def test_a_download_is_0644_under_umask_022(umask: int, tmp_path: Path) -> None:
 def test_a_processed_dataset_cache_is_0644_under_umask_022(umask: int, tmp_path: Path) -> None:
     from tactile_zoo.data.datasets.recordings import RecordingsDataset
 
-    rng = np.random.default_rng(0)
-    for cls in ("a", "b"):
-        for k in range(2):
-            path = tmp_path / "grasps" / "raw" / cls / f"{k}.csv"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text("\n".join(",".join(f"{v:.4f}" for v in row) for row in rng.normal(size=(6, 3))) + "\n")
+    tiny_zoo.write_recordings(tmp_path)
     ds = RecordingsDataset(root=tmp_path, folder="grasps", sensor="optoforce3", num_channels=1)
     (cache,) = list(ds.processed_dir.glob(f"{ds._cache_key()}.pt"))
     assert _mode(cache) == 0o644

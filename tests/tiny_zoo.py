@@ -21,6 +21,7 @@ Datasets:
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -177,3 +178,13 @@ def unregister() -> None:
 
 
 register()
+
+
+def write_recordings(root: Path, folder: str = "grasps") -> None:
+    """Four small CSV recordings (two classes, 6 rows x 3 values) in the layout ``RecordingsDataset`` reads."""
+    rng = np.random.default_rng(0)
+    for cls in ("a", "b"):
+        for k in range(2):
+            path = root / folder / "raw" / cls / f"{k}.csv"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text("\n".join(",".join(f"{v:.4f}" for v in row) for row in rng.normal(size=(6, 3))) + "\n")

@@ -11,8 +11,8 @@ import ast
 import pickle
 from pathlib import Path
 
-import numpy as np
 import pytest
+import tiny_zoo
 import torch
 
 import tactile_zoo
@@ -95,12 +95,7 @@ def test_evaluate_refuses_checkpoints_that_carry_code(tmp_path: Path, capsys: py
 
 def test_a_poisoned_processed_cache_is_rebuilt_not_run(tmp_path: Path) -> None:
     """The processed cache is a torch file too: one swapped for a payload is discarded and rebuilt."""
-    rng = np.random.default_rng(0)
-    for cls in ("a", "b"):
-        for k in range(2):
-            path = tmp_path / "grasps" / "raw" / cls / f"{k}.csv"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text("\n".join(",".join(f"{v:.4f}" for v in row) for row in rng.normal(size=(6, 3))) + "\n")
+    tiny_zoo.write_recordings(tmp_path)
     first = RecordingsDataset(root=tmp_path, folder="grasps", sensor="optoforce3", num_channels=1)
     (cache,) = list(first.processed_dir.glob(f"{first._cache_key()}.pt"))
     marker = tmp_path / "pwned"
