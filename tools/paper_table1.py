@@ -272,9 +272,10 @@ def ensemble_table(records: list[dict[str, Any]], dataset: str, recipe: str = "z
     return lines
 
 
-def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[str]:
+def cost_table(records: list[dict[str, Any]], what: str = "this table", fresh: bool = False) -> list[str]:
     """What the table cost: per model and dataset the summed wall time of its cells (each ran on one torch thread,
-    two cells at a time on two cores, so a cell's wall time is about its CPU time)."""
+    two cells at a time on two cores, so a cell's wall time is about its CPU time). ``fresh``: the records are one
+    measured run of the default recipe (``table1-cost/``), whose total is the performance issue's figure."""
     datasets = (*EV, "biotac_dos")
     lines = [f"**What {what} cost** (the cells' own recorded times, `seconds` in each cell file: CPU-minutes of one "
              "thread, summed over the runs)", "",
@@ -295,6 +296,11 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[
                   "of the performance issue was 5). The same configuration took up to twice as long when its cell "
                   "shared the machine with other work (Tacformer on Ev-Containers: 8 to 18 minutes over three seeds), "
                   "so these sums are upper bounds for a quiet pair of cores."]
+    elif fresh:
+        cpus = sorted({r.get("cpu", "unknown CPU") for r in records})
+        lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} of the {len(MODELS) * 3 * 3} runs (the "
+                  f"performance issue's target: 5), one fresh run on {' and '.join(cpus)}, two cells at a time, one "
+                  "torch thread each, nothing else running but light editing."]
     else:
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} runs, each run computed from scratch."]
     return lines
@@ -319,6 +325,9 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     lines += augment8000_table() + ["", READING, ""] + cost_table(current)
     if zoo:
         lines += [""] + cost_table(zoo, f"the `zoo` cells in `{zoo_folder.name}/`")
+    cost_folder = folder.parent / "table1-cost"  # the measured fresh run of the default recipe, when there is one
+    if (cost_folder / "cells").is_dir():
+        lines += [""] + cost_table(cells(cost_folder, recipe="zoo"), "the fresh run in `table1-cost/`", fresh=True)
     left_out = len(run_records(folder)) - len(current)
     if left_out:
         lines.append(f"\n{left_out} cell file(s) are left out: not ok, another recipe, or computed by an older "
