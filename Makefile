@@ -52,6 +52,7 @@ benchmarks: install
 tables: install
 	$(BIN)/python -m tools.fidelity
 	$(BIN)/python -m tools.paper_table1 --readme
+	$(BIN)/python -m tools.table1_full --readme
 
 # the docs site, into site/ (gitignored); --strict: a broken link or anchor, or a page left out of the nav, fails
 docs: install

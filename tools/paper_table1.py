@@ -221,38 +221,61 @@ def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: 
 ENSEMBLE_SEEDS = (0, 1, 2, 3, 4)  # declared in paper-table1-zoo/README.md: every one of the five zoo seeds
 
 
-def ensemble_table(zoo: list[dict[str, Any]], dataset: str) -> list[str]:
-    """The declared seed ensembles ``<model>_ens5`` on an Ev dataset: the mean of the five ``zoo`` cells' stored
-    test probabilities, its class of highest mean probability, a 95 % interval over the test samples."""
+def seed_ensemble(recs: list[dict[str, Any]], split: str = "test") -> tuple[float, float, float] | None:
+    """The seed ensemble of ``recs`` on ``split``: the class of highest mean stored probability per test sample, its
+    accuracy and a 95 % interval over the test units (recordings where the records list them). ``None`` when a record
+    stores no probabilities for ``split``; a record scored on another test set is an error."""
     import numpy as np
 
-    title, column, _ = EV[dataset]
-    lines = [f"**Declared seed ensembles on {title}** (`<model>_ens5`: the five `zoo` seeds' test probabilities "
-             "averaged; one run, the interval resamples the test samples)", "",
-             "| model | paper | `zoo`, mean of the five seeds | `<model>_ens5` | 95 % interval |",
+    stored = [(r.get("predictions") or {}).get(split) or {} for r in recs]
+    if not recs or any("probabilities" not in pred for pred in stored):
+        return None
+    targets = np.asarray(stored[0]["targets"])
+    for r, pred in zip(recs[1:], stored[1:]):
+        if not np.array_equal(np.asarray(pred["targets"]), targets):
+            raise SystemExit(f"{r['cell_id']}: another {split} set than {recs[0]['cell_id']}")
+    mean = np.mean([np.asarray(pred["probabilities"]) for pred in stored], axis=0)  # (S, K)
+    predictions = mean.argmax(1)
+    groups = stored[0].get("groups")
+    low_high = bootstrap_accuracy([(targets, predictions)], groups=None if groups is None else [groups])
+    assert low_high is not None
+    return float((predictions == targets).mean()), *low_high
+
+
+def ensemble_table(records: list[dict[str, Any]], dataset: str, recipe: str = "zoo") -> list[str]:
+    """The declared seed ensembles of ``recipe`` on ``dataset`` (``<model>_ens5`` for ``zoo``,
+    ``<model>_<recipe>_ens5`` otherwise): the mean of the five seeds' stored test probabilities (:func:`seed_ensemble`)
+    on the dataset's declared split (:data:`ZOO_SPLITS`)."""
+    split = ZOO_SPLITS[dataset]
+    title = EV[dataset][0] if dataset in EV else "BioTac-DoS (textures)"
+    column = EV[dataset][1] if dataset in EV else 2
+    name = "<model>_ens5" if recipe == "zoo" else f"<model>_{recipe}_ens5"
+    what = "Declared seed ensembles" if recipe == "zoo" else f"Declared `{recipe}` seed ensembles"
+    units = "test samples" if dataset in EV else "test recordings"
+    lines = [f"**{what} on {title}** (`{name}`: the five `{recipe}` seeds' test probabilities averaged; one run, the "
+             f"interval resamples the {units})", "",
+             f"| model | paper | `{recipe}`, mean of the five seeds | `{name}` | 95 % interval |",
              "|---|---|---|---|---|"]
     for model in MODELS:
-        recs = [r for r in _group(zoo, model, dataset) if r["seed"] in ENSEMBLE_SEEDS]
+        recs = [r for r in _group(records, model, dataset) if r["seed"] in ENSEMBLE_SEEDS and r["fold"] == 0]
         paper = PAPER[model][column]
         if sorted(r["seed"] for r in recs) != list(ENSEMBLE_SEEDS):
             figures = ["-", f"{len(recs)} of 5 seeds so far", "-"]
+        elif (ensemble := seed_ensemble(recs, split)) is None:
+            figures = [f"{statistics.fmean(r['metrics'][split]['accuracy'] for r in recs):.4f}",
+                       f"no stored probabilities for `{split}`", "-"]
         else:
-            targets = np.asarray(recs[0]["predictions"]["test"]["targets"])
-            for r in recs[1:]:
-                if not np.array_equal(np.asarray(r["predictions"]["test"]["targets"]), targets):
-                    raise SystemExit(f"{r['cell_id']}: another test set than {recs[0]['cell_id']}")
-            mean = np.mean([np.asarray(r["predictions"]["test"]["probabilities"]) for r in recs], axis=0)  # (S, K)
-            predictions = mean.argmax(1)
-            low, high = bootstrap_accuracy([(targets, predictions)])
-            figures = [f"{statistics.fmean(r['metrics']['test']['accuracy'] for r in recs):.4f}",
-                       f"{float((predictions == targets).mean()):.4f}", f"[{low:.3f}, {high:.3f}]"]
+            accuracy, low, high = ensemble
+            figures = [f"{statistics.fmean(r['metrics'][split]['accuracy'] for r in recs):.4f}", f"{accuracy:.4f}",
+                       f"[{low:.3f}, {high:.3f}]"]
         lines.append(f"| {NAMES[model]} | {'-' if paper is None else f'{paper:.4f}'} | " + " | ".join(figures) + " |")
     return lines
 
 
-def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[str]:
+def cost_table(records: list[dict[str, Any]], what: str = "this table", fresh: bool = False) -> list[str]:
     """What the table cost: per model and dataset the summed wall time of its cells (each ran on one torch thread,
-    two cells at a time on two cores, so a cell's wall time is about its CPU time)."""
+    two cells at a time on two cores, so a cell's wall time is about its CPU time). ``fresh``: the records are one
+    measured run of the default recipe (``table1-cost/``), whose total is the performance issue's figure."""
     datasets = (*EV, "biotac_dos")
     lines = [f"**What {what} cost** (the cells' own recorded times, `seconds` in each cell file: CPU-minutes of one "
              "thread, summed over the runs)", "",
@@ -273,6 +296,11 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table") -> list[
                   "of the performance issue was 5). The same configuration took up to twice as long when its cell "
                   "shared the machine with other work (Tacformer on Ev-Containers: 8 to 18 minutes over three seeds), "
                   "so these sums are upper bounds for a quiet pair of cores."]
+    elif fresh:
+        cpus = sorted({r.get("cpu", "unknown CPU") for r in records})
+        lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} of the {len(MODELS) * 3 * 3} runs (the "
+                  f"performance issue's target: 5), one fresh run on {' and '.join(cpus)}, two cells at a time, one "
+                  "torch thread each, nothing else running but light editing."]
     else:
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} runs, each run computed from scratch."]
     return lines
@@ -297,6 +325,9 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     lines += augment8000_table() + ["", READING, ""] + cost_table(current)
     if zoo:
         lines += [""] + cost_table(zoo, f"the `zoo` cells in `{zoo_folder.name}/`")
+    cost_folder = folder.parent / "table1-cost"  # the measured fresh run of the default recipe, when there is one
+    if (cost_folder / "cells").is_dir():
+        lines += [""] + cost_table(cells(cost_folder, recipe="zoo"), "the fresh run in `table1-cost/`", fresh=True)
     left_out = len(run_records(folder)) - len(current)
     if left_out:
         lines.append(f"\n{left_out} cell file(s) are left out: not ok, another recipe, or computed by an older "
@@ -304,17 +335,22 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     return "\n".join(lines)
 
 
-def headline(folder: Path, zoo_folder: Path | None = None) -> str:
+def headline(folder: Path, zoo_folder: Path | None = None, full_folder: Path | None = None) -> str:
     """The README's headline: per Ev dataset and model with a paper figure, the paper against our best honest recipe
-    (of ``source`` and ``zoo``, the one with the higher mean test accuracy) with its 95 % interval."""
+    (of ``source``, ``zoo`` and ``full``, the one with the higher mean test accuracy) with its 95 % interval. The
+    ``full`` cells (default: the sibling ``<folder>-full``) count under ``--evaluation final`` only: trained on every
+    training recording, nothing selected, the test split read once."""
     from tools.fidelity import cells
 
     source = cells(folder)
     zoo_folder = folder.parent / f"{folder.name}-zoo" if zoo_folder is None else zoo_folder
     zoo = cells(zoo_folder, recipe="zoo") if (zoo_folder / "cells").is_dir() else []
-    lines = ["Test accuracy on the released Ev splits: the paper's Table I against our better honest recipe (epoch "
-             "selected on validation, test read once), mean [95 % confidence interval of the expected accuracy] "
-             "(runs). Choosing the better of two recipes on test flatters it slightly.", "",
+    full_folder = folder.parent / f"{folder.name}-full" if full_folder is None else full_folder
+    full = cells(full_folder, evaluation="final", recipe="full") if (full_folder / "cells").is_dir() else []
+    lines = ["Test accuracy on the released Ev splits: the paper's Table I against our best honest recipe (epoch "
+             "selected on validation, or a fixed epoch count declared beforehand; test read once), mean [95 % "
+             "confidence interval of the expected accuracy] (runs). Choosing the best of the recipes on test flatters "
+             "it slightly.", "",
              "| dataset | model | paper | ours | recipe | paper against our interval |", "|---|---|---|---|---|---|"]
     for dataset, (title, column, _) in EV.items():
         for model in MODELS:
@@ -322,7 +358,8 @@ def headline(folder: Path, zoo_folder: Path | None = None) -> str:
             if paper is None:
                 continue
             options = [(recipe, recs) for recipe, recs in (("source", _group(source, model, dataset)),
-                                                           ("zoo", _group(zoo, model, dataset))) if recs]
+                                                           ("zoo", _group(zoo, model, dataset)),
+                                                           ("full", _group(full, model, dataset))) if recs]
             if not options:
                 lines.append(f"| {title} | {NAMES[model]} | {paper:.4f} | not run yet | - | - |")
                 continue

@@ -198,3 +198,20 @@ def test_a_large_test_split_keeps_predictions_but_not_probabilities(monkeypatch:
     assert cell._eval_dict(small, None, probabilities=True)["probabilities"] == [[0.9, 0.1], [0.2, 0.8]]
     out = cell._eval_dict(large, [4, 4, 5], probabilities=True)
     assert "probabilities" not in out and out["predictions"] == [0, 1, 1] and out["groups"] == [4, 4, 5]
+
+
+def test_a_too_large_main_split_leaves_its_probabilities_to_its_subsets(monkeypatch: pytest.MonkeyPatch) -> None:
+    # BioTac-DoS: the whole test split is too large, its unseen sets are not; a seed ensemble on textures needs theirs
+    from types import SimpleNamespace
+
+    from tactile_zoo.bench import cell
+    from tactile_zoo.engine.evaluate import EvalResult
+
+    monkeypatch.setattr(cell, "MAX_PROBABILITY_ROWS", 2)
+    whole = EvalResult({"accuracy": 1.0}, [0, 1, 1], [[0.9, 0.1], [0.2, 0.8], [0.3, 0.7]], [0, 1, 1])
+    part = EvalResult({"accuracy": 1.0}, [0, 1], [[0.9, 0.1], [0.2, 0.8]], [0, 1])
+    stored = cell._predictions(SimpleNamespace(tests={"test": whole, "test_a": part}, test_groups={}))
+    assert "probabilities" not in stored["test"] and stored["test_a"]["probabilities"] == [[0.9, 0.1], [0.2, 0.8]]
+    # a main split small enough keeps the only copy
+    stored = cell._predictions(SimpleNamespace(tests={"test": part, "test_a": part}, test_groups={}))
+    assert "probabilities" in stored["test"] and "probabilities" not in stored["test_a"]

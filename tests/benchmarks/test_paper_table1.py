@@ -88,6 +88,10 @@ def test_a_missing_cells_folder_is_one_clear_error(tmp_path: Path, capsys: pytes
 
 def test_the_table_page_and_the_readme_headline_are_regenerated_from_the_committed_cells() -> None:
     assert main(["--check"]) == 0, "run python -m tools.paper_table1 --readme and commit docs/table1.md, README.md"
+    # the page's second generated block (round 3: full against zoo) has its own generator
+    from tools import table1_full
+
+    assert table1_full.main(["--check"]) == 0, "run python -m tools.table1_full --readme and commit docs/"
 
 
 def test_the_check_fails_when_either_block_is_stale(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -206,3 +210,19 @@ def test_the_declared_ensemble_averages_all_five_seeds_probabilities(tmp_path: P
     (zoo / "cells" / "x_tacformer__ev_objects__f0__s4__z.json").unlink()  # four seeds are not the declared model
     assert _rows(table(source), "Declared seed ensembles on Ev-Objects")["X-Tacformer"].endswith(
         "| - | 4 of 5 seeds so far | - |")
+
+
+def test_the_fresh_cost_run_beside_the_table_is_summed_per_model_and_dataset(tmp_path: Path) -> None:
+    table_folder, cost = tmp_path / "paper-table1", tmp_path / "table1-cost"
+    _cell(table_folder, "sgnet", "ev_objects", 0)
+    for seed, seconds in ((0, 600.0), (1, 1200.0)):
+        _cell(cost, "dcnn", "ev_objects", seed, seconds=seconds)
+    _cell(cost, "dcnn", "biotac_dos", 0, seconds=5400.0)
+    for path in (cost / "cells").glob("*.json"):  # the fresh run trains the default recipe
+        record = json.loads(path.read_text())
+        path.write_text(json.dumps({**record, "seconds": record["train_seconds"], "cpu": "AMD EPYC",
+                                    "config": {**record["config"], "recipe_name": "zoo"}}))
+    text = table(table_folder)
+    block = text.split("**What the fresh run in `table1-cost/` cost**")[1]
+    assert "| D-CNN | 30 (2 runs) | - | 90 (1 run) | 120 |" in block
+    assert "In all 2.0 CPU-hours for 3 of the 54 runs" in block and "on AMD EPYC" in block
