@@ -300,7 +300,7 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table", fresh: b
         cpus = sorted({r.get("cpu", "unknown CPU") for r in records})
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} of the {len(MODELS) * 3 * 3} runs (the "
                   f"performance issue's target: 5), one fresh run on {' and '.join(cpus)}, two cells at a time, one "
-                  "torch thread each, nothing else running but light editing."]
+                  "torch thread each, with only development work at nice 19 (editing, a few test runs) beside it."]
     else:
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} runs, each run computed from scratch."]
     return lines
