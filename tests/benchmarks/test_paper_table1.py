@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
+from seed_probabilities import one_wrong_each
 
 from tactile_zoo import registry
 from tactile_zoo.bench.intervals import records_interval
@@ -187,14 +188,8 @@ def test_the_zoo_comparison_pairs_runs_corrects_across_models_and_reads_each_row
 def test_the_declared_ensemble_averages_all_five_seeds_probabilities(tmp_path: Path) -> None:
     source, zoo = tmp_path / "t1", tmp_path / "t1-zoo"
     targets = [0, 1, 2, 0, 1]
-    # each seed is confidently wrong on a different sample and mildly right elsewhere: every seed scores 4/5, the
-    # average of the probabilities is right on all five
-    for seed in range(5):
-        probabilities = [[0.1, 0.1, 0.1] for _ in targets]
-        for i, t in enumerate(targets):
-            probabilities[i][t] = 0.5
-        probabilities[seed][targets[seed]], probabilities[seed][(targets[seed] + 1) % 3] = 0.0, 0.9
-        predictions = [max(range(3), key=row.__getitem__) for row in probabilities]
+    for seed in range(5):  # every seed scores 4/5, the average of the probabilities is right on all five
+        probabilities, predictions = one_wrong_each(targets, seed)
         record = _cell(source, "x_tacformer", "ev_objects", seed, accuracy=0.5)
         record["predictions"] = {"test": {"targets": targets, "predictions": [0] * 5}}  # the same test set
         (source / "cells" / f"x_tacformer__ev_objects__f0__s{seed}__ok__None__h.json").write_text(json.dumps(record))

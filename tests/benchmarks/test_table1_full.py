@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+from seed_probabilities import one_wrong_each
 
 from tactile_zoo import registry
 from tactile_zoo.bench.paired import records_paired
@@ -89,12 +90,7 @@ def test_the_full_ensemble_averages_the_five_seeds_probabilities_on_every_datase
     full = []
     for dataset, split in (("ev_containers", "test"), ("biotac_dos", "test_textures")):
         for seed in range(5):
-            # each seed confidently wrong on its own sample, mildly right elsewhere: 4/5 each, the average 5/5
-            probabilities = [[0.1, 0.1, 0.1] for _ in targets]
-            for i, t in enumerate(targets):
-                probabilities[i][t] = 0.5
-            probabilities[seed][targets[seed]], probabilities[seed][(targets[seed] + 1) % 3] = 0.0, 0.9
-            predictions = [max(range(3), key=row.__getitem__) for row in probabilities]
+            probabilities, predictions = one_wrong_each(targets, seed)  # 4/5 each, the average 5/5
             record = _cell(None, "cnn_lstm", dataset, seed, 0.8)
             record["predictions"][split] = {"targets": targets, "predictions": predictions,
                                             "probabilities": probabilities, "groups": [0, 0, 1, 1, 2]}
