@@ -298,9 +298,10 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table", fresh: b
                   "so these sums are upper bounds for a quiet pair of cores."]
     elif fresh:
         cpus = sorted({r.get("cpu", "unknown CPU") for r in records})
-        lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} of the {len(MODELS) * 3 * 3} runs (the "
-                  f"performance issue's target: 5), one fresh run on {' and '.join(cpus)}, two cells at a time, one "
-                  "torch thread each, with only development work at nice 19 (editing, a few test runs) beside it."]
+        planned = len(MODELS) * len(datasets) * 3  # seeds 0-2
+        lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} of the {planned} runs (the performance issue's "
+                  f"target: 5), one fresh run on {' and '.join(cpus)}, two cells at a time, one torch thread each "
+                  "(how it ran: `benchmarks/results/table1-cost/README.md`)."]
     else:
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} runs, each run computed from scratch."]
     return lines
