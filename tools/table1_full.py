@@ -4,7 +4,8 @@ BioTac-DoS under the k-fold protocol.
 
     python -m tools.table1_full             # print both blocks
     python -m tools.table1_full --readme    # rewrite docs/table1.md's round-3 block, docs/fidelity.md's decomposition
-    python -m tools.table1_full --check     # exit 1 if either block is not what the cells give
+    python -m tools.table1_full --check     # exit 1 if either block is not what the cells give, or if a model's
+                                            # registered default_recipe is not the one the plan's rule decided
 
 Sources (nothing is trained here; a folder without cells reads as "not run yet"):
 
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from tactile_zoo import registry
 from tactile_zoo.bench.paired import holm, records_paired
 from tools.fidelity import cells, replace_block, update_page
 from tools.paper_table1 import EV, MODELS, NAMES, PAPER, RESULTS, ZOO_SPLITS, _figure, _group, ensemble_table
@@ -228,15 +230,26 @@ def decomposition(sources: Sources) -> str:
     return "\n".join(lines)
 
 
-def table(sources: Sources) -> str:
-    """docs/table1.md's round-3 block."""
-    comparisons = {d: compare(sources.zoo, sources.full, d) for d in DATASETS}
+def table(sources: Sources, comparisons: Mapping[str, Mapping[str, Comparison]] | None = None) -> str:
+    """docs/table1.md's round-3 block (``comparisons``: :func:`compare` per dataset, computed when not given)."""
+    comparisons = comparisons or {d: compare(sources.zoo, sources.full, d) for d in DATASETS}
     lines: list[str] = []
     for dataset in DATASETS:
         lines += full_table(sources, dataset, comparisons[dataset]) + [""]
         lines += ensemble_table(sources.full, dataset, recipe="full") + [""]
     lines += default_table(comparisons) + [""] + kfold_table(sources)
     return "\n".join(lines)
+
+
+def unregistered(decided: Mapping[str, str]) -> list[str]:
+    """Each model whose registered ``default_recipe`` is not the one the plan's rule decided (pending ones aside)."""
+    out = []
+    for model, recipe in decided.items():
+        registered = registry.get_model_entry(model).meta["default_recipe"]
+        if recipe != "pending" and registered != recipe:
+            out.append(f"{model}: the plan's rule makes {recipe!r} the default, the registry says {registered!r} "
+                       f"(default_recipe in tactile_zoo/models/{model}.py)")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -246,14 +259,18 @@ def main(argv: list[str] | None = None) -> int:
     mode.add_argument("--check", action="store_true", help="exit 1 if either block is out of date")
     args = p.parse_args(argv)
     sources = load()
-    body, ledger = table(sources), decomposition(sources)
+    comparisons = {d: compare(sources.zoo, sources.full, d) for d in DATASETS}
+    body, ledger = table(sources, comparisons), decomposition(sources)
     if not (args.readme or args.check):
         print(f"{body}\n\n{ledger}")
         return 0
+    mismatched = unregistered(default_recipes(comparisons))
+    for line in mismatched:
+        print(line, file=sys.stderr)
     command = "python -m tools.table1_full --readme"
     page = update_page(PAGE, replace_block(PAGE.read_text(), BEGIN, END, body, PAGE), args.check, command)
     new_ledger = replace_block(LEDGER.read_text(), DECOMPOSITION_BEGIN, DECOMPOSITION_END, ledger, LEDGER)
-    return max(page, update_page(LEDGER, new_ledger, args.check, command))
+    return max(page, update_page(LEDGER, new_ledger, args.check, command), int(bool(mismatched)))
 
 
 if __name__ == "__main__":

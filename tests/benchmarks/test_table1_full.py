@@ -13,7 +13,16 @@ from seed_probabilities import one_wrong_each
 from tactile_zoo import registry
 from tactile_zoo.bench.paired import records_paired
 from tools import table1_full as t1
-from tools.table1_full import Comparison, Sources, compare, decomposition, default_recipes, gap_reading, table
+from tools.table1_full import (
+    Comparison,
+    Sources,
+    compare,
+    decomposition,
+    default_recipes,
+    gap_reading,
+    table,
+    unregistered,
+)
 
 WINDOWS = [g for g in range(4) for _ in range(5)]  # BioTac-DoS: 4 recordings of 5 windows
 
@@ -128,6 +137,14 @@ def test_the_default_rule() -> None:
                        "x_tacformer": "pending", "dcnn": "pending"}
     every["ev_objects"]["convlstm"] = _c(0.03)  # mean -0.0033: zoo stays, though nothing is significant
     assert default_recipes(every)["convlstm"] == "zoo"
+
+
+def test_a_registered_default_that_the_rule_did_not_pick_is_named() -> None:
+    registered = {m: registry.get_model_entry(m).meta["default_recipe"] for m in ("sgnet", "dcnn", "convlstm")}
+    flipped = {"full": "zoo", "zoo": "full"}
+    decided = {"sgnet": registered["sgnet"], "dcnn": flipped[registered["dcnn"]], "convlstm": "pending"}
+    assert unregistered(decided) == [f"dcnn: the plan's rule makes {decided['dcnn']!r} the default, the registry says "
+                                     f"{registered['dcnn']!r} (default_recipe in tactile_zoo/models/dcnn.py)"]
 
 
 def test_the_gap_reading_splits_the_paper_lead() -> None:
