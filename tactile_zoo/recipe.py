@@ -36,7 +36,8 @@ model's settings beside the training keys, because a recipe tuned for a dataset 
         recipe that trains on every training recording for a fixed number of epochs; see
         :data:`tactile_zoo.engine.cell.EVALUATIONS`);
     datasets: per-dataset sections, ``{"biotac_dos": {"max_epochs": 30, "dataset_kwargs": {"window": 5}}}``, each
-        holding training keys, ``hparams`` and ``dataset_kwargs`` that apply on that dataset only, on top of the rest.
+        holding training keys, ``hparams``, ``dataset_kwargs`` and an ``evaluation`` that apply on that dataset only,
+        on top of the rest.
 
 :func:`named_recipe_for` resolves a named recipe on one dataset into its three parts; settings given by the user
 (``--set``, ``--hparam``, ``--dataset-arg``) still win over the recipe's.
@@ -303,9 +304,19 @@ def check_named_recipe(recipe: Mapping[str, Any], where: str = "recipe") -> None
             raise ConfigError(f"{where}: datasets.{dataset} must be a dict, got {section!r}")
         if "datasets" in section:
             raise ConfigError(f"{where}: datasets.{dataset} cannot nest another 'datasets' section")
-        if "evaluation" in section:
-            raise ConfigError(f"{where}: datasets.{dataset} cannot declare an evaluation (a recipe has one)")
+        own = section.get("evaluation")
+        if own is not None and own not in RECIPE_EVALUATIONS:
+            raise ConfigError(f"{where}: datasets.{dataset}.evaluation must be one of {', '.join(RECIPE_EVALUATIONS)}, "
+                              f"got {own!r}")
         named_recipe_for(recipe, dataset, where)
+
+
+def declared_evaluation(recipe: Mapping[str, Any] | None, dataset: str | None) -> str | None:
+    """The evaluation a named recipe declares on ``dataset``: its section's, else its own (``None``: undeclared)."""
+    if recipe is None:
+        return None
+    section = (recipe.get("datasets") or {}).get(dataset) if dataset else None
+    return (section or {}).get("evaluation") or recipe.get("evaluation")
 
 
 def named_recipe_for(recipe: Mapping[str, Any] | None, dataset: str | None, where: str = "recipe"
@@ -330,26 +341,27 @@ def named_recipe_for(recipe: Mapping[str, Any] | None, dataset: str | None, wher
 
 
 def full_recipe(recipe: Mapping[str, Any], epochs: Mapping[str, int]) -> dict[str, Any]:
-    """The ``full`` variant of a named recipe: every training recording, a fixed epoch count per dataset.
+    """The ``full`` variant of a named recipe: every training recording, a fixed epoch count per declared dataset.
 
     ``epochs`` maps a dataset to the epoch count declared for it beforehand from validation evidence alone (the rule
-    is in ``benchmarks/results/paper-table1-full/PLAN.md``). The variant declares ``evaluation: final`` (train on
-    train + val, select nothing, read the test split once) and turns early stopping off. Everything else is the
-    recipe's own, the learning-rate schedule included: a cosine schedule keeps the period of the recipe's full
-    budget (``t_max``), so the first ``N`` epochs follow the same learning rates as the runs the count came from.
+    is in ``benchmarks/results/paper-table1-full/PLAN.md``). On those datasets the variant declares ``evaluation:
+    final`` (train on train + val, select nothing, read the test split once) and turns early stopping off. Everything
+    else is the recipe's own, the learning-rate schedule included: a cosine schedule keeps the period of the recipe's
+    full budget (``t_max``), so the first ``N`` epochs follow the same learning rates as the runs the count came from.
+
+    A dataset without a declared count (a simulator, your own recordings) has no evidence for a fixed budget, so
+    there the variant is the recipe itself: the epoch is selected on validation.
     """
     default_period = int(recipe.get("max_epochs", DEFAULT_RECIPE.max_epochs))
-    out: dict[str, Any] = {**recipe, "patience": None, "evaluation": "final",
-                           "schedule": _fixed_period(recipe.get("schedule"), default_period)}
     sections = {name: dict(section) for name, section in (recipe.get("datasets") or {}).items()}
     for dataset, count in epochs.items():
         section = sections.setdefault(dataset, {})
-        if "schedule" in section or "max_epochs" in section:  # the section's own budget set its schedule's period
-            period = int(section.get("max_epochs", default_period))
-            section["schedule"] = _fixed_period(section.get("schedule", recipe.get("schedule")), period)
-        section.update(max_epochs=int(count), patience=None)
-    out["datasets"] = sections
-    return out
+        period = int(section.get("max_epochs", default_period))  # the budget whose schedule the count came from
+        schedule = _fixed_period(section.get("schedule", recipe.get("schedule")), period)
+        if schedule is not None:
+            section["schedule"] = schedule
+        section.update(max_epochs=int(count), patience=None, evaluation="final")
+    return {**recipe, "datasets": sections}
 
 
 def _fixed_period(schedule: Any, period: int) -> Any:

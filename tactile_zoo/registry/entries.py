@@ -15,7 +15,7 @@ from types import MappingProxyType
 from typing import Any, TypeVar
 
 from ..errors import ConfigError, PluginError, TactileZooError
-from ..recipe import Recipe, check_named_recipe, named_recipe_for, resolve_recipe
+from ..recipe import Recipe, check_named_recipe, declared_evaluation, named_recipe_for, resolve_recipe
 
 T = TypeVar("T")
 
@@ -239,7 +239,7 @@ def resolve_model_recipe(meta: Mapping[str, Any], name: str | None = None, datas
         raise ConfigError(f"{owner}: {exc}") from None
     training, hparams, kwargs = named_recipe_for(base, dataset, where=f"recipe {name!r} of {owner}")
     return ModelRecipe(name, resolve_recipe(training, overrides, epochs, where=f"recipe of {owner}"), hparams, kwargs,
-                       (base or {}).get("evaluation"))
+                       declared_evaluation(base, dataset))
 
 
 def _register(kind: str, obj: Any, name: str | None, meta: Mapping[str, Any]) -> Entry:

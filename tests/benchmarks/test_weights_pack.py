@@ -80,7 +80,7 @@ def test_each_model_reads_the_table_of_its_default_recipe(tmp_path: Path, monkey
 
 @pytest.mark.parametrize(("change", "reason"), [
     ({"status": "failed"}, "status failed"),
-    ({"config": {"recipe_name": "fast"}}, "recipe 'fast', not the default 'zoo'"),
+    ({"config": {"recipe_name": "fast"}}, "recipe 'fast', not the default 'full'"),
     ({"config": {"evaluation": "reference"}}, "evaluation 'reference'"),
     ({"config": {"subset": {"train": 64}}}, "ran on a subset"),
     ({"config": {"model_revision": 0}}, "stale: model revision 0, now 1"),
@@ -138,7 +138,7 @@ def test_notes_say_what_users_must_know() -> None:
     record = _record(dataset_kwargs={"window": 10}) | {"spec": _spec("biotac_dos", 10, 24, 1, 7)}
     biotac = weights_pack.planned_entry(weights_pack.Source(record, record, Path("."), Path(".")))
     assert "windows of 10 BioTac SP readings at 100 Hz, each electrode as (baseline - reading) / 1000" in biotac.note
-    assert biotac.tag == "cnn_lstm.zoo_biotac_dos" and biotac.preprocessing["frame_period_s"] == 0.01
+    assert biotac.tag == "cnn_lstm.full_biotac_dos" and biotac.preprocessing["frame_period_s"] == 0.01
 
 
 def _spec(name: str, steps: int, nodes: int, channels: int, classes: int) -> dict[str, Any]:

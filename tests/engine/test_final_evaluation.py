@@ -59,10 +59,29 @@ def test_a_recipe_declares_its_evaluation_and_the_user_still_wins() -> None:
 
 
 @pytest.mark.parametrize("bad", [{"evaluation": "reference"}, {"evaluation": "best"},
-                                 {"datasets": {"tiny_blobs": {"evaluation": "final"}}}])
+                                 {"datasets": {"tiny_blobs": {"evaluation": "tuning"}}}])
 def test_a_recipe_cannot_declare_a_test_reading_evaluation(bad: dict) -> None:
     import tiny_zoo
 
     with pytest.raises(ConfigError, match="evaluation"):
         register_model("zt_bad_eval", paper="-", year=2026, inputs=[],
                        recipes={"zoo": {"loss": "ce", **bad}})(type("ZtBad", (tiny_zoo.TinyMLP,), {}))
+
+
+def test_a_dataset_section_declares_its_own_evaluation() -> None:
+    """A fixed budget declared for one dataset does not travel to another: elsewhere the recipe selects on val."""
+    import tiny_zoo
+
+    register_model("zt_section_eval", paper="-", year=2026, inputs=[], default_recipe="full",
+                   recipes={"full": {"loss": "ce", "max_epochs": 6, "patience": 2,
+                                     "datasets": {"tiny_blobs": {"max_epochs": 3, "patience": None,
+                                                                 "evaluation": "final"}}}}
+                   )(type("ZtSection", (tiny_zoo.TinyMLP,), {}))
+    try:
+        declared = resolve_cell("zt_section_eval", "tiny_blobs")
+        assert declared.evaluation == "final" and declared.recipe.max_epochs == 3
+        elsewhere = resolve_cell("zt_section_eval", "tiny_kfold")
+        assert elsewhere.evaluation == "validation" and elsewhere.recipe.patience == 2
+        assert resolve_cell("zt_section_eval", "tiny_blobs", evaluation="validation").evaluation == "validation"
+    finally:
+        _unregister("model", "zt_section_eval")

@@ -28,16 +28,17 @@ def two_recipes():
     registry._unregister("model", "tiny_two")
 
 
-def test_every_builtin_model_has_a_source_recipe_and_defaults_to_its_frozen_zoo_recipe() -> None:
+def test_every_builtin_model_defaults_to_full_built_on_its_frozen_zoo_recipe() -> None:
     builtins = [name for name in tz.list_models()
                 if str(getattr(registry.get_model_entry(name).obj, "__module__", "")).startswith("tactile_zoo.")]
     assert len(builtins) >= 6  # test zoos registered by other tests in this worker are not built-ins
     frozen = json.loads(FREEZE.read_text())["models"]
     for name in builtins:
         meta = registry.get_model_entry(name).meta
-        assert meta["default_recipe"] == "zoo" and {"source", "zoo"} <= set(meta["recipes"]), name
-        assert meta["recipe"] == meta["recipes"]["zoo"], name  # the derived default, for older readers
-        assert json.loads(json.dumps(meta["recipes"]["zoo"])) == frozen[name], name  # the default is what was frozen
+        # the round-3 plan's rule made `full` every built-in model's default (tools.table1_full --check agrees)
+        assert meta["default_recipe"] == "full" and {"source", "zoo", "full"} <= set(meta["recipes"]), name
+        assert meta["recipe"] == meta["recipes"]["full"], name  # the derived default, for older readers
+        assert json.loads(json.dumps(meta["recipes"]["zoo"])) == frozen[name], name  # what full builds on was frozen
 
 
 def test_the_registry_derives_the_default_and_names_a_lone_recipe_default(two_recipes: str) -> None:
@@ -147,13 +148,15 @@ def test_full_recipe_fixes_the_epochs_and_keeps_the_learning_rates() -> None:
     zoo = {"loss": "ce", "lr": 0.002, "schedule": {"type": "cosine"}, "max_epochs": 30, "patience": 10,
            "datasets": {"b": {"max_epochs": 20, "dataset_kwargs": {"window": 5}}}}
     full = full_recipe(zoo, {"a": 12, "b": 7})
-    assert full["evaluation"] == "final" and full["patience"] is None
-    assert full["schedule"] == {"type": "cosine", "t_max": 30}  # the period of the budget the count came from
-    assert full["datasets"]["a"] == {"max_epochs": 12, "patience": None}
+    # the period of the budget the count came from; a fixed count, final evaluation, on the declared datasets only
+    assert full["datasets"]["a"] == {"max_epochs": 12, "patience": None, "evaluation": "final",
+                                     "schedule": {"type": "cosine", "t_max": 30}}
     # a section with its own budget had its own period, and keeps its other settings
     assert full["datasets"]["b"] == {"max_epochs": 7, "patience": None, "dataset_kwargs": {"window": 5},
-                                     "schedule": {"type": "cosine", "t_max": 20}}
+                                     "evaluation": "final", "schedule": {"type": "cosine", "t_max": 20}}
+    # elsewhere (no declared count) the recipe is the zoo recipe itself: selected on validation
+    assert {k: v for k, v in full.items() if k != "datasets"} == {k: v for k, v in zoo.items() if k != "datasets"}
     multistep = {"schedule": {"type": "multistep", "milestones": [5]}, "max_epochs": 10}
-    assert full_recipe(multistep, {"a": 4})["schedule"] == multistep["schedule"]  # absolute epochs: unchanged
+    assert full_recipe(multistep, {"a": 4})["datasets"]["a"]["schedule"] == multistep["schedule"]  # absolute epochs
     resolve_recipe({k: v for k, v in full.items() if k not in ("datasets", "evaluation")})  # valid keys
     assert zoo["patience"] == 10 and "evaluation" not in zoo  # the zoo recipe itself is untouched

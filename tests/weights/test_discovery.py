@@ -24,8 +24,8 @@ from tactile_zoo.engine.evaluate import predict_scores
 from tactile_zoo.errors import PluginError
 from tactile_zoo.weights import discovery, find_weights, list_weights, weight_sources, write_manifest
 
-TAG = "cnn_lstm.zoo_sim_uskin_textures"
-TUNED = "cnn_lstm.tuned_sim_uskin_textures"
+TAG = "cnn_lstm.full_sim_uskin_textures"
+FAST = "cnn_lstm.fast_sim_uskin_textures"
 
 
 @pytest.fixture
@@ -53,7 +53,7 @@ def _install_two(site: FakeSite, trained: Trained) -> tuple[str, str]:
         from tactile_zoo.weights import WeightEntry
 
         def weights():
-            return [WeightEntry.from_dict(json.loads({_as_dict(trained, tag=TUNED, recipe='tuned')!r}))]
+            return [WeightEntry.from_dict(json.loads({_as_dict(trained, tag=FAST, recipe='fast')!r}))]
         """, weights={"zoo": "weights"})
     return zz, aa
 
@@ -64,21 +64,21 @@ def test_discovery_lists_without_loading_in_a_deterministic_order(site: FakeSite
     assert found == [("aa-weights", "zoo", f"{aa}:weights"), ("zz-weights", "manifest", f"{zz}:MANIFEST")]
     assert zz not in sys.modules and aa not in sys.modules  # listing imports nothing
     entries = list_weights()
-    assert [(e.tag, e.dist) for e in entries] == [(TUNED, "aa-weights"), (TAG, "zz-weights")]  # sorted by tag
+    assert [(e.tag, e.dist) for e in entries] == [(FAST, "aa-weights"), (TAG, "zz-weights")]  # sorted by tag
     assert [(s.dist, s.status, s.count) for s in weight_sources()] == [("aa-weights", "ok", 1),
                                                                       ("zz-weights", "ok", 1)]
     assert entries[1].origin == "zz-weights 2.0" and entries[1].qualified_tag == f"zz-weights:{TAG}"
-    assert [e.tag for e in list_weights(MODEL, DATASET)] == [TUNED, TAG] and list_weights("sgnet") == []
+    assert [e.tag for e in list_weights(MODEL, DATASET)] == [FAST, TAG] and list_weights("sgnet") == []
 
 
 def test_installed_weights_by_dataset_tag_or_qualified_tag(site: FakeSite, trained: Trained,
                                                           capsys: pytest.CaptureFixture) -> None:
     _install_two(site, trained)
-    by_dataset = tz.create_model(MODEL, pretrained=DATASET)  # two recipes: the model's default one ("zoo") wins
+    by_dataset = tz.create_model(MODEL, pretrained=DATASET)  # two recipes: the model's default one ("full") wins
     assert by_dataset.zoo_pretrained.qualified_tag == f"zz-weights:{TAG}"
     assert torch.equal(predict_scores(by_dataset, trained.test.x, trained.test.g), trained.logits)
-    assert tz.create_model(MODEL, pretrained=TUNED.upper()).zoo_pretrained.dist == "aa-weights"
-    assert tz.create_model(MODEL, pretrained=f"aa-weights:{TUNED}").zoo_pretrained.recipe == "tuned"
+    assert tz.create_model(MODEL, pretrained=FAST.upper()).zoo_pretrained.dist == "aa-weights"
+    assert tz.create_model(MODEL, pretrained=f"aa-weights:{FAST}").zoo_pretrained.recipe == "fast"
     with pytest.raises(registry.UnknownNameError, match=r"no installed weights of model 'cnn_lstm' for dataset "
                                                         r"'sim_evtouch'; installed for 'cnn_lstm': "):
         tz.create_model(MODEL, pretrained="sim_evtouch")
@@ -86,8 +86,8 @@ def test_installed_weights_by_dataset_tag_or_qualified_tag(site: FakeSite, train
         tz.create_model(MODEL, pretrained="cnn_lstm.source_x")
     assert main(["weights"]) == 0
     out = capsys.readouterr().out
-    assert f"zz-weights:{TAG}" in out and f"aa-weights:{TUNED}" in out and "zz-weights 2.0" in out
-    assert "note (cnn_lstm.zoo_sim_uskin_textures): trained by the test suite" in out
+    assert f"zz-weights:{TAG}" in out and f"aa-weights:{FAST}" in out and "zz-weights 2.0" in out
+    assert "note (cnn_lstm.full_sim_uskin_textures): trained by the test suite" in out
 
 
 def test_predict_and_stream_with_installed_weights(site: FakeSite, trained: Trained, tmp_path: Path,

@@ -36,8 +36,8 @@ def test_tags_follow_model_dot_recipe_dataset() -> None:
 
 def test_the_entry_of_a_cell_record_holds_everything_the_issue_lists(trained: Trained) -> None:
     entry, record = trained.entry, trained.record
-    assert entry.tag == "cnn_lstm.zoo_sim_uskin_textures"
-    assert (entry.model, entry.dataset, entry.recipe, entry.loss) == (MODEL, DATASET, "zoo", "ce")
+    assert entry.tag == "cnn_lstm.full_sim_uskin_textures"
+    assert (entry.model, entry.dataset, entry.recipe, entry.loss) == (MODEL, DATASET, "full", "ce")
     assert entry.spec == record["spec"] and entry.spec["num_nodes"] == 60 and entry.spec["sensor"] == "uskin_allegro"
     assert entry.hparams == HPARAMS and entry.dataset_kwargs == DATA_ARGS
     assert (entry.config_hash, entry.cell_id, entry.seed, entry.fold) == (CONFIG_HASH, CELL_ID, 0, 0)

@@ -27,7 +27,7 @@ def test_the_manifest_reproduces_the_saved_models_logits_exactly(trained: Traine
     model = tz.create_model(MODEL, pretrained=trained.manifest)
     assert torch.equal(_logits(model, trained), trained.logits)
     assert model.spec.to_dict() == trained.test.spec.to_dict()  # no spec given: the weights' own
-    assert model.zoo_pretrained.tag == "cnn_lstm.zoo_sim_uskin_textures"
+    assert model.zoo_pretrained.tag == "cnn_lstm.full_sim_uskin_textures"
     assert model.zoo_loss == "ce"
     assert not torch.equal(_logits(tz.create_model(MODEL, trained.test.spec, **HPARAMS), trained), trained.logits)
 
@@ -47,7 +47,7 @@ def test_a_safetensors_file_is_described_by_the_manifest_next_to_it(trained: Tra
     other = folder / "other.safetensors"
     other.write_bytes(b"not these weights")
     shutil.copy(folder / "renamed.json", folder / "other.json")
-    with pytest.raises(ConfigError, match=r"has no entry for .*other.safetensors .*; it lists: cnn_lstm.zoo_"):
+    with pytest.raises(ConfigError, match=r"has no entry for .*other.safetensors .*; it lists: cnn_lstm.full_"):
         tz.create_model(MODEL, pretrained=other)
 
 

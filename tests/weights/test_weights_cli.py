@@ -25,7 +25,7 @@ def test_weights_lists_a_manifest(trained: Trained, capsys: pytest.CaptureFixtur
     assert lines[0].split() == ["tag", "model", "dataset", "test", "acc", "size", "source"]
     row = lines[1].split()
     kb = f"{trained.file.stat().st_size / 1e3:.1f}"
-    assert row[:6] == ["cnn_lstm.zoo_sim_uskin_textures", MODEL, DATASET, f"{trained.entry.accuracy:.4f}", kb, "kB"]
+    assert row[:6] == ["cnn_lstm.full_sim_uskin_textures", MODEL, DATASET, f"{trained.entry.accuracy:.4f}", kb, "kB"]
     assert row[6] == str(trained.manifest)
     assert main(["weights", "--manifest", str(trained.manifest), "sgnet.*"]) == 0
     assert "no weights match 'sgnet.*'" in capsys.readouterr().out
@@ -51,7 +51,7 @@ def test_predict_prints_the_top_classes_of_each_file(trained: Trained, tmp_path:
     assert main(["predict", MODEL, *_local(trained), str(first), str(second), "--top-k", "2"]) == 0
     text = capsys.readouterr().out.splitlines()
     names = trained.test.spec.class_names
-    assert text[0].startswith(f"{MODEL} with weights cnn_lstm.zoo_sim_uskin_textures (trained on {DATASET}")
+    assert text[0].startswith(f"{MODEL} with weights cnn_lstm.full_sim_uskin_textures (trained on {DATASET}")
     assert text[1] == "note: trained by the test suite"
     assert text[2] == f"{first} (12 steps)" and text[5] == f"{second} (24 steps, cropped to 12)"
     assert text[3].split()[:2] == ["1", names[result.predictions[0]]] and text[4].split()[0] == "2"
@@ -87,7 +87,7 @@ def test_stream_replays_a_recording_file_with_local_weights(trained: Trained, tm
     longer = write_csv(tmp_path / "longer.csv", np.concatenate([sample_table(trained.test, 2)] * 2))
     assert main(["stream", MODEL, *_local(trained), "--file", str(longer), "--every", "6"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith(f"{MODEL} (weights cnn_lstm.zoo_sim_uskin_textures) on {longer}: 24 steps")
+    assert out[0].startswith(f"{MODEL} (weights cnn_lstm.full_sim_uskin_textures) on {longer}: 24 steps")
     assert [line.split()[0] for line in out[2:6]] == ["6", "12", "18", "24"]  # a stream reads every row
     assert out[6].startswith("final prediction: ") and "true class of a file is unknown" in out[6]
     assert main(["stream", MODEL, *_local(trained), "--index", "0", "--file", str(exact)]) == 2
