@@ -5,7 +5,7 @@ pretrained weights) are discovered lazily through entry points on the first list
 
 ``create_model`` is the weights layer's (:func:`tactile_zoo.weights.create_model`): the registry's
 ``Model(spec, **hparams)``, plus ``pretrained=`` weights (``True`` picks them), a weights tag in the name
-(``x_tacformer.zoo_ev_objects``), ``new_head=`` and ``num_classes=``; ``list_models`` is the weights layer's too
+(``x_tacformer.full_ev_objects``), ``new_head=`` and ``num_classes=``; ``list_models`` is the weights layer's too
 (``pretrained=True`` lists weight tags).
 """
 

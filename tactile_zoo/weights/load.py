@@ -259,14 +259,14 @@ def load_pretrained(name: str, pretrained: Any, spec: Any = None, *, new_head: b
 
 
 def _split_tag(name: str) -> tuple[str, str | None]:
-    """``"x_tacformer.zoo_ev_objects"`` -> ``("x_tacformer", "x_tacformer.zoo_ev_objects")``: the model, and the
+    """``"x_tacformer.full_ev_objects"`` -> ``("x_tacformer", "x_tacformer.full_ev_objects")``: the model, and the
     weights tag when the name carries one (timm's ``model.tag``; a ``dist:`` model qualifier stays on the model)."""
     qualifier, colon, bare = name.rpartition(":")
     model, dot, tag = bare.partition(".")
     if not dot:
         return name, None
     if not model or not tag.strip():
-        raise ConfigError(f"model name {name!r}: a tag reads <model>.<tag>, e.g. 'x_tacformer.zoo_ev_objects'")
+        raise ConfigError(f"model name {name!r}: a tag reads <model>.<tag>, e.g. 'x_tacformer.full_ev_objects'")
     return f"{qualifier}{colon}{model}", f"{model}.{tag}"
 
 
@@ -321,7 +321,7 @@ def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: 
 
     Args:
         name: a registered model name (normalised: ``X-Tacformer`` = ``x_tacformer``), optionally with a weights tag,
-            timm style: ``"x_tacformer.zoo_ev_objects"``. With ``pretrained=True`` the tag names the weights; without,
+            timm style: ``"x_tacformer.full_ev_objects"``. With ``pretrained=True`` the tag names the weights; without,
             the model is built for the tag's spec and hyper-parameters, freshly initialised (as timm does).
         spec: the :class:`~tactile_zoo.data.spec.DatasetSpec` of the data.
         pretrained: ``None``/``False``, ``True`` (the installed weights that match: the tag in ``name``, else those
@@ -375,7 +375,7 @@ def list_models(pattern: str | Iterable[str] = "*", tags: Iterable[str] | None =
                 ) -> list[str]:
     """Registered model names matching fnmatch ``pattern`` and having all ``tags`` (the registry's
     :func:`~tactile_zoo.registry.list_models`); with ``pretrained=True``, the tags of their installed weights
-    instead, timm style (``["x_tacformer.zoo_ev_objects", ...]``), which ``pattern`` may also match whole
+    instead, timm style (``["x_tacformer.full_ev_objects", ...]``), which ``pattern`` may also match whole
     (``"*ev_objects"``). A tag shipped by several distributions is listed as ``<distribution>:<tag>``."""
     names = registry.list_models(pattern, tags)
     if not pretrained:
