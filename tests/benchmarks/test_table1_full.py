@@ -175,6 +175,22 @@ def test_the_decomposition_reads_reference_full_and_zoo() -> None:
                                               "not run yet | not run yet | not run yet |")
 
 
+def test_the_published_page_puts_each_protocol_in_its_own_column() -> None:
+    reference = [_cell(None, "convlstm", "ev_objects", s, 0.80, recipe="zoo", evaluation="reference",
+                       reference={"final_epoch_accuracy": 0.80, "best_test_epoch_accuracy": acc,
+                                  "best_test_epoch": 30, "epochs": 69}) for s, acc in enumerate((0.86, 0.90))]
+    kfold = [_cell(None, "convlstm", "biotac_dos", 0, 0.95, recipe="zoo", evaluation="validation", fold=f,
+                   protocol="kfold") for f in range(5)]
+    full = [_cell(None, "convlstm", "ev_objects", s, 0.75) for s in range(5)]
+    rows = {" | ".join(line.split(" | ")[:2]): line for line in t1.ours(
+        Sources(full=full, zoo=[], reference=reference, kfold=kfold)).splitlines()}
+    assert rows["| ConvLSTM | Ev-Objects"].startswith("| ConvLSTM | Ev-Objects | 0.8611 | 0.8800 (2) | 0.7500 [")
+    assert rows["| ConvLSTM | Ev-Objects"].endswith("| - |")  # the k-fold protocol is BioTac-DoS's only
+    biotac = rows["| ConvLSTM | BioTac-DoS (textures)"]
+    assert biotac.startswith("| ConvLSTM | BioTac-DoS (textures) | 0.7380 | - | not run yet | 0.9500 ["), biotac
+    assert rows["| SGnet | Ev-Objects"] == "| SGnet | Ev-Objects | 0.8944 | not run yet | - | - |"
+
+
 def test_nothing_run_yet_renders_every_table(tmp_path: Path) -> None:
     empty = t1.load(*(tmp_path / name for name in ("full", "zoo", "ref", "sgnet", "kfold")))
     assert empty == Sources([], [], [], [])
