@@ -295,19 +295,18 @@ def _mapping(where: str, key: str, value: Any) -> dict[str, Any]:
 
 def check_named_recipe(recipe: Mapping[str, Any], where: str = "recipe") -> None:
     """Validate a named recipe: its training keys against the schema, its sections' shapes (at registration)."""
+    def check_evaluation(key: str, value: Any) -> None:
+        if value is not None and value not in RECIPE_EVALUATIONS:
+            raise ConfigError(f"{where}: {key} must be one of {', '.join(RECIPE_EVALUATIONS)}, got {value!r}")
+
     named_recipe_for(recipe, None, where)
-    evaluation = recipe.get("evaluation")
-    if evaluation is not None and evaluation not in RECIPE_EVALUATIONS:
-        raise ConfigError(f"{where}: evaluation must be one of {', '.join(RECIPE_EVALUATIONS)}, got {evaluation!r}")
+    check_evaluation("evaluation", recipe.get("evaluation"))
     for dataset, section in _mapping(where, "datasets", recipe.get("datasets") or {}).items():
         if not isinstance(section, Mapping):
             raise ConfigError(f"{where}: datasets.{dataset} must be a dict, got {section!r}")
         if "datasets" in section:
             raise ConfigError(f"{where}: datasets.{dataset} cannot nest another 'datasets' section")
-        own = section.get("evaluation")
-        if own is not None and own not in RECIPE_EVALUATIONS:
-            raise ConfigError(f"{where}: datasets.{dataset}.evaluation must be one of {', '.join(RECIPE_EVALUATIONS)}, "
-                              f"got {own!r}")
+        check_evaluation(f"datasets.{dataset}.evaluation", section.get("evaluation"))
         named_recipe_for(recipe, dataset, where)
 
 

@@ -60,6 +60,11 @@ READING = ("Figures: mean ± sample std over runs. The 95 % interval is a confid
            "reproduce, and two models whose intervals overlap widely are not told apart.")
 
 
+def paper_column(dataset: str) -> int:
+    """The index of ``dataset``'s figure in a :data:`PAPER` row (BioTac-DoS, not an Ev dataset, is the third)."""
+    return EV[dataset][1] if dataset in EV else 2
+
+
 def _group(records: list[dict[str, Any]], model: str, dataset: str) -> list[dict[str, Any]]:
     recs = sorted((r for r in records if r["model"] == model and r["dataset"] == dataset),
                   key=lambda r: (r["fold"], r["seed"]))
@@ -167,7 +172,7 @@ def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: 
     the runs both have (same fold and seed) and their test units, one-sided, Holm-corrected across the models."""
     split = ZOO_SPLITS[dataset]
     title = EV[dataset][0] if dataset in EV else "BioTac-DoS (textures)"
-    column = EV[dataset][1] if dataset in EV else 2
+    column = paper_column(dataset)
     paired, same, rows = {}, set(), {}
     for model in MODELS:
         src, new = _group(source, model, dataset), _group(zoo, model, dataset)
@@ -248,7 +253,7 @@ def ensemble_table(records: list[dict[str, Any]], dataset: str, recipe: str = "z
     on the dataset's declared split (:data:`ZOO_SPLITS`)."""
     split = ZOO_SPLITS[dataset]
     title = EV[dataset][0] if dataset in EV else "BioTac-DoS (textures)"
-    column = EV[dataset][1] if dataset in EV else 2
+    column = paper_column(dataset)
     name = "<model>_ens5" if recipe == "zoo" else f"<model>_{recipe}_ens5"
     what = "Declared seed ensembles" if recipe == "zoo" else f"Declared `{recipe}` seed ensembles"
     units = "test samples" if dataset in EV else "test recordings"

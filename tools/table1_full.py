@@ -36,7 +36,18 @@ from typing import Any
 from tactile_zoo import registry
 from tactile_zoo.bench.paired import holm, records_paired
 from tools.fidelity import cells, replace_block, update_page
-from tools.paper_table1 import EV, MODELS, NAMES, PAPER, RESULTS, ZOO_SPLITS, _figure, _group, ensemble_table
+from tools.paper_table1 import (
+    EV,
+    MODELS,
+    NAMES,
+    PAPER,
+    RESULTS,
+    ZOO_SPLITS,
+    _figure,
+    _group,
+    ensemble_table,
+    paper_column,
+)
 
 FULL, ZOO = RESULTS / "paper-table1-full", RESULTS / "paper-table1-zoo"
 REFERENCE, SGNET_REFERENCE = RESULTS / "paper-table1-reference", RESULTS / "reference-protocol"
@@ -131,7 +142,7 @@ def _reading(c: Comparison) -> str:
 def full_table(sources: Sources, dataset: str, comparison: Mapping[str, Comparison]) -> list[str]:
     """``full`` beside ``zoo`` and the paper on one dataset, with the paired difference and its reading."""
     split = ZOO_SPLITS[dataset]
-    column = EV[dataset][1] if dataset in EV else 2
+    column = paper_column(dataset)
     lines = [f"**`full` against `zoo` on {TITLES[dataset]}** (accuracy [95 % interval] (runs); the difference is "
              "paired over the declared pairs, one-sided p Holm-corrected across the six models)", "",
              "| model | paper | `zoo` | `full` | `full - zoo`, paired [95 %] (pairs) | Holm p: `full` / `zoo` better "
@@ -240,8 +251,7 @@ def ours(sources: Sources) -> str:
              "object in train and test; folds) |", "|---|---|---|---|---|---|"]
     for model in MODELS:
         for dataset in DATASETS:
-            column = EV[dataset][1] if dataset in EV else 2
-            paper = PAPER[model][column]
+            paper = PAPER[model][paper_column(dataset)]
             ref = _group(sources.reference, model, dataset)
             best = f"{_mean(ref, 'best_test_epoch_accuracy'):.4f} ({len(ref)})" if ref else (
                 "not run yet" if dataset in EV else "-")
@@ -256,7 +266,8 @@ def ours(sources: Sources) -> str:
 
 def table(sources: Sources, comparisons: Mapping[str, Mapping[str, Comparison]] | None = None) -> str:
     """docs/table1.md's round-3 block (``comparisons``: :func:`compare` per dataset, computed when not given)."""
-    comparisons = comparisons or {d: compare(sources.zoo, sources.full, d) for d in DATASETS}
+    if comparisons is None:
+        comparisons = {d: compare(sources.zoo, sources.full, d) for d in DATASETS}
     lines: list[str] = []
     for dataset in DATASETS:
         lines += full_table(sources, dataset, comparisons[dataset]) + [""]

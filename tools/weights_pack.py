@@ -84,11 +84,13 @@ LIMIT_BYTES = 32_000_000
 #: pairs whose weights are deliberately not shipped, by recipe, and why (shown instead of "awaiting a rerun"). A cell's
 #: saved file is not committed, so one that is gone can only come back from a rerun that reproduces the cell exactly,
 #: and training is reproducible only on the CPU type that ran it
-_XEON = "its Table I cell was trained on another CPU type (a 2-core Intel Xeon, 2026-11-2x)"
+_XEON = "its Table I cell was trained on another CPU type (a 2-core Intel Xeon, {date})"
 DECLINED = {
-    **{("source", "dcnn", dataset): f"{_XEON} before `--save-weights` existed, so a rerun here trains other weights"
+    **{("source", "dcnn", dataset): _XEON.format(date="2026-11-22")
+       + " before `--save-weights` existed, so a rerun here trains other weights"
        for dataset in ("ev_objects", "ev_containers")},
-    **{("zoo", "dcnn", dataset): f"{_XEON}; the file it saved was not kept, and a rerun here trains other weights"
+    **{("zoo", "dcnn", dataset): _XEON.format(date="2026-12-02")
+       + "; the file it saved was not kept, and a rerun here trains other weights"
        for dataset in ("ev_objects", "ev_containers")},
 }
 MODELS = ("sgnet", "dcnn", "convlstm", "cnn_lstm", "tacformer", "x_tacformer")
