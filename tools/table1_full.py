@@ -199,9 +199,12 @@ def _mean(recs: list[dict[str, Any]], key: str | None = None) -> float:
     return statistics.fmean(r["metrics"]["test"]["accuracy"] if key is None else r["reference"][key] for r in recs)
 
 
-def gap_reading(paper: float | None, optimistic: float | None, honest: Mapping[str, float]) -> str:
+def gap_reading(paper: float | None, optimistic: float | None, honest: Mapping[str, float],
+                best_seed: float | None = None) -> str:
     """The gap to the paper: paper minus our best honest mean, and the part the optimistic protocol (the best test
-    epoch) accounts for: its mean minus that best honest mean."""
+    epoch) accounts for: its mean minus that best honest mean. Where that is only part of the gap, ``best_seed``
+    (the highest single run's best test epoch) says how far the rest is from what one optimistic run reaches: a
+    paper that reports one run, chosen on the test set, sits at that end of the spread rather than at its mean."""
     if paper is None:
         return "no paper figure"
     if not honest:
@@ -215,7 +218,10 @@ def gap_reading(paper: float | None, optimistic: float | None, honest: Mapping[s
         return said
     if optimistic - best >= paper - best:
         return said + ": the optimistic protocol accounts for all of it"
-    return said + f": the optimistic protocol accounts for {max(optimistic - best, 0.0):.4f} of it"
+    said += f": the optimistic protocol accounts for {max(optimistic - best, 0.0):.4f} of it"
+    if best_seed is None:
+        return said
+    return said + f"; the best single run's best test epoch is {best_seed:.4f} (paper {best_seed - paper:+.4f})"
 
 
 def decomposition(sources: Sources) -> str:
@@ -230,17 +236,20 @@ def decomposition(sources: Sources) -> str:
             ref = _group(sources.reference, model, dataset)
             full, zoo = _group(sources.full, model, dataset), _group(sources.zoo, model, dataset)
             optimistic = _mean(ref, "best_test_epoch_accuracy") if ref else None
+            best_seed = max((r["reference"]["best_test_epoch_accuracy"] for r in ref), default=None)
             best = "not run yet" if optimistic is None else f"{optimistic:.4f} ({len(ref)})"
             final = [r["reference"]["final_epoch_accuracy"] for r in ref if "final_epoch_accuracy" in r["reference"]]
             final_text = f"{statistics.fmean(final):.4f} ({len(final)})" if final else "not run yet" if not ref else "-"
             honest = {recipe: _mean(recs) for recipe, recs in (("full", full), ("zoo", zoo)) if recs}
             lines.append(f"| {NAMES[model]} | {title} | {'-' if paper is None else f'{paper:.4f}'} | {best} | "
                          f"{final_text} | {_figure(full, 'test')} | {_figure(zoo, 'test')} | "
-                         f"{gap_reading(paper, optimistic, honest)} |")
+                         f"{gap_reading(paper, optimistic, honest, best_seed)} |")
     lines += ["", "Best test epoch: the mean over the seeds of each run's highest test accuracy over its epochs "
                   "(seeds); it selects on the test set, so it is optimistic by construction. Honest columns: mean "
                   "[95 % interval] (runs). Gap: the paper minus our best honest mean, and how much of that the "
-                  "optimistic protocol accounts for (best test epoch minus the same honest mean)."]
+                  "optimistic protocol accounts for (best test epoch minus the same honest mean); where that is only "
+                  "part of it, the best single run's best test epoch beside the paper (a paper that reports one run "
+                  "chosen on the test set sits at the top of that spread, not at its mean)."]
     return "\n".join(lines)
 
 

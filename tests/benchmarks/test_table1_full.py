@@ -151,6 +151,9 @@ def test_the_gap_reading_splits_the_paper_lead() -> None:
     assert gap_reading(0.90, 0.88, {"zoo": 0.85, "full": 0.86}) == (
         "paper - best honest (`full`) +0.0400; best test epoch - best honest +0.0200: the optimistic protocol "
         "accounts for 0.0200 of it")
+    assert gap_reading(0.90, 0.88, {"zoo": 0.85}, best_seed=0.8958).endswith(
+        "accounts for 0.0300 of it; the best single run's best test epoch is 0.8958 (paper -0.0042)")
+    assert "best single run" not in gap_reading(0.90, 0.95, {"zoo": 0.85}, best_seed=0.97)
     assert gap_reading(0.90, 0.95, {"zoo": 0.85}).endswith("+0.1000: the optimistic protocol accounts for all of it")
     assert gap_reading(0.90, None, {"zoo": 0.85}) == ("paper - best honest (`zoo`) +0.0500; optimistic protocol not "
                                                       "run yet")
