@@ -9,6 +9,7 @@ out-of-memory error become a record with ``status="failed"``, the error and its 
 from __future__ import annotations
 
 import gc
+import json
 import socket
 import sys
 import time
@@ -149,15 +150,33 @@ def save_weights(model: torch.nn.Module, path: Path, metadata: dict[str, str]) -
     The file is the cell's own trained model, written by the run that computed the cell, so the accuracy in the
     record is the accuracy of exactly these weights.
     """
-    from safetensors.torch import save_file
+    from safetensors.torch import save
 
     from ..data.base import file_sha256
 
     path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata=metadata)
+        tmp.write_bytes(_sorted_metadata(save(tensors, metadata=metadata)))
     return {"file": f"weights/{path.name}", "sha256": file_sha256(path), "bytes": path.stat().st_size}
+
+
+def _sorted_metadata(data: bytes) -> bytes:
+    """``data`` (a safetensors file) with its ``__metadata__`` keys in sorted order.
+
+    safetensors writes the metadata map in a random order on every call, so two runs that trained the same tensors
+    would write files with different sha256; sorting makes a deterministic rerun reproduce the file byte for byte.
+    The header is a JSON object after its 8-byte length, padded with spaces; reordering keys keeps its length.
+    """
+    n = int.from_bytes(data[:8], "little")
+    header = json.loads(data[8:8 + n])
+    if "__metadata__" not in header:
+        return data
+    header["__metadata__"] = dict(sorted(header["__metadata__"].items()))
+    text = json.dumps(header, separators=(",", ":"), ensure_ascii=False).encode()
+    if len(text) > n:  # cannot happen for a pure reordering; keep the original rather than corrupt the file
+        return data
+    return data[:8] + text + b" " * (n - len(text)) + data[8 + n:]
 
 
 @flush_denormals()

@@ -66,3 +66,23 @@ def test_the_run_describes_its_weights_in_a_manifest_that_predict_reads(tmp_path
     # the cell's own prediction for that recording, with the probability the cell stored for it
     assert answer["index"] == cell["predictions"]["test"]["predictions"][0]
     assert abs(answer["probability"] - max(cell["predictions"]["test"]["probabilities"][0])) < 1e-6
+
+
+def test_the_same_tensors_give_the_same_file(tmp_path: Path) -> None:
+    """safetensors writes its metadata map in a random order on each call; a rerun that trained the same tensors
+    must still write the same bytes (the weight pack compares files by sha256)."""
+    from safetensors import safe_open
+
+    from tactile_zoo.bench.cell import save_weights
+
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.BatchNorm1d(4))
+    metadata = {"model": "m", "dataset": "d", "cell_id": "m__d__f0__s0__0123", "config_hash": "0123", "note": "é"}
+    infos = [save_weights(model, tmp_path / f"{i}.safetensors", metadata) for i in range(8)]
+    assert len({info["sha256"] for info in infos}) == 1
+    data = (tmp_path / "0.safetensors").read_bytes()
+    header = json.loads(data[8:8 + int.from_bytes(data[:8], "little")])
+    assert list(header["__metadata__"]) == sorted(metadata)
+    with safe_open(tmp_path / "0.safetensors", "pt") as f:  # still a file safetensors reads, metadata intact
+        assert f.metadata() == metadata
+        assert all(torch.equal(f.get_tensor(k), v) for k, v in model.state_dict().items())
