@@ -64,6 +64,9 @@ BENCH_FORMAT = "tactile-zoo-bench/1"
 BENCH_FORMAT_PREFIX = "tactile-zoo-bench/"
 RUN_JSON = "run.json"
 RUN_LOCK = "run.lock"
+#: documents a study may commit into its folder before the first cell runs (what it declares, how to read it);
+#: bench never writes these names, so a new folder holding only them is not refused as someone else's
+PLAN_DOCUMENTS = frozenset({"README.md", "PLAN.md"})
 
 
 class CellWriteError(OSError):
@@ -141,12 +144,14 @@ class RunDir:
         return bool(self.scan().records)
 
     def _foreign_entries(self) -> list[str]:
-        """What is in the folder besides what a bench process creates first (the lock, run.json's temporary)."""
+        """What is in the folder besides what a bench process creates first (the lock, run.json's temporary) and
+        the plan documents a study commits before its first cell (:data:`PLAN_DOCUMENTS`)."""
         try:
             names = sorted(os.listdir(self.path))
         except FileNotFoundError:
             return []
-        return [n for n in names if n != RUN_LOCK and not (n.startswith(f".{RUN_JSON}.") and n.endswith(".tmp"))]
+        return [n for n in names if n != RUN_LOCK and n not in PLAN_DOCUMENTS
+                and not (n.startswith(f".{RUN_JSON}.") and n.endswith(".tmp"))]
 
     def prepare(self) -> RunDir:
         """Check that ``--out`` is new, empty or a bench folder, mark it as one (``run.json``), create its folders

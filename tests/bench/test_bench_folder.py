@@ -41,6 +41,25 @@ def test_out_refuses_a_folder_bench_did_not_write(tmp_path: Path, capsys: pytest
     assert _tree(mine) == before  # nothing written, nothing created
 
 
+def test_a_folder_holding_only_its_plan_documents_is_a_new_bench_folder(tmp_path: Path) -> None:
+    """A study commits its PLAN.md and README before its first cell; bench writes neither name, so it runs there
+    and leaves both as they were. Anything else in the folder still makes it someone else's."""
+    out = tmp_path / "planned"
+    out.mkdir()
+    docs = {"README.md": "# what this folder holds\n", "PLAN.md": "# declared before any cell\n"}
+    for name, text in docs.items():
+        (out / name).write_text(text)
+    assert run_cli([*SMALL, "--out", str(out), "-q"]) == 0
+    assert json.loads((out / "run.json").read_text())["format"] == "tactile-zoo-bench/1"
+    assert {name: (out / name).read_text() for name in docs} == docs and any((out / "cells").glob("*.json"))
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "README.md").write_text("mine\n")
+    (other / "notes.txt").write_text("mine\n")
+    assert run_cli([*SMALL, "--out", str(other), "-q"]) == 2
+    assert sorted(p.name for p in other.iterdir()) == ["README.md", "notes.txt"]
+
+
 def test_a_new_or_empty_folder_is_marked_and_a_marked_one_resumes(reference_run: Path, tmp_path: Path,
                                                                    capsys: pytest.CaptureFixture) -> None:
     assert json.loads((reference_run / "run.json").read_text())["format"] == "tactile-zoo-bench/1"
