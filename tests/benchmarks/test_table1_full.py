@@ -154,6 +154,12 @@ def test_the_gap_reading_splits_the_paper_lead() -> None:
     assert gap_reading(0.90, 0.88, {"zoo": 0.85}, best_seed=0.8958).endswith(
         "accounts for 0.0300 of it; the best single run's best test epoch is 0.8958 (paper -0.0042)")
     assert "best single run" not in gap_reading(0.90, 0.95, {"zoo": 0.85}, best_seed=0.97)
+    # in test samples of a 144-sample split: 0.8611 is 124/144, one above 123/144; a paper figure rounded to four
+    # decimals still counts as the same sample
+    assert gap_reading(0.8611, 0.8426, {"full": 0.7847}, 123 / 144, 144).endswith(
+        "the best single run's best test epoch is 0.8542, 1 test sample below the paper")
+    assert gap_reading(0.7833, 0.7333, {"zoo": 0.71}, 44 / 60, 60).endswith(", 3 test samples below the paper")
+    assert gap_reading(0.7167, 0.65, {"full": 0.5467}, 43 / 60, 60).endswith("is 0.7167, the paper's figure")
     assert gap_reading(0.90, 0.95, {"zoo": 0.85}).endswith("+0.1000: the optimistic protocol accounts for all of it")
     assert gap_reading(0.90, None, {"zoo": 0.85}) == ("paper - best honest (`zoo`) +0.0500; optimistic protocol not "
                                                       "run yet")
