@@ -246,7 +246,7 @@ def decomposition(sources: Sources) -> str:
             full, zoo = _group(sources.full, model, dataset), _group(sources.zoo, model, dataset)
             optimistic = _mean(ref, "best_test_epoch_accuracy") if ref else None
             best_seed = max((r["reference"]["best_test_epoch_accuracy"] for r in ref), default=None)
-            n_test = ref[0]["n_test"] if ref else None
+            n_test = ref[0].get("n_test") if ref else None  # bench records carry it; a hand-made one may not
             best = "not run yet" if optimistic is None else f"{optimistic:.4f} ({len(ref)})"
             final = [r["reference"]["final_epoch_accuracy"] for r in ref if "final_epoch_accuracy" in r["reference"]]
             final_text = f"{statistics.fmean(final):.4f} ({len(final)})" if final else "not run yet" if not ref else "-"
