@@ -200,13 +200,12 @@ def _mean(recs: list[dict[str, Any]], key: str | None = None) -> float:
 
 
 def gap_reading(paper: float | None, optimistic: float | None, honest: Mapping[str, float],
-                best_seed: float | None = None, n_test: int | None = None) -> str:
+                best_run: tuple[float, int] | None = None) -> str:
     """The gap to the paper: paper minus our best honest mean, and the part the optimistic protocol (the best test
-    epoch) accounts for: its mean minus that best honest mean. Where that is only part of the gap, ``best_seed``
-    (the highest single run's best test epoch) says how far the rest is from what one optimistic run reaches: a
-    paper that reports one run, chosen on the test set, sits at that end of the spread rather than at its mean.
-    With ``n_test`` (the test split's size) that distance is also counted in test samples, the unit both figures
-    move in (the paper's is rounded to four decimals)."""
+    epoch) accounts for: its mean minus that best honest mean. Where that is only part of the gap, ``best_run`` (the
+    highest single run's best test epoch, and the test split's size) says how far the rest is from what one
+    optimistic run reaches, in test samples, the unit both figures move in (the paper's is rounded to four decimals):
+    a paper that reports one run, chosen on the test set, sits at that end of the spread rather than at its mean."""
     if paper is None:
         return "no paper figure"
     if not honest:
@@ -221,12 +220,11 @@ def gap_reading(paper: float | None, optimistic: float | None, honest: Mapping[s
     if optimistic - best >= paper - best:
         return said + ": the optimistic protocol accounts for all of it"
     said += f": the optimistic protocol accounts for {max(optimistic - best, 0.0):.4f} of it"
-    if best_seed is None:
+    if best_run is None:
         return said
-    said += f"; the best single run's best test epoch is {best_seed:.4f}"
-    if n_test is None:
-        return said + f" (paper {best_seed - paper:+.4f})"
-    samples = round((paper - best_seed) * n_test)
+    accuracy, n_test = best_run
+    said += f"; the best single run's best test epoch is {accuracy:.4f}"
+    samples = round((paper - accuracy) * n_test)
     if samples == 0:
         return said + ", the paper's figure"
     side = "below" if samples > 0 else "above"
@@ -245,15 +243,14 @@ def decomposition(sources: Sources) -> str:
             ref = _group(sources.reference, model, dataset)
             full, zoo = _group(sources.full, model, dataset), _group(sources.zoo, model, dataset)
             optimistic = _mean(ref, "best_test_epoch_accuracy") if ref else None
-            best_seed = max((r["reference"]["best_test_epoch_accuracy"] for r in ref), default=None)
-            n_test = ref[0].get("n_test") if ref else None  # bench records carry it; a hand-made one may not
+            best_run = max(((r["reference"]["best_test_epoch_accuracy"], r["n_test"]) for r in ref), default=None)
             best = "not run yet" if optimistic is None else f"{optimistic:.4f} ({len(ref)})"
             final = [r["reference"]["final_epoch_accuracy"] for r in ref if "final_epoch_accuracy" in r["reference"]]
             final_text = f"{statistics.fmean(final):.4f} ({len(final)})" if final else "not run yet" if not ref else "-"
             honest = {recipe: _mean(recs) for recipe, recs in (("full", full), ("zoo", zoo)) if recs}
             lines.append(f"| {NAMES[model]} | {title} | {'-' if paper is None else f'{paper:.4f}'} | {best} | "
                          f"{final_text} | {_figure(full, 'test')} | {_figure(zoo, 'test')} | "
-                         f"{gap_reading(paper, optimistic, honest, best_seed, n_test)} |")
+                         f"{gap_reading(paper, optimistic, honest, best_run)} |")
     lines += ["", "Best test epoch: the mean over the seeds of each run's highest test accuracy over its epochs "
                   "(seeds); it selects on the test set, so it is optimistic by construction. Honest columns: mean "
                   "[95 % interval] (runs). Gap: the paper minus our best honest mean, and how much of that the "
