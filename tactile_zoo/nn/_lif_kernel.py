@@ -18,6 +18,14 @@ CPU kernels the fused path calls (checked on x86-64 builds, AVX2 and AVX512 capa
   the calling thread's MXCSR only. Each parallel chunk runs under the caller's MXCSR (read and set with the
   ``stmxcsr``/``ldmxcsr`` intrinsics) and restores its own afterwards.
 
+Memory order: ``x`` is ``(T, N)`` with ``N`` (batch x neurons) contiguous, so each step of a block of neurons is
+one contiguous run. A block of :data:`CHUNK` neurons (32 KB a row) is long enough for the hardware prefetchers and
+short enough that the rows the backward works on stay in a core's L2. The backward needs the membranes in reverse
+order; storing them all would be as large as ``x``, and recomputing a whole block's history at once does not fit in
+L2 at this width. So the forward writes the membrane every :data:`EVERY` steps (a checkpoint, 1/16 of ``x``), and the
+backward recomputes one :data:`EVERY`-step window at a time from its checkpoint, then sweeps that window in reverse.
+The arithmetic per element is unchanged, so the results stay bit-identical.
+
 The compiled code is cached on disk (``cache=True``): in ``__pycache__`` beside this file when writable, else in
 numba's per-user cache directory (``NUMBA_CACHE_DIR`` overrides both); where neither is writable the kernels are
 compiled in memory on first use instead.
@@ -35,13 +43,15 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 __all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "RECT", "ATAN", "CHUNK",
-           "SERIAL_BELOW"]
+           "EVERY", "SERIAL_BELOW", "checkpoint_rows"]
 
 #: Surrogate kinds the kernels evaluate themselves (others stay on the torch path).
 RECT, ATAN = 0, 1
-#: Neurons per parallel work item: the backward keeps their (T + 1, CHUNK) membrane history in cache (250 KB at
-#: T = 250) and each step reads a contiguous run of CHUNK floats from every (T, N) array.
-CHUNK = 256
+#: Neurons per work item: each step reads a contiguous run of CHUNK floats (32 KB) from every (T, N) array, and the
+#: backward's (EVERY + 1, CHUNK) window of membranes (544 KB) stays in L2 with its working rows.
+CHUNK = 8192
+#: Steps between two membrane checkpoints of the forward, which the backward recomputes its windows from.
+EVERY = 16
 #: Sequences with fewer elements (steps x neurons) than this run the serial builds even with several threads.
 SERIAL_BELOW = 1 << 16
 _MODE = np.uint32(0xFFFFFFC0)  # MXCSR without its sticky exception flags (bits 0-5): the mode to copy
@@ -154,10 +164,16 @@ def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.floa
             out[j] = _fma(beta * p, keep, x[j])
 
 
-def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.ndarray, beta: np.float32,
-                thr: np.float32, th_up: np.float32, subtract: bool, chunk: int) -> None:
+def checkpoint_rows(steps: int) -> int:
+    """Rows of the forward's checkpoint array for a ``steps``-long sequence: one every :data:`EVERY` steps."""
+    return (steps + EVERY - 1) // EVERY
+
+
+def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.ndarray, ckpt: np.ndarray, save: bool,
+                beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, chunk: int) -> None:
     """Forward time loop. ``x (T, N)``, ``mem0 (N,)`` in; ``spikes (T, N)`` and ``last (N,)`` out (float32, C order).
-    """
+    With ``save``, ``ckpt (checkpoint_rows(T), N)`` receives the membrane before every :data:`EVERY`-th step (row 0
+    is ``mem0``), which :func:`lif_backward` recomputes from."""
     steps, n = x.shape
     csr = _get_csr() & _MODE
     one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
@@ -170,6 +186,8 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
         # loop down its scalar path (measured 2x slower)
         mem, nxt = mem0[n0:n1].copy(), np.empty(n1 - n0, dtype=np.float32)
         for s in range(steps):
+            if save and s % EVERY == 0:
+                ckpt[s // EVERY, n0:n1] = mem
             _advance_row(mem, x[s, n0:n1], nxt, beta, thr, th_up, subtract)
             row = spikes[s, n0:n1]
             for j in range(n1 - n0):
@@ -180,14 +198,15 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
         _set_csr(own)
 
 
-def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_grad_spikes: bool,
+def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_grad_spikes: bool,
                  grad_last: np.ndarray, has_grad_last: bool, grad_x: np.ndarray, grad_mem0: np.ndarray,
                  beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, detach_reset: bool, kind: int,
                  lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32, block: int, chunk: int) -> None:
-    """Backward time loop. Recomputes each chunk's membranes from ``x`` and ``mem0`` (cheaper than storing them),
-    then carries dL/dU back through time as :meth:`tactile_zoo.nn.lif_fused._FusedLIF.backward` does, block boundaries
-    included. ``grad_spikes (T, N)`` and ``grad_last (N,)`` are read only where their ``has_`` flag is set; writes
-    ``grad_x (T, N)`` and ``grad_mem0 (N,)``."""
+    """Backward time loop. Recomputes the membranes of each :data:`EVERY`-step window, last window first, from the
+    forward's checkpoints ``ckpt`` and from ``x``, then carries dL/dU back through the window as
+    :meth:`tactile_zoo.nn.lif_fused._FusedLIF.backward` does, its ``block`` boundaries included. ``grad_spikes
+    (T, N)`` and ``grad_last (N,)`` are read only where their ``has_`` flag is set; writes ``grad_x (T, N)`` and
+    ``grad_mem0 (N,)``."""
     steps, n = x.shape
     csr = _get_csr() & _MODE
     one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
@@ -202,15 +221,19 @@ def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_g
         n0 = c * chunk
         n1 = min(n, n0 + chunk)
         width = n1 - n0
-        hist = np.empty((steps + 1, width), dtype=np.float32)  # U[-1] = mem0, U[0], ..., U[T-1]
-        hist[0] = mem0[n0:n1]
-        for s in range(steps):
-            _advance_row(hist[s], x[s, n0:n1], hist[s + 1], beta, thr, th_up, subtract)
+        hist = np.empty((EVERY + 1, width), dtype=np.float32)  # one window: U[s0-1], U[s0], ..., U[s1-1]
         decay = np.zeros(width, dtype=np.float32)  # dU[s + 1]/dU[s] before the scale (unused when plain)
         sg = np.empty(width, dtype=np.float32)  # S'(U[s])
-        _surrogate_row(hist[steps], thr, kind, lo, hi, c1, c2, sg)
         g_next = decay  # dL/dU[s + 1]: a row of grad_x once s < T - 1
+        s0 = 0  # the first step of the current window
         for s in range(steps - 1, -1, -1):
+            if s == steps - 1 or (s + 1) % EVERY == 0:  # entering window [s0, s1): recompute its membranes
+                s0 = s - s % EVERY
+                hist[0] = ckpt[s0 // EVERY, n0:n1]
+                for k in range(s + 1 - s0):
+                    _advance_row(hist[k], x[s0 + k, n0:n1], hist[k + 1], beta, thr, th_up, subtract)
+                if s == steps - 1:
+                    _surrogate_row(hist[s + 1 - s0], thr, kind, lo, hi, c1, c2, sg)  # S'(U[T-1])
             g = grad_x[s, n0:n1]
             if has_grad_spikes:  # mul(grad_spikes, S'(U[s]))
                 gs = grad_spikes[s, n0:n1]
@@ -236,7 +259,7 @@ def lif_backward(x: np.ndarray, mem0: np.ndarray, grad_spikes: np.ndarray, has_g
             else:  # addcmul_(g[s+1], decay[s+1], value=scale)
                 for j in range(width):
                     g[j] = _fma(scale * g_next[j], decay[j], g[j])
-            u_prev = hist[s]  # U[s-1]
+            u_prev = hist[s - s0]  # U[s-1]
             _surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
             if subtract and not plain:  # mul(S'(U[s-1]), -thr).add_(beta): two roundings
                 for j in range(width):

@@ -143,8 +143,8 @@ class MultiStepLIF(nn.Module):
             spikes, last = _CompiledLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
                                               self.surrogate, kernels)
         elif kernels is not None:  # nothing to differentiate: the compiled loop without the autograd node
-            spikes, last = _kernel_forward(kernels, x.contiguous(), mem.contiguous(), self.beta, self.threshold,
-                                           subtract)
+            spikes, last, _ = _kernel_forward(kernels, x.contiguous(), mem.contiguous(), self.beta, self.threshold,
+                                              subtract)
         elif self.backend == "fused" and grad:
             spikes, last = _FusedLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
                                            self.surrogate)

@@ -101,15 +101,20 @@ def _launch(kernels: ModuleType, name: str, *args: object) -> None:
 
 
 def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
-                    subtract: bool) -> tuple[Tensor, Tensor]:
-    """Spikes ``[T, ...]`` and the last membrane from the compiled forward loop (contiguous float32 CPU inputs)."""
+                    subtract: bool, checkpoints: bool = False) -> tuple[Tensor, Tensor, Tensor | None]:
+    """Spikes ``[T, ...]``, the last membrane and, with ``checkpoints``, the membrane checkpoints the compiled backward
+    recomputes from (``(rows, N)``), from the compiled forward loop (contiguous float32 CPU inputs)."""
+    import numpy as np
+
     steps = x.shape[0]
     spikes = memory.empty(x.shape, x)
     last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
+    ckpt = torch.empty(kernels.checkpoint_rows(steps), mem0.numel(), dtype=torch.float32) if checkpoints else None
     _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
-            spikes.view(steps, -1).numpy(), last.view(-1).numpy(), *_f32(beta, threshold),
+            spikes.view(steps, -1).numpy(), last.view(-1).numpy(),
+            np.zeros((1, 1), np.float32) if ckpt is None else ckpt.numpy(), checkpoints, *_f32(beta, threshold),
             _f32(_next_up(threshold, torch.float32))[0], subtract, kernels.CHUNK)
-    return spikes, last
+    return spikes, last, ckpt
 
 
 def _f32(*values: float) -> tuple:
@@ -121,15 +126,17 @@ def _f32(*values: float) -> tuple:
 
 class _CompiledLIF(torch.autograd.Function):
     """:class:`_FusedLIF` as two compiled calls per sequence (:mod:`tactile_zoo.nn._lif_kernel`): the forward loop,
-    and a backward that recomputes the membranes of each block of neurons instead of saving them (the fused path's
-    history would be as large as the input). The same inputs, outputs and bit-identical values."""
+    which also keeps a membrane checkpoint every few steps, and a backward that recomputes the membranes between
+    checkpoints instead of saving them all (the fused path's history would be as large as the input). The same
+    inputs, outputs and bit-identical values."""
 
     @staticmethod
     def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
                 surrogate: Surrogate, kernels: ModuleType) -> tuple[Tensor, Tensor]:
         x, mem0 = x.contiguous(), mem0.contiguous()
-        spikes, last = _kernel_forward(kernels, x, mem0, beta, threshold, subtract)
-        ctx.save_for_backward(x, mem0)
+        spikes, last, ckpt = _kernel_forward(kernels, x, mem0, beta, threshold, subtract, checkpoints=True)
+        ctx.save_for_backward(x, ckpt)
+        ctx.mem_shape = mem0.shape
         ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, kernels)
         ctx.set_materialize_grads(False)
         return spikes, last
@@ -139,13 +146,13 @@ class _CompiledLIF(torch.autograd.Function):
     def backward(ctx, grad_spikes: Tensor | None, grad_mem: Tensor | None) -> tuple[Tensor | None, ...]:
         import numpy as np
 
-        x, mem0 = ctx.saved_tensors
+        x, ckpt = ctx.saved_tensors
         beta, th, subtract, detach_reset, surrogate, kernels = ctx.cfg
-        steps, n = x.shape[0], mem0.numel()
+        steps, n = x.shape[0], ckpt.shape[1]
         # the fused path's block of steps: its gradient crosses block boundaries with a different rounding
         block = max(1, min(steps, lif_fused.BLOCK_BYTES // max(1, n * x.element_size())))
         grad_x = memory.empty(x.shape, x)
-        grad_mem0 = torch.empty_like(mem0)
+        grad_mem0 = x.new_empty(ctx.mem_shape)
         no_rows, no_row = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)  # stand-ins for absent gradients
         gs = no_rows if grad_spikes is None else grad_spikes.contiguous().view(steps, -1).numpy()
         gm = no_row if grad_mem is None else grad_mem.contiguous().reshape(-1).numpy()
@@ -154,7 +161,7 @@ class _CompiledLIF(torch.autograd.Function):
             kind, lo, hi, c1, c2 = kernels.RECT, *_f32(-p / 2, p / 2), *_f32(0.0, 0.0)
         else:
             kind, lo, hi, c1, c2 = kernels.ATAN, *_f32(0.0, 0.0), *_f32(math.pi / 2 * p, p / 2)
-        _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), mem0.view(-1).numpy(), gs,
+        _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), ckpt.numpy(), gs,
                 grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
                 grad_mem0.view(-1).numpy(), *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset,
                 kind, lo, hi, c1, c2, block, kernels.CHUNK)

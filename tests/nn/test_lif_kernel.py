@@ -24,6 +24,13 @@ pytestmark = pytest.mark.skipif(compiled._kernel_module() is None,
                                 reason="the compiled LIF kernel needs numba on x86-64 with ATen AVX2/AVX512 kernels")
 
 
+@pytest.fixture(autouse=True)
+def small_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Chunks of 256 neurons instead of the kernel's 8192, so that small shapes span several chunks and reach the
+    parallel builds (the chunk is an argument of each call; the checkpoint interval is compiled in)."""
+    monkeypatch.setattr(compiled._kernel_module(), "CHUNK", 256)
+
+
 @pytest.fixture
 def calls(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     """Counts the compiled forward and backward calls (so a comparison cannot pass by running torch twice)."""
@@ -91,7 +98,8 @@ def _threads(n: int) -> Iterator[None]:
 def test_compiled_equals_fused(monkeypatch: pytest.MonkeyPatch, calls: dict[str, int], surrogate: str,
                                detach_reset: bool, reset: str, shape: tuple[int, ...], beta: float,
                                threshold: float, threads: int) -> None:
-    """Shapes below, at and above one chunk of neurons (2107 = 8 chunks + 59), thresholds that float32 rounds; the
+    """Shapes below, at and above one chunk of neurons (chunks of 256 here: 2107 = 8 chunks + 59), sequences of one,
+    two and a half checkpoint windows (T = 33: windows of 16, 16 and 1 steps), thresholds that float32 rounds; the
     serial builds (one thread, small sequences) and the parallel ones (two threads, 33 x 2107 steps x neurons)."""
     kw = dict(beta=beta, threshold=threshold, surrogate=surrogate, detach_reset=detach_reset, reset=reset)
     with _threads(threads):
@@ -218,7 +226,7 @@ def test_concurrent_calls_under_the_workqueue_layer() -> None:
     script = ("import threading, torch\n"
               "from tactile_zoo.nn.lif import MultiStepLIF\n"
               "torch.set_num_threads(2)\n"
-              "x = torch.randn(50, 4, 700, requires_grad=True)\n"
+              "x = torch.randn(50, 4, 2100, requires_grad=True)  # 8400 neurons: two chunks of the kernel's 8192\n"
               "ref = MultiStepLIF()(x)\n"
               "def work(out):\n"
               "    for _ in range(40):\n"
@@ -244,7 +252,8 @@ def test_read_only_install_compiles_in_memory(tmp_path: Path) -> None:
     blocker.write_text("")
     script = ("import numpy as np, _lif_kernel as k\n"
               "x = np.full((3, 2), 0.7, np.float32); s = np.empty_like(x); m = np.empty(2, np.float32)\n"
-              "k.lif_forward(x, np.zeros(2, np.float32), s, m, *map(np.float32, (0.2, 0.5, 0.50000006)), False, 256)\n"
+              "k.lif_forward(x, np.zeros(2, np.float32), s, m, np.zeros((1, 1), np.float32), False,\n"
+              "              *map(np.float32, (0.2, 0.5, 0.50000006)), False, 256)\n"
               "print(k.lif_forward._cache.__class__.__name__, s[:, 0].tolist())")
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(pkg), "HOME": str(blocker / "home"),
            "XDG_CACHE_HOME": str(blocker / "cache"), "PYTHONDONTWRITEBYTECODE": "1"}
