@@ -3,7 +3,8 @@ interval, and the README's headline of it.
 
     python -m tools.paper_table1 [DIR]      # print it (default DIR: benchmarks/results/paper-table1)
     python -m tools.paper_table1 --readme   # rewrite docs/table1.md's tables and the README's headline block
-    python -m tools.paper_table1 --check    # exit 1 if either block is not what the cells give
+    python -m tools.paper_table1 --check    # exit 1 if either block is not what the cells give, or if a headline row
+                                            # reads another recipe than its model's registered default
 
 Reads the cell files of ``DIR/cells`` (nothing is trained) and prints Markdown: for Ev-Objects, Ev-Containers and
 BioTac-DoS, per model the paper's figure, our mean ± sample std of test accuracy over the finished runs (seeds, or
@@ -11,7 +12,8 @@ folds where a dataset's validation rotates), the 95 % confidence interval of the
 (:func:`tactile_zoo.bench.intervals.records_interval`: one draw of the test units per resample shared by the runs,
 plus the runs' spread; a unit is a test sample on the Ev datasets and a recording on BioTac-DoS), the number of
 runs and the mean training time of a cell; then the Augment8000 table, whose only figure is the D-CNN released
-weights' (``benchmarks/results/dcnn_released.csv``).
+weights' (``benchmarks/results/dcnn_released.csv``). The README's headline reads each model's registered default
+recipe alone (:mod:`tools.headline`).
 
 Only ok cells of the ``source`` recipe computed by the current revision of their model's and dataset's code count
 (the filter of :func:`tools.fidelity.cells`); the others are counted in a footnote. A model whose cells on one
@@ -34,22 +36,9 @@ from typing import Any
 from tactile_zoo.bench.intervals import bootstrap_accuracy, records_interval
 from tactile_zoo.bench.paired import holm, records_paired
 from tactile_zoo.bench.records import run_records
+from tools.headline import README, block, problems, render_headline
+from tools.table1_common import EV, MODELS, NAMES, PAPER, RESULTS, _figure, _group, _where, paper_column
 
-RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
-MODELS = ("sgnet", "convlstm", "cnn_lstm", "tacformer", "x_tacformer", "dcnn")
-NAMES = {"sgnet": "SGnet", "convlstm": "ConvLSTM", "cnn_lstm": "CNN-LSTM", "tacformer": "Tacformer",
-         "x_tacformer": "X-Tacformer", "dcnn": "D-CNN"}
-#: model -> (Ev-Objects, Ev-Containers, BioTac-DoS textures, Augment8000), Table I of the X-Tacformer paper
-PAPER: dict[str, tuple[float | None, ...]] = {
-    "sgnet": (0.8944, 0.6417, None, None),
-    "convlstm": (0.8611, 0.7333, 0.7380, None),
-    "cnn_lstm": (0.8472, 0.7167, 0.8182, None),
-    "tacformer": (0.9027, 0.7500, 0.8442, None),
-    "x_tacformer": (0.9167, 0.7833, 0.8833, None),
-    "dcnn": (None, None, None, 0.7258),
-}
-EV = {"ev_objects": ("Ev-Objects", 0, "144 test recordings, 36 classes"),
-      "ev_containers": ("Ev-Containers", 1, "60 test recordings, 20 classes")}
 BIOTAC_SETS = ("test_textures", "test_solids", "test_small")
 READING = ("Figures: mean ± sample std over runs. The 95 % interval is a confidence interval for the expected "
            "accuracy of this training procedure on this task (over training seeds, on the population the test set "
@@ -58,21 +47,6 @@ READING = ("Figures: mean ± sample std over runs. The 95 % interval is a confid
            "simulated experiments like these it covered the truth 93-96 % of the time "
            "(`benchmarks/results/interval_coverage.md`). A paper figure above the interval is one these runs do not "
            "reproduce, and two models whose intervals overlap widely are not told apart.")
-
-
-def paper_column(dataset: str) -> int:
-    """The index of ``dataset``'s figure in a :data:`PAPER` row (BioTac-DoS, not an Ev dataset, is the third)."""
-    return EV[dataset][1] if dataset in EV else 2
-
-
-def _group(records: list[dict[str, Any]], model: str, dataset: str) -> list[dict[str, Any]]:
-    recs = sorted((r for r in records if r["model"] == model and r["dataset"] == dataset),
-                  key=lambda r: (r["fold"], r["seed"]))
-    hashes = sorted({r["config_hash"] for r in recs})
-    if len(hashes) > 1:
-        raise SystemExit(f"{model} on {dataset}: cells of {len(hashes)} configurations ({', '.join(hashes)}); one "
-                         f"table row must be one configuration (move the others to their own folder)")
-    return recs
 
 
 def _mean_std(values: list[float]) -> str:
@@ -150,21 +124,6 @@ def augment8000_table(released: Path = RESULTS / "dcnn_released.csv") -> list[st
 
 #: the split each dataset's comparison reads: the declared column (BioTac-DoS: textures, as the paper)
 ZOO_SPLITS = {"ev_objects": "test", "ev_containers": "test", "biotac_dos": "test_textures"}
-
-
-def _figure(recs: list[dict[str, Any]], split: str, low_high: tuple[float, float] | None = None) -> str:
-    """``mean [95 % interval] (runs)``; pass ``low_high`` when the caller has already bootstrapped the interval."""
-    if not recs:
-        return "not run yet"
-    values = [r["metrics"][split]["accuracy"] for r in recs]
-    low_high = low_high or records_interval(recs, split)
-    interval = "-" if low_high is None else f"[{low_high[0]:.3f}, {low_high[1]:.3f}]"
-    return f"{statistics.fmean(values):.4f} {interval} ({len(recs)})"
-
-
-def _where(paper: float, low_high: tuple[float, float]) -> str:
-    """Where a paper figure lies against one of our intervals: "above", "inside" or "below"."""
-    return "above" if paper > low_high[1] else "below" if paper < low_high[0] else "inside"
 
 
 def zoo_table(source: list[dict[str, Any]], zoo: list[dict[str, Any]], dataset: str) -> list[str]:
@@ -341,47 +300,8 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     return "\n".join(lines)
 
 
-def headline(folder: Path, zoo_folder: Path | None = None, full_folder: Path | None = None) -> str:
-    """The README's headline: per Ev dataset and model with a paper figure, the paper against our best honest recipe
-    (of ``source``, ``zoo`` and ``full``, the one with the higher mean test accuracy) with its 95 % interval. The
-    ``full`` cells (default: the sibling ``<folder>-full``) count under ``--evaluation final`` only: trained on every
-    training recording, nothing selected, the test split read once."""
-    from tools.fidelity import cells
-
-    source = cells(folder)
-    zoo_folder = folder.parent / f"{folder.name}-zoo" if zoo_folder is None else zoo_folder
-    zoo = cells(zoo_folder, recipe="zoo") if (zoo_folder / "cells").is_dir() else []
-    full_folder = folder.parent / f"{folder.name}-full" if full_folder is None else full_folder
-    full = cells(full_folder, evaluation="final", recipe="full") if (full_folder / "cells").is_dir() else []
-    lines = ["Test accuracy on the released Ev splits: the paper's Table I against our best honest recipe (epoch "
-             "selected on validation, or a fixed epoch count declared beforehand; test read once), mean [95 % "
-             "confidence interval of the expected accuracy] (runs). Choosing the best of the recipes on test flatters "
-             "it slightly.", "",
-             "| dataset | model | paper | ours | recipe | paper against our interval |", "|---|---|---|---|---|---|"]
-    for dataset, (title, column, _) in EV.items():
-        for model in MODELS:
-            paper = PAPER[model][column]
-            if paper is None:
-                continue
-            options = [(recipe, recs) for recipe, recs in (("source", _group(source, model, dataset)),
-                                                           ("zoo", _group(zoo, model, dataset)),
-                                                           ("full", _group(full, model, dataset))) if recs]
-            if not options:
-                lines.append(f"| {title} | {NAMES[model]} | {paper:.4f} | not run yet | - | - |")
-                continue
-            recipe, recs = max(options, key=lambda o: statistics.fmean(r["metrics"]["test"]["accuracy"] for r in o[1]))
-            low_high = records_interval(recs)
-            assert low_high is not None
-            lines.append(f"| {title} | {NAMES[model]} | {paper:.4f} | {_figure(recs, 'test', low_high)} | `{recipe}` "
-                         f"| {_where(paper, low_high)} |")
-    return "\n".join(lines)
-
-
 PAGE = RESULTS.parents[1] / "docs" / "table1.md"
-README = RESULTS.parents[1] / "README.md"
 BEGIN, END = "<!-- table1: begin (python -m tools.paper_table1 --readme) -->", "<!-- table1: end -->"
-HEADLINE_BEGIN = "<!-- headline: begin (python -m tools.paper_table1 --readme) -->"
-HEADLINE_END = "<!-- headline: end -->"
 
 
 def render(text: str, folder: Path) -> str:
@@ -391,20 +311,14 @@ def render(text: str, folder: Path) -> str:
     return replace_block(text, BEGIN, END, table(folder), PAGE)
 
 
-def render_headline(text: str, folder: Path) -> str:
-    """``text`` (the README) with the headline block replaced by the current headline."""
-    from tools.fidelity import replace_block
-
-    return replace_block(text, HEADLINE_BEGIN, HEADLINE_END, headline(folder), README)
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.paper_table1", description=__doc__.split("\n")[0])
     p.add_argument("folder", nargs="?", type=Path, default=RESULTS / "paper-table1")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--readme", action="store_true",
                       help="rewrite docs/table1.md's tables and the README's headline block")
-    mode.add_argument("--check", action="store_true", help="exit 1 if either block is out of date")
+    mode.add_argument("--check", action="store_true", help="exit 1 if either block is out of date, or if a headline "
+                      "row reads another recipe than its model's registered default")
     args = p.parse_args(argv)
     if not (args.folder / "cells").is_dir():
         print(f"error: {args.folder / 'cells'} not found", file=sys.stderr)
@@ -415,9 +329,18 @@ def main(argv: list[str] | None = None) -> int:
     from tools.fidelity import update_page
 
     command = "python -m tools.paper_table1 --readme"
+    headline = render_headline(README.read_text(), args.folder)
+    # the generated block and, under --check, the committed one: each row must read its model's registered default
+    # recipe, whether the block was edited by hand or generated by code that picks a recipe per row
+    texts = dict.fromkeys(block(t) for t in [headline, *([README.read_text()] if args.check else [])])
+    wrong = [line for text in texts for line in problems(text, args.folder)]
+    for line in dict.fromkeys(wrong):
+        print(f"{README}: {line}", file=sys.stderr)
+    if wrong and args.readme:
+        return 1  # nothing written: a headline that chooses its recipe is not one to commit
     page = update_page(PAGE, render(PAGE.read_text(), args.folder), args.check, command)
-    readme = update_page(README, render_headline(README.read_text(), args.folder), args.check, command)
-    return max(page, readme)
+    readme = update_page(README, headline, args.check, command)
+    return max(page, readme, int(bool(wrong)))
 
 
 if __name__ == "__main__":

@@ -120,7 +120,8 @@ def test_render_replaces_only_the_marked_block(tmp_path: Path) -> None:
 
 
 def test_the_readme_holds_the_headline_not_the_tables() -> None:
-    from tools.paper_table1 import BEGIN, HEADLINE_BEGIN, HEADLINE_END, PAGE, README
+    from tools.headline import HEADLINE_BEGIN, HEADLINE_END, README
+    from tools.paper_table1 import BEGIN, PAGE
 
     readme, page = README.read_text(), PAGE.read_text()
     assert BEGIN not in readme and BEGIN in page and page.startswith("# Reproducing Table I\n")
@@ -128,20 +129,102 @@ def test_the_readme_holds_the_headline_not_the_tables() -> None:
     assert len(block.strip().splitlines()) <= 20 and "(docs/table1.md)" in readme
 
 
-def test_the_headline_picks_the_better_honest_recipe_and_places_the_paper(tmp_path: Path) -> None:
-    from tools.paper_table1 import headline
-
-    source, zoo = tmp_path / "t1", tmp_path / "t1-zoo"
+def _headline_folders(tmp_path: Path) -> Path:
+    """Three recipes beside one another on Ev-Objects, three seeds each: ``full`` scores below ``source`` for
+    X-Tacformer and below ``zoo`` for SGnet, so a headline that picks per row on test reads another recipe."""
+    source, zoo, full = tmp_path / "t1", tmp_path / "t1-zoo", tmp_path / "t1-full"
     for seed in (0, 1, 2):
-        _zoo(_cell(source, "x_tacformer", "ev_objects", seed, accuracy=0.50), zoo, 0.95)
-        _zoo(_cell(source, "sgnet", "ev_objects", seed, accuracy=0.90), zoo, 0.40)
-    rows = {line.split(" | ")[1]: line for line in headline(source).splitlines()
-            if line.startswith("| Ev-Objects |")}
-    assert rows["X-Tacformer"].startswith("| Ev-Objects | X-Tacformer | 0.9167 | 0.9500 [")
-    assert rows["X-Tacformer"].endswith("| `zoo` | inside |")  # 19 of 20 samples: the interval reaches 0.917
-    assert rows["SGnet"].endswith("| `source` | inside |") and "| 0.9000 [" in rows["SGnet"]
-    assert rows["Tacformer"] == "| Ev-Objects | Tacformer | 0.9027 | not run yet | - | - |"
+        x = _cell(source, "x_tacformer", "ev_objects", seed, accuracy=0.95)
+        _zoo(x, zoo, 0.60)
+        _full(x, full, 0.50)
+        sgnet = _cell(source, "sgnet", "ev_objects", seed, accuracy=0.50)
+        _zoo(sgnet, zoo, 0.95)
+        _full(sgnet, full, 0.90)
+    return source
+
+
+def test_the_headline_reads_the_registered_default_recipe_whatever_the_others_score(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import tools.headline as hl
+
+    source = _headline_folders(tmp_path)
+    monkeypatch.setattr(hl, "registered_default", lambda model: "zoo" if model == "sgnet" else "full")
+    text = hl.headline(source)
+    rows = {line.split(" | ")[1]: line for line in text.splitlines() if line.startswith("| Ev-Objects |")}
+    # X-Tacformer reads `full` (0.50), not `source` (0.95); SGnet its `zoo`; the others stand in their own columns
+    assert rows["X-Tacformer"].startswith("| Ev-Objects | X-Tacformer | 0.9167 | `full` | 0.5000 [")
+    assert "| above | 0.9500 [" in rows["X-Tacformer"] and rows["X-Tacformer"].endswith("| (the headline) |")
+    assert rows["SGnet"].startswith("| Ev-Objects | SGnet | 0.8944 | `zoo` | 0.9500 [")
+    assert "| inside | 0.5000 [" in rows["SGnet"] and "| (the headline) | 0.9000 [" in rows["SGnet"]
+    assert rows["Tacformer"].startswith("| Ev-Objects | Tacformer | 0.9027 | `full` | not run yet | - |")
     assert "D-CNN" not in rows  # no paper figure on Ev
+    header = next(line for line in text.splitlines() if line.startswith("| dataset"))
+    assert header.endswith("| ours | paper against our interval | `source`, for reference | `zoo`, for reference | "
+                           "`full`, for reference |")
+    assert "registered default recipe (the recipe column)" in text and "best" not in text
+    assert text.endswith("Of the 10 rows, the paper's figure lies above our interval in 1 (X-Tacformer on Ev-Objects), "
+                         "inside it in 1 and 8 not run yet.")
+
+
+def test_the_headline_check_names_a_row_that_reads_another_recipe(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    import tools.headline as hl
+
+    source = _headline_folders(tmp_path)
+    registered = {"x_tacformer": "full", "sgnet": "full"}
+    monkeypatch.setattr(hl, "registered_default", lambda model: registered.get(model, "full"))
+    honest = hl.headline(source)
+    assert hl.problems(honest, source) == []
+    # code that picks per row the recipe with the best test mean: X-Tacformer's `source`, SGnet's `zoo`
+    picked = honest.replace("| `full` | 0.5000 [", "| `source` | 0.9500 [", 1).replace("| `full` | 0.9000 [",
+                                                                                     "| `zoo` | 0.9500 [", 1)
+    assert picked != honest and hl.problems(picked, source) == [
+        "headline: SGnet on Ev-Objects reads `zoo`, not the registered default `full` (default_recipe in "
+        "tactile_zoo/models/sgnet.py): no recipe is chosen on test",
+        "headline: X-Tacformer on Ev-Objects reads `source`, not the registered default `full` (default_recipe in "
+        "tactile_zoo/models/x_tacformer.py): no recipe is chosen on test"]
+    # the right label on another recipe's figure, and a row left out
+    relabelled = honest.replace("| `full` | 0.5000 [", "| `full` | 0.9500 [", 1)
+    wrong = hl.problems("\n".join(line for line in relabelled.splitlines()
+                                  if not line.startswith("| Ev-Objects | Tacformer |")), source)
+    assert len(wrong) == 2 and wrong[0] == "headline: no row for Tacformer on Ev-Objects", wrong
+    assert wrong[1].startswith("headline: X-Tacformer on Ev-Objects shows 0.9500 [") and "(3), but its `full` cells " \
+        "give 0.5000 [" in wrong[1], wrong
+    # the generator follows the registry: with `zoo` registered for SGnet, its row reads `zoo` and passes
+    registered["sgnet"] = "zoo"
+    assert hl.problems(hl.headline(source), source) == []
+    with pytest.raises(SystemExit, match="recipe 'ema': no Table I folder holds its cells"):
+        hl.recipe_cells(source, "ema")
+
+
+def test_the_committed_headline_reads_each_models_registered_default(capsys: pytest.CaptureFixture,
+                                                                     tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    import tools.paper_table1 as pt
+    from tools.headline import HEADLINE_BEGIN, HEADLINE_END, registered_default
+
+    block = pt.README.read_text().split(HEADLINE_BEGIN)[1].split(HEADLINE_END)[0]
+    rows = [line.split(" | ") for line in block.splitlines() if line.startswith("| Ev-")]
+    names = {name: model for model, name in pt.NAMES.items()}
+    assert len(rows) == 10 and all(row[3] == f"`{registered_default(names[row[1]])}`" for row in rows), block
+    assert "flatters" not in block and "best" not in block
+    # a planted headline whose ConvLSTM row reads `source` (as round 3's did) fails --check, named as such
+    planted = tmp_path / "README.md"
+    old = next(" | ".join(row) for row in rows if row[:2] == ["| Ev-Containers", "ConvLSTM"])
+    planted.write_text(pt.README.read_text().replace(old, old.replace(f"| `{registered_default('convlstm')}` |",
+                                                                      "| `source` |")))
+    monkeypatch.setattr(pt, "README", planted)
+    monkeypatch.setattr(pt, "render", lambda text, folder: text)  # the page is another test's: not rebuilt here
+    assert pt.main(["--check"]) == 1
+    err = capsys.readouterr().err
+    assert "headline: ConvLSTM on Ev-Containers reads `source`, not the registered default" in err, err
+    # code that picks a recipe per row: --readme refuses to write its headline, and writes nothing
+    picked = planted.read_text()
+    monkeypatch.setattr(pt, "render_headline", lambda text, folder: picked)
+    monkeypatch.setattr(pt, "PAGE", tmp_path / "table1.md")
+    planted.write_text("the committed README")
+    assert pt.main(["--readme"]) == 1 and not pt.PAGE.exists() and planted.read_text() == "the committed README"
+    assert "reads `source`, not the registered default" in capsys.readouterr().err
 
 
 def _zoo(record: dict, folder: Path, accuracy: float, config_hash: str = "z") -> dict:
@@ -152,6 +235,15 @@ def _zoo(record: dict, folder: Path, accuracy: float, config_hash: str = "z") ->
     name = f"{record['model']}__{record['dataset']}__f{record['fold']}__s{record['seed']}__{config_hash}.json"
     (folder / "cells" / name).write_text(json.dumps(zoo))
     return zoo
+
+
+def _full(record: dict, folder: Path, accuracy: float) -> dict:
+    """``record`` retrained with the ``full`` recipe (every training recording, test read once at the end)."""
+    full = _zoo(record, folder, accuracy, config_hash="f")
+    full["config"] = {**full["config"], "recipe_name": "full", "evaluation": "final"}
+    name = f"{record['model']}__{record['dataset']}__f{record['fold']}__s{record['seed']}__f.json"
+    (folder / "cells" / name).write_text(json.dumps(full))
+    return full
 
 
 def test_the_zoo_comparison_pairs_runs_corrects_across_models_and_reads_each_row(tmp_path: Path) -> None:
