@@ -25,7 +25,7 @@ from typing import Any
 from .. import registry
 from ..engine.build import load_splits
 from ..engine.cell import UNHASHED_KEYS, CellConfig, resolve_cell
-from ..errors import ConfigError, DatasetError, UnknownNameError
+from ..errors import ConfigError, DatasetError, TactileZooError, UnknownNameError
 from .config import BenchConfig
 
 __all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "cell_config", "resolve_models", "resolve_datasets",
@@ -141,8 +141,7 @@ def config_hash(config: dict[str, Any] | CellConfig, hash_format: int = HASH_FOR
 
 
 def _listed_name(kind: str, entry: registry.Entry) -> str:
-    listed = registry.list_models() if kind == "model" else registry.list_datasets()
-    return entry.name if entry.name in listed else entry.qualified_name
+    return registry.listed_name(entry)  # never the bare name of a shadowed plugin: that one is the built-in's
 
 
 def _resolve(kind: str, tokens: Iterable[str]) -> list[str]:
@@ -259,12 +258,25 @@ def _check_hparams(cell_config: CellConfig) -> None:
                           f"{', '.join(map(repr, unknown))}; it takes {', '.join(accepted) or 'none'}")
 
 
+def _aliases(entry: registry.Entry) -> list[str]:
+    """The names of a model entry that resolve to it: a ``MODEL:KEY=VALUE`` override scoped by one of them applies to
+    it. A shadowed plugin's bare name is the built-in's, so ``sgnet:dim=64`` never reaches ``tz-clash:sgnet``."""
+    out = []
+    for name in (entry.name, entry.qualified_name):
+        try:
+            if registry.get_model_entry(name) is entry:
+                out.append(name)
+        except TactileZooError:  # a bare name two plugins share names neither of them
+            pass
+    return out
+
+
 def cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     """The resolved configuration of ``model`` on ``dataset`` under ``config``: the one place the command line's
     settings become a cell (``tactile-zoo bench`` and ``tactile-zoo train`` both call it). An unknown constructor
     keyword stops it here, before anything runs."""
     entry = registry.get_model_entry(model)
-    recipe_over, hparams = config.overrides_for(model, (entry.name, entry.qualified_name))
+    recipe_over, hparams = config.overrides_for(model, _aliases(entry))
     resolved = resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
                             epochs=config.effective_epochs(),
                             dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
