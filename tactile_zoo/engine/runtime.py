@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._env import env_flag
 from ..errors import ConfigError
 
 __all__ = ["resolve_device", "seed_everything", "PeakMemory", "count_parameters", "versions", "set_threads",
@@ -82,7 +83,7 @@ def flush_denormals() -> Iterator[bool]:
     on exit, so a caller who turned it on with ``torch.set_flush_denormal(True)`` should wrap their own code
     in this context instead. Also usable as a decorator: ``@flush_denormals()``.
     """
-    if os.environ.get("TACTILE_ZOO_KEEP_DENORMALS") == "1":  # opt-out: compute with subnormals as they come
+    if env_flag("TACTILE_ZOO_KEEP_DENORMALS"):  # opt-out: compute with subnormals as they come
         yield False
         return
     depth = getattr(_FTZ, "depth", 0)
