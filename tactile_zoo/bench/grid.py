@@ -17,7 +17,7 @@ import hashlib
 import inspect
 import json
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,11 +25,12 @@ from typing import Any
 from .. import registry
 from ..engine.build import load_splits
 from ..engine.cell import UNHASHED_KEYS, CellConfig, resolve_cell
-from ..errors import ConfigError, DatasetError, TactileZooError, UnknownNameError
+from ..errors import ConfigError, DatasetError, ModelCannotConsume, TactileZooError, UnknownNameError
 from .config import BenchConfig
 
 __all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "cell_config", "resolve_models", "resolve_datasets",
-           "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message"]
+           "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message",
+           "check_model_builds", "user_hparams"]
 
 #: 2: the configuration gained the model's and the dataset's computational revisions (``model_revision``,
 #: ``dataset_revision``); everything else hashes as in format 1.
@@ -84,6 +85,7 @@ class DatasetInfo:
     kwargs: dict[str, Any]
     num_classes: int
     max_epochs: int | None = None  # the dataset's epoch budget (meta "max_epochs"); --epochs overrides it
+    spec: Any = field(default=None, repr=False)  # the dataset's spec: every model is built on it once, up front
 
 
 @dataclass
@@ -229,7 +231,7 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
     if not extra:
         extra = tuple(s for s in entry.meta.get("splits", ()) if s not in ("train", "val", "test"))
     return DatasetInfo(name, num_folds, folds, protocol, extra, kwargs, ds.spec.num_classes,
-                       entry.meta.get("max_epochs"))
+                       entry.meta.get("max_epochs"), ds.spec)
 
 
 def _constructor_keywords(model: str) -> tuple[str, ...] | None:
@@ -256,6 +258,48 @@ def _check_hparams(cell_config: CellConfig) -> None:
     if unknown:
         raise ConfigError(f"--hparam: model {cell_config.model!r} takes no keyword argument(s) "
                           f"{', '.join(map(repr, unknown))}; it takes {', '.join(accepted) or 'none'}")
+
+
+def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]) -> bool:
+    """Build ``resolved``'s model once on ``spec`` (no data, no training), so that a bad hyper-parameter value stops
+    the command before any cell runs instead of failing (or, worse, skipping) every cell of the model.
+
+    Args:
+        resolved: the cell configuration (its model and every constructor keyword, the named recipe's included).
+        spec: the dataset's spec.
+        given: the constructor keywords the user gave (``--hparam``, a config file's ``hparams``): an error while
+            any is given is blamed on them.
+
+    Returns:
+        False when the model declares it cannot consume this dataset (:class:`ModelCannotConsume`: its cells are
+        skipped), else True. A model that fails without any keyword from the user is not bad input: its cells run
+        and record the failure, as a broken dataset's do.
+
+    Raises:
+        ConfigError: the model cannot be built with the user's keywords; one line naming them, the model, the dataset
+            and the model's own message.
+    """
+    import torch
+
+    try:
+        with torch.random.fork_rng(devices=[]):  # the check leaves the caller's random state as it found it
+            registry.create_model(resolved.model, spec, **dict(resolved.hparams))
+    except ModelCannotConsume:
+        return False
+    except Exception as exc:  # noqa: BLE001 - whatever a constructor raises for a value it cannot use
+        if not given:
+            return True
+        values = ", ".join(f"{key}={value!r}" for key, value in given.items())
+        why = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line, whatever the model's message holds
+        raise ConfigError(f"--hparam {values}: model {resolved.model!r} cannot be built with it for dataset "
+                          f"{resolved.dataset!r}: {why}") from None
+    return True
+
+
+def user_hparams(model: str, config: BenchConfig) -> dict[str, Any]:
+    """The constructor keywords the user gave ``model`` (``--hparam``, a config file's ``hparams`` and
+    ``model_overrides``), without those its named recipe carries."""
+    return config.overrides_for(model, _aliases(registry.get_model_entry(model)))[1]
 
 
 def _aliases(entry: registry.Entry) -> list[str]:
@@ -308,6 +352,10 @@ def build_grid(config: BenchConfig) -> Grid:
     if not infos and skipped and all(s.status == "skipped" for s in skipped):
         raise ConfigError(f"--datasets {', '.join(config.datasets)}: none of the selected datasets has its data here "
                           f"({'; '.join(f'{n}: {why}' for n, why in notes.items())})")
+    given = {m: user_hparams(m, config) for m in models}
+    for info in infos:  # every model once on every dataset's spec: a bad --hparam value stops the command here
+        for model in models:
+            check_model_builds(cell_configs[model, info.name], info.spec, given[model])
     cells: list[Cell] = []
     for info in infos:
         for model in models:
