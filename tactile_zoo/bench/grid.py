@@ -26,7 +26,7 @@ from .. import registry
 from ..engine.build import load_splits
 from ..engine.cell import UNHASHED_KEYS, CellConfig, resolve_cell
 from ..errors import ConfigError, DatasetError, ModelCannotConsume, TactileZooError, UnknownNameError
-from .config import BenchConfig
+from .config import MAX_CELLS, BenchConfig
 
 __all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "cell_config", "resolve_models", "resolve_datasets",
            "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message",
@@ -329,10 +329,20 @@ def cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     return resolved
 
 
+def _check_size(models: int, folds: int, seeds: int, bound: str) -> None:
+    """Refuse a grid of more than :data:`~.config.MAX_CELLS` cells, with its count, before listing a single one."""
+    count = models * folds * seeds
+    if count > MAX_CELLS:
+        raise ConfigError(f"the grid has {bound + ' ' if bound else ''}{count:,} cells ({models} model(s) x {folds} "
+                          f"dataset fold(s) x {seeds} seed(s)); a bench command runs at most {MAX_CELLS:,} (split the "
+                          f"study into several commands sharing one --out)")
+
+
 def build_grid(config: BenchConfig) -> Grid:
     """Resolve names, probe datasets, and list the cells in run order (dataset, fold, seed, model)."""
     models = resolve_models(config.models)
     dataset_names = resolve_datasets(config.datasets)
+    _check_size(len(models), 1, len(config.seeds), "at least")  # before any dataset is loaded
     # every pair's configuration first: a bad recipe override fails here, before any dataset is loaded
     cell_configs = {(m, d): cell_config(m, d, config) for d in dataset_names for m in models}
     infos: list[DatasetInfo] = []
@@ -352,6 +362,7 @@ def build_grid(config: BenchConfig) -> Grid:
     if not infos and skipped and all(s.status == "skipped" for s in skipped):
         raise ConfigError(f"--datasets {', '.join(config.datasets)}: none of the selected datasets has its data here "
                           f"({'; '.join(f'{n}: {why}' for n, why in notes.items())})")
+    _check_size(len(models), sum(len(info.folds) for info in infos), len(config.seeds), "")
     given = {m: user_hparams(m, config) for m in models}
     for info in infos:  # every model once on every dataset's spec: a bad --hparam value stops the command here
         for model in models:

@@ -39,7 +39,7 @@ def _single_config(args: argparse.Namespace) -> Any:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from ..bench.config import parse_positive_int, parse_seeds
+    from ..bench.config import parse_seeds, parse_threads
     from ..bench.grid import cell_config, check_model_builds, resolve_datasets, resolve_models, user_hparams
     from ..bench.trackers import check_tracker
     from ..engine import save_checkpoint
@@ -51,7 +51,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     config = _single_config(args)
     tracker = check_tracker(args.tracker)  # a missing extra fails now, not after the training
     registry.import_plugin_modules(config.plugin_modules)
-    set_threads(parse_positive_int("--threads", args.threads))
+    set_threads(parse_threads(args.threads))
     try:
         seeds = parse_seeds(args.seed)
     except ConfigError as exc:  # name the flag this command has (--seed), not bench's --seeds
