@@ -19,4 +19,5 @@ BENCHMARKS = {
     "dcnn_memory": "dcnn_memory",
     "vs_pinned": "vs_pinned",
     "profile_models": "profile_models",
+    "grid_size": "grid_size",
 }

@@ -7,7 +7,7 @@ as one line (exit code 2) and shows a traceback only with ``--debug``.
 from __future__ import annotations
 
 __all__ = ["TactileZooError", "UnknownNameError", "DatasetError", "PluginError", "ConfigError", "TestSplitForbidden",
-           "ExportError", "ResultsError"]
+           "ModelCannotConsume", "ExportError", "ResultsError"]
 
 
 class TactileZooError(Exception):
@@ -38,6 +38,14 @@ class TestSplitForbidden(ConfigError):
     validation data may be read."""
 
     __test__ = False  # not a pytest test class, despite the name
+
+
+class ModelCannotConsume(ConfigError):
+    """A model's constructor declares that it cannot take this dataset at all (its spec lacks what the model reads:
+    global features, a sensor layout...). Raise it explicitly, naming what is missing; the harness then records the
+    cell as ``skipped``, not failed. Any other error from a constructor (a bad hyper-parameter value included) is
+    an error: ``tactile-zoo bench`` builds every model once on every dataset's spec before a cell runs, and stops
+    there with exit 2."""
 
 
 class ResultsError(TactileZooError):

@@ -8,7 +8,7 @@ Models:
     tiny_mlp     averages over time, then a 2-layer MLP (with dropout); non-causal by declaration.
     tiny_rate    a causal running-mean model with sigmoid "rates" trained with ``mse_rate``.
     tiny_broken  raises in forward; tiny_nan outputs NaN; tiny_oom raises torch.OutOfMemoryError.
-    tiny_picky   refuses (ConfigError) datasets without global features -> skipped cells.
+    tiny_picky   refuses (ModelCannotConsume) datasets without global features -> skipped cells.
     tiny_slow    tiny_mlp that sleeps per batch (for the kill test).
 Datasets:
     tiny_blobs   3 classes, T=12, 3 OptoForce nodes x 4 channels, 3 globals; the class signal grows over time;
@@ -30,7 +30,7 @@ from torch import nn
 
 from tactile_zoo import registry
 from tactile_zoo.data.base import TactileDataset, TensorData
-from tactile_zoo.errors import ConfigError, DatasetError
+from tactile_zoo.errors import DatasetError, ModelCannotConsume
 
 TINY_RECIPE = {"loss": "ce", "optimizer": "adam", "lr": 0.03, "max_epochs": 8, "patience": 4, "batch_size": 16}
 
@@ -76,7 +76,7 @@ class TinyOOM(TinyMLP):
 class TinyPicky(TinyMLP):
     def __init__(self, spec: Any, **kw: Any) -> None:
         if spec.num_globals == 0:
-            raise ConfigError(f"tiny_picky needs global features; {spec.name} has none")
+            raise ModelCannotConsume(f"tiny_picky needs global features; {spec.name} has none")
         super().__init__(spec, **kw)
 
 

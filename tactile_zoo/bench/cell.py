@@ -3,7 +3,8 @@
 :func:`run_cell` never raises for a problem of the cell itself: an exception in the model, a non-finite loss or an
 out-of-memory error become a record with ``status="failed"``, the error and its traceback, so the grid goes on.
 ``KeyboardInterrupt`` and ``SystemExit`` do propagate (Ctrl-C stops the run). A model whose constructor raises
-:class:`~tactile_zoo.errors.ConfigError` for a dataset declares that it cannot consume it: ``status="skipped"``.
+:class:`~tactile_zoo.errors.ModelCannotConsume` declares that it cannot consume the dataset: ``status="skipped"``.
+Nothing else becomes a skip: a bad hyper-parameter value is refused before any cell runs (:mod:`.grid`).
 """
 
 from __future__ import annotations
@@ -22,9 +23,9 @@ import torch
 
 from .. import registry
 from .._files import atomic_path
-from ..engine.build import ModelCannotConsume
 from ..engine.cell import CellConfig, CellResult, train_cell
 from ..engine.runtime import cpu_isa, cpu_model, flush_denormals, resolve_device, set_threads, versions
+from ..errors import ModelCannotConsume
 from .progress import ProgressWriter
 
 __all__ = ["CellTask", "run_cell", "setup_worker", "save_weights", "RECORD_FORMAT"]
@@ -198,7 +199,7 @@ def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
                                 device=task.device, extra_splits=task.extra_splits, progress=progress,
                                 callback=callback)
         except ModelCannotConsume as exc:  # the model declares it cannot consume this dataset
-            record.update(status="skipped", error=f"model cannot consume this dataset: {exc.__cause__ or exc}")
+            record.update(status="skipped", error=f"model cannot consume this dataset: {exc}")
             return record
         record.update(_ok_record(result))
         if task.weights_dir is not None:

@@ -49,16 +49,29 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from .._env import check_environment
 from ..engine.evaluate import DEFAULT_PREFIXES
+from ..engine.runtime import cpu_count, resolve_device
 from ..errors import ConfigError
 
 __all__ = ["BenchConfig", "load_yaml_config", "merge_config", "parse_seeds", "parse_folds", "parse_assignment",
-           "parse_value", "parse_prefixes", "parse_positive_int", "QUICK_SUBSET", "QUICK_EPOCHS", "EXECUTORS"]
+           "parse_value", "parse_prefixes", "parse_positive_int", "parse_threads", "QUICK_SUBSET", "QUICK_EPOCHS",
+           "EXECUTORS", "OVERSUBSCRIPTION", "MAX_REMOTE_THREADS", "MAX_CELLS"]
 
 EXECUTORS = ("local", "process", "dask")
 #: ``--quick``: at most this many samples per split (class-balanced), and this many epochs unless --epochs says so.
 QUICK_SUBSET = {"train": 64, "val": 32, "test": 64}
 QUICK_EPOCHS = 2
+#: ``--threads``, and worker processes x threads, may reach this many times the cores of the machine the cells run
+#: on: beyond the cores they only compete for them, and each thread and process costs memory (100000 threads
+#: exhausted it before the first cell ran)
+OVERSUBSCRIPTION = 4
+#: ``--threads`` for cells on a Dask scheduler's workers, whose cores are not known here
+MAX_REMOTE_THREADS = 256
+#: The most cells (and so seeds) one bench command takes: weeks of computing at a second per cell, far above any grid
+#: the zoo's tables need (the largest is a few hundred), and small enough that the grid is listed in about a second.
+#: A larger study is several commands sharing one ``--out`` (its cells are reused across them).
+MAX_CELLS = 10_000
 
 
 @dataclass
@@ -99,6 +112,10 @@ class BenchConfig:
         self.validate()
 
     def validate(self) -> BenchConfig:
+        """The one up-front check of every setting (the CLI's flags and a YAML file's keys alike): a bad one is a
+        :class:`ConfigError` naming it, before anything is loaded, trained or written. Also checks the package's
+        environment variables (:func:`tactile_zoo._env.check_environment`). Returns ``self``, normalised."""
+        check_environment()
         self.models = _names("models", self.models)
         self.datasets = _names("datasets", self.datasets)
         self.seeds = parse_seeds(self.seeds)
@@ -109,10 +126,19 @@ class BenchConfig:
             raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}, got {self.executor!r}")
         if self.workers is not None:
             self.workers = parse_positive_int("--workers", self.workers)
-        if self.threads is not None:
-            self.threads = parse_positive_int("--threads", self.threads)
         if self.scheduler is not None and self.executor != "dask":
             raise ConfigError("--scheduler only applies to --executor dask")
+        if self.threads is not None:
+            self.threads = parse_threads(self.threads, remote=self.remote)
+        # the device's name always; that this machine has it, unless the cells run on a Dask scheduler's workers
+        resolve_device(self.device, here=not self.remote)
+        if self.save_weights and self.quick:
+            from ..weights.manifest import unpublishable
+
+            reason = unpublishable({"subset": self.subset})
+            if reason:
+                raise ConfigError(f"--save-weights with --quick: every cell would be {reason}, and such weights are "
+                                  f"not publishable; drop --quick (or --save-weights)")
         if self.retries is not None:
             self.retries = parse_positive_int("--retries", self.retries, minimum=0)
             if self.executor != "dask":
@@ -146,6 +172,12 @@ class BenchConfig:
             if not isinstance(kwargs, Mapping):
                 raise ConfigError(f"dataset_kwargs.{name} must be a mapping of keyword arguments")
         return self
+
+    @property
+    def remote(self) -> bool:
+        """Whether the cells run on other machines (a Dask scheduler's workers), whose devices and cores are not
+        this machine's."""
+        return self.executor == "dask" and self.scheduler is not None
 
     @property
     def subset(self) -> dict[str, int] | None:
@@ -209,6 +241,19 @@ def parse_positive_int(flag: str, value: Any, minimum: int = 1) -> int:
     return value
 
 
+def parse_threads(value: Any, remote: bool = False, flag: str = "--threads") -> int:
+    """Torch threads per cell: a positive integer up to :data:`OVERSUBSCRIPTION` times this machine's cores (or
+    :data:`MAX_REMOTE_THREADS` for cells on a Dask scheduler's workers, whose cores are unknown here)."""
+    threads = parse_positive_int(flag, value)
+    cores = cpu_count()
+    cap = MAX_REMOTE_THREADS if remote else OVERSUBSCRIPTION * cores
+    if threads > cap:
+        where = "for cells on remote Dask workers" if remote else \
+            f"{OVERSUBSCRIPTION} x the {cores} core(s) of this machine; more only slow every cell down"
+        raise ConfigError(f"{flag} {threads}: at most {cap} ({where})")
+    return threads
+
+
 def parse_seeds(value: Any) -> list[int]:
     """``"0,1,2"``, ``"0-4"``, ``3``, ``[0, 1]`` -> sorted distinct non-negative seeds."""
     if isinstance(value, int) and not isinstance(value, bool):
@@ -218,23 +263,41 @@ def parse_seeds(value: Any) -> list[int]:
     if not isinstance(value, Sequence) or not value:
         raise ConfigError(f"--seeds must be a comma-separated list of non-negative integers such as 0,1,2 (or a "
                           f"range 0-4), got {value!r}")
-    seeds: list[int] = []
+    spans: list[tuple[int, int]] = []  # inclusive ranges, counted before any is expanded
     for item in value:
         tokens = [item] if isinstance(item, int) and not isinstance(item, bool) else str(item).split(",")
         for token in tokens:
             text = str(token).strip()
             if isinstance(token, int) and not isinstance(token, bool) and token >= 0:
-                seeds.append(token)
+                spans.append((token, token))
             elif re.fullmatch(r"\d+", text):
-                seeds.append(int(text))
+                spans.append((int(text), int(text)))
             elif (m := re.fullmatch(r"(\d+)\s*-\s*(\d+)", text)) and int(m.group(1)) <= int(m.group(2)):
-                seeds.extend(range(int(m.group(1)), int(m.group(2)) + 1))
+                spans.append((int(m.group(1)), int(m.group(2))))
             else:
                 raise ConfigError(f"--seeds: {text!r} is not a non-negative integer or a range like 0-4 (got "
                                   f"{value!r})")
-    if any(s >= 2**63 for s in seeds):
+    if any(high >= 2**63 for _, high in spans):
         raise ConfigError("--seeds: a seed must be below 2**63")
-    return sorted(set(seeds))
+    count = _count_distinct(spans)
+    if count > MAX_CELLS:
+        raise ConfigError(f"--seeds {_shown(value)}: {count:,} seeds; a bench command runs at most {MAX_CELLS:,} cells "
+                          f"(split the study into several commands sharing one --out)")
+    return sorted({seed for low, high in spans for seed in range(low, high + 1)})
+
+
+def _count_distinct(spans: list[tuple[int, int]]) -> int:
+    """How many integers the inclusive ranges ``spans`` hold together (overlaps counted once)."""
+    count, reached = 0, -1
+    for low, high in sorted(spans):
+        if high > reached:
+            count += high - max(low, reached + 1) + 1
+            reached = high
+    return count
+
+
+def _shown(value: Any) -> str:
+    return ",".join(str(v) for v in value) if isinstance(value, list | tuple) else str(value)
 
 
 def parse_folds(value: Any) -> int | None:

@@ -40,10 +40,43 @@ from .progress import listening
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Executor", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor", "DEFAULT_THREADS"]
+__all__ = ["Executor", "LocalExecutor", "ProcessExecutor", "DaskExecutor", "make_executor", "DEFAULT_THREADS",
+           "pool_size", "check_workers"]
 
 #: torch threads per cell unless --threads says otherwise (see the module docstring)
 DEFAULT_THREADS = 1
+
+
+def pool_size(requested: int | None, cells: int | None, threads: int | None = None) -> int:
+    """How many worker processes a local pool (``process``, or ``dask`` without a scheduler) starts: ``--workers``
+    (default: the cores, at most 4), never more than the ``cells`` to run, since an idle worker only holds memory.
+    Above the cores (counting ``threads`` per worker) it says so in one warning line: the cells then compete for
+    them. ``cells=None``: not capped, no warning."""
+    n = requested or max(1, min(cpu_count(), 4))
+    if cells is None:
+        return n
+    n = max(1, min(n, cells))
+    busy, cores = n * (threads or DEFAULT_THREADS), cpu_count()
+    if busy > cores:
+        logger.warning("%d worker process(es) x %d thread(s) = %d threads on %d core(s): the cells compete for the "
+                       "cores and run slower each; --workers %d (or fewer) is what helps here", n,
+                       threads or DEFAULT_THREADS, busy, cores, max(1, cores // (threads or DEFAULT_THREADS)))
+    return n
+
+
+def check_workers(kind: str, workers: int | None, threads: int | None, cells: int, remote: bool = False) -> None:
+    """Refuse, before anything runs, a local pool whose processes x threads (workers capped at the grid's ``cells``)
+    exceed :data:`~.config.OVERSUBSCRIPTION` times this machine's cores."""
+    from .config import OVERSUBSCRIPTION
+
+    if kind == "local" or remote or workers is None:
+        return
+    n, per = max(1, min(workers, cells)), threads or DEFAULT_THREADS
+    cap = OVERSUBSCRIPTION * cpu_count()
+    if n * per > cap:
+        raise ConfigError(f"--workers {workers}: {n} worker process(es) x {per} thread(s) for {cells} cell(s) is "
+                          f"{n * per} threads; at most {cap} ({OVERSUBSCRIPTION} x the {cpu_count()} core(s) of this "
+                          f"machine; more only slow every cell down)")
 
 
 class Executor:
@@ -144,9 +177,9 @@ class ProcessExecutor(Executor):
 
     name = "process"
 
-    def __init__(self, workers: int | None, threads: int | None, plugin_modules: tuple[str, ...]) -> None:
-        cores = cpu_count()
-        self.workers = workers or max(1, min(cores, 4))
+    def __init__(self, workers: int | None, threads: int | None, plugin_modules: tuple[str, ...],
+                 cells: int | None = None) -> None:
+        self.workers = pool_size(workers, cells, threads)
         self.threads = threads or DEFAULT_THREADS
         self.slots = self.workers
         self._args = (tuple(plugin_modules), self.threads, tuple(sys.path), os.getpid())
@@ -228,7 +261,7 @@ class DaskExecutor(Executor):
 
     def __init__(self, scheduler: str | None, workers: int | None, threads: int | None,
                  plugin_modules: tuple[str, ...], *, retries: int | None = None, device: str = "auto",
-                 dashboard: str | None = None) -> None:
+                 dashboard: str | None = None, cells: int | None = None) -> None:
         try:
             import distributed
         except ImportError:
@@ -242,7 +275,7 @@ class DaskExecutor(Executor):
                 _check_reachable(scheduler)
                 self._client = distributed.Client(scheduler, timeout="30s")
             else:
-                n = workers or max(1, min(cpu_count(), 4))
+                n = pool_size(workers, cells, threads)
                 self._cluster = distributed.LocalCluster(
                     n_workers=n, threads_per_worker=1, processes=True, dashboard_address=dashboard,
                     silence_logs=logging.ERROR, resources={"GPU": 1} if self.gpu else None)
@@ -365,12 +398,13 @@ class DaskExecutor(Executor):
 
 def make_executor(kind: str, *, workers: int | None = None, threads: int | None = None, scheduler: str | None = None,
                   plugin_modules: tuple[str, ...] = (), progress: bool = False, retries: int | None = None,
-                  device: str = "auto", dashboard: str | None = None) -> Executor:
+                  device: str = "auto", dashboard: str | None = None, cells: int | None = None) -> Executor:
+    """The executor ``kind``; ``cells`` (the cells to run) caps a local pool's worker processes (:func:`pool_size`)."""
     if kind == "local":
         return LocalExecutor(threads, progress)
     if kind == "process":
-        return ProcessExecutor(workers, threads, plugin_modules)
+        return ProcessExecutor(workers, threads, plugin_modules, cells)
     if kind == "dask":
         return DaskExecutor(scheduler, workers, threads, plugin_modules, retries=retries, device=device,
-                            dashboard=dashboard)
+                            dashboard=dashboard, cells=cells)
     raise ConfigError(f"unknown executor {kind!r}")

@@ -17,7 +17,7 @@ import hashlib
 import inspect
 import json
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,11 +25,12 @@ from typing import Any
 from .. import registry
 from ..engine.build import load_splits
 from ..engine.cell import UNHASHED_KEYS, CellConfig, resolve_cell
-from ..errors import ConfigError, DatasetError, UnknownNameError
-from .config import BenchConfig
+from ..errors import ConfigError, DatasetError, ModelCannotConsume, TactileZooError, UnknownNameError
+from .config import MAX_CELLS, BenchConfig
 
 __all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "cell_config", "resolve_models", "resolve_datasets",
-           "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message"]
+           "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message",
+           "check_model_builds", "user_hparams"]
 
 #: 2: the configuration gained the model's and the dataset's computational revisions (``model_revision``,
 #: ``dataset_revision``); everything else hashes as in format 1.
@@ -84,6 +85,7 @@ class DatasetInfo:
     kwargs: dict[str, Any]
     num_classes: int
     max_epochs: int | None = None  # the dataset's epoch budget (meta "max_epochs"); --epochs overrides it
+    spec: Any = field(default=None, repr=False)  # the dataset's spec: every model is built on it once, up front
 
 
 @dataclass
@@ -141,8 +143,7 @@ def config_hash(config: dict[str, Any] | CellConfig, hash_format: int = HASH_FOR
 
 
 def _listed_name(kind: str, entry: registry.Entry) -> str:
-    listed = registry.list_models() if kind == "model" else registry.list_datasets()
-    return entry.name if entry.name in listed else entry.qualified_name
+    return registry.listed_name(entry)  # never the bare name of a shadowed plugin: that one is the built-in's
 
 
 def _resolve(kind: str, tokens: Iterable[str]) -> list[str]:
@@ -230,7 +231,7 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
     if not extra:
         extra = tuple(s for s in entry.meta.get("splits", ()) if s not in ("train", "val", "test"))
     return DatasetInfo(name, num_folds, folds, protocol, extra, kwargs, ds.spec.num_classes,
-                       entry.meta.get("max_epochs"))
+                       entry.meta.get("max_epochs"), ds.spec)
 
 
 def _constructor_keywords(model: str) -> tuple[str, ...] | None:
@@ -259,12 +260,67 @@ def _check_hparams(cell_config: CellConfig) -> None:
                           f"{', '.join(map(repr, unknown))}; it takes {', '.join(accepted) or 'none'}")
 
 
+def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]) -> bool:
+    """Build ``resolved``'s model once on ``spec`` (no data, no training), so that a bad hyper-parameter value stops
+    the command before any cell runs instead of failing (or, worse, skipping) every cell of the model.
+
+    Args:
+        resolved: the cell configuration (its model and every constructor keyword, the named recipe's included).
+        spec: the dataset's spec.
+        given: the constructor keywords the user gave (``--hparam``, a config file's ``hparams``): an error while
+            any is given is blamed on them.
+
+    Returns:
+        False when the model declares it cannot consume this dataset (:class:`ModelCannotConsume`: its cells are
+        skipped), else True. A model that fails without any keyword from the user is not bad input: its cells run
+        and record the failure, as a broken dataset's do.
+
+    Raises:
+        ConfigError: the model cannot be built with the user's keywords; one line naming them, the model, the dataset
+            and the model's own message.
+    """
+    import torch
+
+    try:
+        with torch.random.fork_rng(devices=[]):  # the check leaves the caller's random state as it found it
+            registry.create_model(resolved.model, spec, **dict(resolved.hparams))
+    except ModelCannotConsume:
+        return False
+    except Exception as exc:  # noqa: BLE001 - whatever a constructor raises for a value it cannot use
+        if not given:
+            return True
+        values = ", ".join(f"{key}={value!r}" for key, value in given.items())
+        why = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line, whatever the model's message holds
+        raise ConfigError(f"--hparam {values}: model {resolved.model!r} cannot be built with it for dataset "
+                          f"{resolved.dataset!r}: {why}") from None
+    return True
+
+
+def user_hparams(model: str, config: BenchConfig) -> dict[str, Any]:
+    """The constructor keywords the user gave ``model`` (``--hparam``, a config file's ``hparams`` and
+    ``model_overrides``), without those its named recipe carries."""
+    return config.overrides_for(model, _aliases(registry.get_model_entry(model)))[1]
+
+
+def _aliases(entry: registry.Entry) -> list[str]:
+    """The names of a model entry that resolve to it: a ``MODEL:KEY=VALUE`` override scoped by one of them applies to
+    it. A shadowed plugin's bare name is the built-in's, so ``sgnet:dim=64`` never reaches ``tz-clash:sgnet``."""
+    out = []
+    for name in (entry.name, entry.qualified_name):
+        try:
+            if registry.get_model_entry(name) is entry:
+                out.append(name)
+        except TactileZooError:  # a bare name two plugins share names neither of them
+            pass
+    return out
+
+
 def cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     """The resolved configuration of ``model`` on ``dataset`` under ``config``: the one place the command line's
     settings become a cell (``tactile-zoo bench`` and ``tactile-zoo train`` both call it). An unknown constructor
     keyword stops it here, before anything runs."""
     entry = registry.get_model_entry(model)
-    recipe_over, hparams = config.overrides_for(model, (entry.name, entry.qualified_name))
+    recipe_over, hparams = config.overrides_for(model, _aliases(entry))
     resolved = resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
                             epochs=config.effective_epochs(),
                             dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
@@ -273,10 +329,20 @@ def cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
     return resolved
 
 
+def _check_size(models: int, folds: int, seeds: int, bound: str) -> None:
+    """Refuse a grid of more than :data:`~.config.MAX_CELLS` cells, with its count, before listing a single one."""
+    count = models * folds * seeds
+    if count > MAX_CELLS:
+        raise ConfigError(f"the grid has {bound + ' ' if bound else ''}{count:,} cells ({models} model(s) x {folds} "
+                          f"dataset fold(s) x {seeds} seed(s)); a bench command runs at most {MAX_CELLS:,} (split the "
+                          f"study into several commands sharing one --out)")
+
+
 def build_grid(config: BenchConfig) -> Grid:
     """Resolve names, probe datasets, and list the cells in run order (dataset, fold, seed, model)."""
     models = resolve_models(config.models)
     dataset_names = resolve_datasets(config.datasets)
+    _check_size(len(models), 1, len(config.seeds), "at least")  # before any dataset is loaded
     # every pair's configuration first: a bad recipe override fails here, before any dataset is loaded
     cell_configs = {(m, d): cell_config(m, d, config) for d in dataset_names for m in models}
     infos: list[DatasetInfo] = []
@@ -296,6 +362,11 @@ def build_grid(config: BenchConfig) -> Grid:
     if not infos and skipped and all(s.status == "skipped" for s in skipped):
         raise ConfigError(f"--datasets {', '.join(config.datasets)}: none of the selected datasets has its data here "
                           f"({'; '.join(f'{n}: {why}' for n, why in notes.items())})")
+    _check_size(len(models), sum(len(info.folds) for info in infos), len(config.seeds), "")
+    given = {m: user_hparams(m, config) for m in models}
+    for info in infos:  # every model once on every dataset's spec: a bad --hparam value stops the command here
+        for model in models:
+            check_model_builds(cell_configs[model, info.name], info.spec, given[model])
     cells: list[Cell] = []
     for info in infos:
         for model in models:

@@ -24,11 +24,11 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .. import registry
-from ..errors import ResultsError
+from ..errors import ResultsError, TactileZooError
 from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
-from .executors import Executor, LocalExecutor, make_executor
+from .executors import Executor, LocalExecutor, check_workers, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
 from .progress import CostModel, ProgressDisplay, format_seconds, remove_progress
 from .records import InvalidCell, move_aside
@@ -147,6 +147,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         sys.path.append(os.getcwd())  # --plugin-module my_model finds ./my_model.py, as `python -m` would
     registry.import_plugin_modules(config.plugin_modules)
     grid = build_grid(config)
+    check_workers(config.executor, config.workers, config.threads, len(grid.cells), config.remote)
     out_dir = Path(config.out) if config.out else default_out_dir(config, grid)
     if dry_run:
         for line in grid.describe():
@@ -159,20 +160,21 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
     run = RunDir(out_dir).prepare()
     started = time.time()
     started_text = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    scan = run.scan()
+    existing = scan.records
+    todo = [c for c in grid.cells if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
+    # a local pool starts no more workers than there are cells to run (and warns above the cores)
     executor = make_executor(config.executor, workers=config.workers, threads=config.threads,
                              scheduler=config.scheduler, plugin_modules=tuple(config.plugin_modules),
                              progress=False, retries=config.retries, device=config.device,
-                             dashboard=config.dashboard)  # epochs are shown by the ProgressDisplay
+                             dashboard=config.dashboard, cells=len(todo))  # epochs are shown by the ProgressDisplay
     outcome = BenchOutcome(out_dir, 0, grid)
     status = "running"
     try:
         _run_json(run, config, grid, "running", {"started": started_text, "executor": executor.describe()})
-        scan = run.scan()
-        existing = scan.records
         _name_damaged(scan.invalid, {c.cell_id for c in grid.cells}, skip_invalid, out_dir, console_error=err)
-        todo = [c for c in grid.cells
-                if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
-        outcome.reused = [c.cell_id for c in grid.cells if c not in todo]
+        running = {c.cell_id for c in todo}  # a set: a list here made 10,000 cells take minutes to start
+        outcome.reused = [c.cell_id for c in grid.cells if c.cell_id not in running]
         console = _Console(len(todo), quiet, out, err)
         display = ProgressDisplay(run.path, err, enabled=not quiet, live=console.bar is not None)
         console.line(f"tactile-zoo bench: {len(grid.cells)} cells, {len(outcome.reused)} already finished, "
@@ -207,13 +209,18 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
 
                 # damaged files were named above; the ones of the grid have been recomputed
                 write_outputs(run.path, plots=plots and status == "finished", skip_invalid=True)
-            _run_json(run, config, grid, status, {"started": started_text, "executor": executor.describe(),
-                                                  "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                                                  "counts": counts})
-        except ResultsError as exc:  # already names the folder
+        except TactileZooError as exc:  # already names the folder or the cell
             write_error = write_error or str(exc)
         except OSError as exc:
             write_error = write_error or f"cannot write the tables in {out_dir}: {exc.strerror or exc}"
+        try:  # whatever became of the tables: run.json never stays "running" after the run
+            _run_json(run, config, grid, status, {"started": started_text, "executor": executor.describe(),
+                                                  "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                                                  "counts": counts})
+        except ResultsError as exc:
+            write_error = write_error or str(exc)
+        except OSError as exc:
+            write_error = write_error or f"cannot write {out_dir / 'run.json'}: {exc.strerror or exc}"
         summary = (f"done: {counts['ok']} ok, {counts['failed']} failed, {counts['skipped']} skipped"
                    + (f", {counts['pending']} not run" if counts["pending"] else "")
                    + (f"; {counts['datasets_skipped']} dataset(s) skipped" if counts["datasets_skipped"] else "")

@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from .. import registry
+from .._env import check_environment
 from .._version import __version__
 from ..errors import TactileZooError
 from .bench import add_bench, add_report
@@ -136,6 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ..engine.runtime import flush_denormals
 
     try:
+        check_environment()  # a boolean variable set to "banana" stops every command here, before any work
         # before torch starts its thread pool, so that every thread it starts inherits flush-to-zero
         with warnings.catch_warnings(), flush_denormals():
             warnings.simplefilter("always", registry.PluginWarning)

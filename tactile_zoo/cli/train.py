@@ -39,10 +39,11 @@ def _single_config(args: argparse.Namespace) -> Any:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from ..bench.config import parse_positive_int, parse_seeds
-    from ..bench.grid import cell_config, resolve_datasets, resolve_models
+    from ..bench.config import parse_seeds, parse_threads
+    from ..bench.grid import cell_config, check_model_builds, resolve_datasets, resolve_models, user_hparams
     from ..bench.trackers import check_tracker
     from ..engine import save_checkpoint
+    from ..engine.build import load_splits
     from ..engine.cell import train_cell
     from ..engine.runtime import set_threads, versions
     from ..errors import ConfigError
@@ -50,7 +51,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     config = _single_config(args)
     tracker = check_tracker(args.tracker)  # a missing extra fails now, not after the training
     registry.import_plugin_modules(config.plugin_modules)
-    set_threads(parse_positive_int("--threads", args.threads))
+    set_threads(parse_threads(args.threads))
     try:
         seeds = parse_seeds(args.seed)
     except ConfigError as exc:  # name the flag this command has (--seed), not bench's --seeds
@@ -62,6 +63,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
     dataset = resolve_datasets([args.dataset])[0]
     # the harness's own cell configuration, through its one function: same resolution, same numbers
     cell = cell_config(model, dataset, config)
+    # the model built once on the dataset's spec (its train split is loaded, and cached, for the cell anyway): a bad
+    # --hparam value is one line and exit 2, as in bench, not a traceback from the constructor
+    spec = load_splits(dataset, config.root, fold, config.download, cell.dataset_kwargs, ("train",))["train"].spec
+    check_model_builds(cell, spec, user_hparams(model, config))
     outcome = train_cell(cell, fold=fold, seed=seed, root=config.root, download=config.download,
                          device=config.device, progress=not args.quiet)
     result, prefix = outcome.fit, outcome.prefix or {"fractions": [], "accuracy": []}

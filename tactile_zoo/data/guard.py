@@ -16,22 +16,27 @@ tuning`` cells inside it, so a tuning trial that reaches for test data fails ins
 from __future__ import annotations
 
 import contextvars
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from .._env import env_flag
 from ..errors import TestSplitForbidden
 
 __all__ = ["tuning", "in_tuning_mode", "check_readable", "TUNING_ENV"]
 
-#: set to ``1`` in the environment to put a whole process (and the workers it starts) in tuning mode
+#: set to ``1`` (or ``true``, ``yes``, ``on``: :func:`tactile_zoo._env.env_flag`) in the environment to put a whole
+#: process (and the workers it starts) in tuning mode; a value that is not a boolean is an error, never "off"
 TUNING_ENV = "TACTILE_ZOO_TUNING"
 _TUNING: contextvars.ContextVar[bool] = contextvars.ContextVar("tactile_zoo_tuning", default=False)
 
 
 def in_tuning_mode() -> bool:
-    """Whether test splits are forbidden here: inside :func:`tuning`, or ``TACTILE_ZOO_TUNING=1``."""
-    return _TUNING.get() or os.environ.get(TUNING_ENV, "") == "1"
+    """Whether test splits are forbidden here: inside :func:`tuning`, or ``TACTILE_ZOO_TUNING`` set to a true value.
+
+    Raises:
+        ConfigError: ``TACTILE_ZOO_TUNING`` holds something that is not a boolean.
+    """
+    return _TUNING.get() or env_flag(TUNING_ENV)
 
 
 @contextmanager

@@ -5,7 +5,8 @@ sit below both: the loop never has to import the cell to build a model.
 
 - :func:`load_splits` is the one place a dataset's splits are loaded (memoised for consecutive cells).
 - :func:`build_model` is the one place a model is built from its registry name (seeded first, so its initial weights
-  depend on the seed only).
+  depend on the seed only). :class:`~tactile_zoo.errors.ModelCannotConsume` (re-exported here) is the one signal
+  that a model cannot take a dataset.
 """
 
 from __future__ import annotations
@@ -18,16 +19,12 @@ from typing import Any
 import torch
 
 from .. import registry
-from ..errors import ConfigError
+from ..errors import ModelCannotConsume
 from .runtime import seed_everything
 
 __all__ = ["SPLITS", "ModelCannotConsume", "load_splits", "build_model"]
 
 SPLITS = ("train", "val", "test")
-
-
-class ModelCannotConsume(ConfigError):
-    """The model's constructor refused the dataset (a :class:`ConfigError` from it): the cell is skipped, not failed."""
 
 
 _SPLIT_CACHE: OrderedDict[str, dict[str, Any]] = OrderedDict()
@@ -54,16 +51,11 @@ def load_splits(name: str, root: Any = None, fold: int = 0, download: bool = Fal
 def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, seed: int = 0) -> torch.nn.Module:
     """Model ``name`` built for ``spec`` right after seeding, so its initial weights depend on ``seed`` only.
 
-    A :class:`ConfigError` from the constructor (the model cannot consume this dataset) becomes
-    :class:`ModelCannotConsume`.
+    Raises:
+        ModelCannotConsume: the model declares it cannot take this dataset (raised by its constructor, explicitly:
+            a :class:`~tactile_zoo.errors.ConfigError` for a bad hyper-parameter value stays what it is, an error).
     """
     seed_everything(seed)
-    try:
-        return registry.create_model(name, spec, **dict(hparams or {}))
-    except ModelCannotConsume:
-        raise
-    except ConfigError as exc:
-        raise ModelCannotConsume(f"model {name!r} cannot consume dataset {getattr(spec, 'name', '?')!r}: {exc}") \
-            from exc
+    return registry.create_model(name, spec, **dict(hparams or {}))
 
 

@@ -34,27 +34,54 @@ from typing import Any
 import numpy as np
 import torch
 
+from .._env import env_flag
 from ..errors import ConfigError
 
 __all__ = ["resolve_device", "seed_everything", "PeakMemory", "count_parameters", "versions", "set_threads",
            "flush_denormals", "cpu_isa"]
 
 
-def resolve_device(device: str | torch.device | None = "auto") -> torch.device:
-    """``"auto"`` (or ``None``) = CUDA when available, else CPU; ``"cuda"`` without a GPU is a :class:`ConfigError`."""
+def resolve_device(device: str | torch.device | None = "auto", *, here: bool = True) -> torch.device:
+    """The torch device ``device`` names: ``"auto"`` (or ``None``) = CUDA when available, else CPU; ``"cpu"``,
+    ``"cuda"``, ``"cuda:N"``, ``"mps"``.
+
+    Args:
+        device: the name (the CLI's ``--device``), or a ``torch.device`` (returned as is).
+        here: also check that this machine has the device (its GPU ``N`` included); ``False`` checks the name only,
+            for cells that run on other machines (a Dask scheduler's workers).
+
+    Raises:
+        ConfigError: not a device name, a device type tactile-zoo does not run on, or one this machine lacks.
+    """
     if isinstance(device, torch.device):
         return device
+    if device is not None and not isinstance(device, str):
+        raise ConfigError(f"--device must be a device name (auto, cpu, cuda, cuda:N, mps), got {device!r}")
     name = (device or "auto").strip().lower()
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:
         dev = torch.device(name)
     except RuntimeError as exc:
-        raise ConfigError(f"--device {device!r} is not a device name (auto, cpu, cuda, cuda:N): {exc}") from None
+        raise ConfigError(f"--device {device!r} is not a device name (auto, cpu, cuda, cuda:N, mps): {exc}") from None
+    if dev.type not in _DEVICE_TYPES:  # meta, xla, ...: torch parses them, training on them is not supported
+        raise ConfigError(f"--device {device!r}: tactile-zoo runs on {', '.join(_DEVICE_TYPES)} (or auto), not "
+                          f"{dev.type!r}")
+    if not here or dev.type == "cpu":
+        return dev
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"--device {device!r}: CUDA is not available on this machine (torch "
                           f"{torch.__version__}); use --device cpu or auto")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise ConfigError(f"--device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s), "
+                          f"cuda:0 to cuda:{torch.cuda.device_count() - 1}")
+    if dev.type == "mps" and not torch.backends.mps.is_available():
+        raise ConfigError(f"--device {device!r}: Apple's MPS is not available on this machine; use --device cpu")
     return dev
+
+
+#: the device types a cell can run on
+_DEVICE_TYPES = ("cpu", "cuda", "mps")
 
 
 def seed_everything(seed: int) -> None:
@@ -82,7 +109,7 @@ def flush_denormals() -> Iterator[bool]:
     on exit, so a caller who turned it on with ``torch.set_flush_denormal(True)`` should wrap their own code
     in this context instead. Also usable as a decorator: ``@flush_denormals()``.
     """
-    if os.environ.get("TACTILE_ZOO_KEEP_DENORMALS") == "1":  # opt-out: compute with subnormals as they come
+    if env_flag("TACTILE_ZOO_KEEP_DENORMALS"):  # opt-out: compute with subnormals as they come
         yield False
         return
     depth = getattr(_FTZ, "depth", 0)

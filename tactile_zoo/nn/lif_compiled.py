@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import platform
 import threading
 from types import ModuleType
@@ -14,6 +13,7 @@ from types import ModuleType
 import torch
 from torch import Tensor
 
+from .._env import CHOICE_VARIABLES, env_choice
 from ..errors import ConfigError
 from . import lif_fused, memory
 from .lif_fused import _next_up
@@ -22,7 +22,7 @@ from .surrogate import Surrogate
 #: Environment variable choosing how the fused backend runs on CPU: ``auto`` (default: the compiled kernel where it
 #: applies, else torch), ``numba`` (the same, but an error where numba is missing) or ``torch`` (never the kernel).
 KERNEL_ENV = "TACTILE_ZOO_LIF_BACKEND"
-_KERNEL_CHOICES = ("auto", "numba", "torch")
+_KERNEL_CHOICES = CHOICE_VARIABLES[KERNEL_ENV]
 
 
 @functools.cache
@@ -45,9 +45,7 @@ def _kernel_module() -> ModuleType | None:
 
 def _kernel_for(x: Tensor, mem: Tensor, surrogate: Surrogate) -> ModuleType | None:
     """The compiled kernel module if it runs this call (see :data:`KERNEL_ENV`), else ``None`` (the torch path)."""
-    choice = os.environ.get(KERNEL_ENV, "auto") or "auto"
-    if choice not in _KERNEL_CHOICES:
-        raise ConfigError(f"{KERNEL_ENV} must be one of {_KERNEL_CHOICES}, got {choice!r}")
+    choice = env_choice(KERNEL_ENV, _KERNEL_CHOICES)
     if choice == "torch" or x.device.type != "cpu" or mem.device.type != "cpu":
         return None
     # a tracer's tensors (torch.export's fake and functional tensors, torch.compile's) hold no memory numba can read:

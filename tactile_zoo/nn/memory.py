@@ -15,12 +15,13 @@ from __future__ import annotations
 
 import ctypes
 import functools
-import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from torch import Tensor
+
+from .._env import env_flag
 
 __all__ = ["empty", "MIN_BYTES"]
 
@@ -35,7 +36,7 @@ _THP_MODE = Path("/sys/kernel/mm/transparent_hugepage/enabled")
 @functools.cache
 def _madvise() -> Callable[[int, int, int], int] | None:
     """libc's ``madvise`` when huge pages are granted on request only, else ``None`` (nothing to ask for)."""
-    if not sys.platform.startswith("linux") or os.environ.get("TACTILE_ZOO_NO_HUGEPAGES") == "1":
+    if not sys.platform.startswith("linux") or env_flag("TACTILE_ZOO_NO_HUGEPAGES"):
         return None
     try:
         if "[madvise]" not in _THP_MODE.read_text():  # "[always]": already huge; "[never]": the advice is ignored

@@ -58,6 +58,7 @@ from .lookup import (
     list_datasets,
     list_models,
     list_sensors,
+    listed_name,
     load_dataset,
     revision_of,
 )
@@ -65,7 +66,8 @@ from .lookup import (
 __all__ = [
     "Entry", "PluginInfo", "PluginWarning", "register_model", "register_dataset", "register_sensor",
     "list_models", "list_datasets", "list_sensors", "create_model", "load_dataset", "get_sensor",
-    "get_model_entry", "get_dataset_entry", "plugins", "normalize_name", "reset_plugins", "set_plugin_policy",
+    "get_model_entry", "get_dataset_entry", "listed_name", "plugins", "normalize_name", "reset_plugins",
+    "set_plugin_policy",
     "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
     "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError", "model_recipe",
     "resolve_model_recipe", "ModelRecipe",

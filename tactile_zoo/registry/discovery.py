@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
-import os
 import sys
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from .._env import env_flag
 from ..errors import PluginError
 from .entries import _LOADING_DIST, _LOCK, _TABLES, Entry, _register, _same_definition, _snake_case, normalize_name
 
@@ -43,21 +43,17 @@ _POLICY: dict[str, bool | None] = {"strict": None, "enabled": None}
 _DISCOVERED_UNDER: tuple[bool, bool] | None = None  # the (strict, enabled) policy _PLUGINS was discovered under
 
 
-def _env_flag(name: str) -> bool:
-    return os.environ.get(name, "").strip().lower() in {"1", "true", "yes", "on"}
-
-
 def set_plugin_policy(*, strict: bool | None = None, enabled: bool | None = None) -> None:
     """Override ``TACTILE_ZOO_STRICT_PLUGINS`` / ``TACTILE_ZOO_NO_PLUGINS`` (``None`` defers to the environment)."""
     _POLICY["strict"], _POLICY["enabled"] = strict, enabled
 
 
 def _strict() -> bool:
-    return _POLICY["strict"] if _POLICY["strict"] is not None else _env_flag("TACTILE_ZOO_STRICT_PLUGINS")
+    return _POLICY["strict"] if _POLICY["strict"] is not None else env_flag("TACTILE_ZOO_STRICT_PLUGINS")
 
 
 def _enabled() -> bool:
-    return _POLICY["enabled"] if _POLICY["enabled"] is not None else not _env_flag("TACTILE_ZOO_NO_PLUGINS")
+    return _POLICY["enabled"] if _POLICY["enabled"] is not None else not env_flag("TACTILE_ZOO_NO_PLUGINS")
 
 
 def _discover_entry_points() -> list[tuple[PluginInfo, importlib.metadata.EntryPoint]]:

@@ -43,6 +43,19 @@ def _resolve(kind: str, name: str) -> Entry:
     raise UnknownNameError(f"unknown {kind} {name!r}.{hint} Known {kind}s: {', '.join(known) or '(none)'}")
 
 
+def listed_name(entry: Entry) -> str:
+    """The name :func:`list_models` (or :func:`list_datasets`) shows for ``entry``, the one that resolves back to it:
+    the bare name where that is unambiguous, ``dist:name`` for a plugin shadowed by a built-in or clashing with
+    another plugin. Callers that turn a user's name into a listed one (the harness's grid) go through here, so that
+    ``dist:name`` never collapses to the bare name, which would select the built-in."""
+    if entry.kind != "sensor":
+        _ensure_discovered()
+    for listed, candidate in _TABLES[entry.kind].visible():
+        if candidate is entry:
+            return listed
+    return entry.qualified_name
+
+
 def revision_of(entry: Entry) -> int:
     """The computational revision of a model or dataset entry (``DEFAULT_REVISION`` when its metadata has none)."""
     return int(entry.meta.get("revision", DEFAULT_REVISION))

@@ -25,8 +25,8 @@ from .._files import atomic_write_text
 from ..errors import ConfigError
 from .entry import MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
 
-__all__ = ["read_manifest", "parse_manifest", "write_manifest", "entry_from_record", "preprocessing_of",
-           "DEFAULT_LICENCE"]
+__all__ = ["read_manifest", "parse_manifest", "write_manifest", "entry_from_record", "unpublishable",
+           "preprocessing_of", "DEFAULT_LICENCE"]
 
 #: The licence of weights trained by tactile-zoo (the project's own); the data they were trained on keep their terms.
 DEFAULT_LICENCE = "MIT (the weights, like tactile-zoo); the training data keep their own terms (dataset_licence)"
@@ -170,6 +170,15 @@ def preprocessing_of(model: str, dataset: str, spec: Mapping[str, Any], hparams:
                                               json.dumps(_json_value(hparams), sort_keys=True))}
 
 
+def unpublishable(config: Mapping[str, Any]) -> str | None:
+    """Why the weights of a cell with configuration ``config`` (a cell record's ``config``) cannot be published, or
+    ``None``: the one rule, which ``bench --save-weights`` checks before training anything and
+    :func:`entry_from_record` after."""
+    if config.get("subset"):
+        return f"trained on a subset of the data ({dict(config['subset'])}, --quick)"
+    return None
+
+
 def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | None = None, *,
                       tag: str | None = None, licence: str = DEFAULT_LICENCE, dataset_licence: str | None = None,
                       note: str = "", url: str | None = None) -> WeightEntry:
@@ -192,9 +201,9 @@ def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | No
     if not isinstance(weights, Mapping) or not weights.get("file") or not weights.get("sha256"):
         raise ConfigError(f"cell {cell}: the record has no weights (run the bench with --save-weights)")
     config = record.get("config") or {}
-    if config.get("subset"):
-        raise ConfigError(f"cell {cell} ran on a subset of the data ({config['subset']}, --quick); its weights are not "
-                          f"publishable")
+    reason = unpublishable(config)
+    if reason:
+        raise ConfigError(f"cell {cell} was {reason}; its weights are not publishable")
     if dataset_licence is None:
         from ..registry import get_dataset_entry
 

@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
     sys.path.insert(0, str(REPO))
 
-from benchmarks import BENCHMARKS, common, graph_conv, lif, run, scaling, sgnet_epoch  # noqa: E402
+from benchmarks import BENCHMARKS, common, graph_conv, grid_size, lif, run, scaling, sgnet_epoch  # noqa: E402
 
 
 def _ctx(tmp_path: Path) -> common.Context:
@@ -104,6 +104,14 @@ def test_runner_rejects_unknown_names_and_lists(capsys: pytest.CaptureFixture[st
     assert run.main(["--list"]) == 0
     listed = capsys.readouterr().out.splitlines()
     assert [line.split()[0] for line in listed] == list(BENCHMARKS)
+
+
+def test_grid_size_measures_the_refused_huge_seed_range(tmp_path: Path) -> None:
+    rows = _read(grid_size.run(_ctx(tmp_path), cases=("huge_seed_range",)))
+    assert list(rows[0]) == ["benchmark", "case", *grid_size.COLUMNS, "note", *common.ENV_COLUMNS]
+    (row,) = rows
+    assert row["case"] == "huge_seed_range" and row["exit_code"] == "2" and row["output_lines"] == "1"
+    assert "100,000,001 seeds" in row["answer"] and float(row["peak_rss_mb"]) > 0  # no time is asserted
 
 
 def test_write_csv_refuses_undeclared_columns(tmp_path: Path) -> None:
