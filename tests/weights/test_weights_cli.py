@@ -129,7 +129,7 @@ def test_predict_answers_each_good_file_and_lists_the_bad_ones(trained: Trained,
     assert main(["predict", MODEL, *_local(trained), str(good), str(nan), str(missing)]) == 1
     out, err = capsys.readouterr()
     assert err.splitlines() == [f"tactile-zoo: error: {nan}: index (3, 5): non-finite reading nan (1 non-finite "
-                                f"value(s) in all); NaN/Inf readings are refused",
+                                f"value(s) in all, as float32); NaN/Inf readings and values beyond float32 are refused",
                                 f"tactile-zoo: error: {missing}: file not found"]
     lines = out.splitlines()
     assert lines[2] == f"{good} (12 steps)" and len(lines) == 2 + 1 + 3 + 1
