@@ -31,6 +31,7 @@ from .._files import atomic_path
 from ..errors import ConfigError, DatasetError
 from .augment import apply_augmentation, resolve_augmentations
 from .guard import check_readable
+from .preprocess import RecordingPreprocessing
 from .sensors import Sensor
 from .spec import DatasetSpec, TactileSample
 from .splits import carve_holdout, stratified_group_kfold
@@ -221,6 +222,14 @@ class TactileDataset(torch.utils.data.Dataset):
 
     def missing_message(self) -> str:
         return f"{self.name}: raw data not found at {self.raw_dir}. {self.obtain}".strip()
+
+    @classmethod
+    def recording_preprocessing(cls, options: dict[str, Any]) -> RecordingPreprocessing | None:
+        """What loading with ``options`` (the constructor's keyword options, defaults filled in) does to one raw
+        recording before the models read it, for pretrained weights to apply to a user's file; ``None`` (the default):
+        recordings are fed as they are. A subclass that transforms recordings overrides it with the function its own
+        :meth:`process` applies."""
+        return None
 
     def download(self) -> None:
         raise DatasetError(f"{self.name} cannot be downloaded automatically. {self.obtain}".strip())
