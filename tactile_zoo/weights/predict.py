@@ -7,11 +7,19 @@ semicolon or tab between values, ``.`` as the decimal mark) may start with one r
 2-D real array ``(T, N * C + G)``, or, for a dataset without globals, ``(T, N, C)``; it is memory-mapped and read
 without unpickling. Only the rows used are read (``crop`` and ``pad`` read the first T; ``resample`` and a stream read
 all); the others are counted. Files above the input size limit (``$TACTILE_ZOO_MAX_INPUT_MB``, default 2048) and
-anything that is not a regular file (a device, a FIFO, a socket) are refused. The values are
-what the weights' dataset feeds its models, in the same units: the entry's ``dataset_kwargs`` say which
-preprocessing that is (BioTac-DoS, for instance, subtracts each recording's first readings and divides by 1000;
-Augment8000 z-scores with the training statistics). A file of the dataset's own test sample, written row by row,
-gives exactly :func:`tactile_zoo.evaluate`'s prediction for that sample.
+anything that is not a regular file (a device, a FIFO, a socket) are refused, and so is any value that is not finite
+once cast to float32 (NaN, Inf, ``1e300``), naming the file, line and column.
+
+Preprocessing. The values are a raw recording, as the sensor (and the weights' dataset's release) gives them; pretrained
+weights' own preprocessing is applied first by default: what their dataset's loader does to one recording with the
+entry's ``dataset_kwargs`` (:func:`~tactile_zoo.weights.manifest.entry_preprocessing`; BioTac-DoS: its ``minmax`` or
+``baseline`` normalisation), named in each answer's ``preprocessing``. ``raw=True`` feeds the values as read: a file of
+the dataset's own (already preprocessed) test sample, written row by row, then gives exactly
+:func:`tactile_zoo.evaluate`'s prediction for that sample.
+
+Memory. :func:`iter_predict` reads, classifies and yields ``batch_size`` inputs at a time, dropping each batch before
+the next: the forward pass's activations, not the inputs, dominate, so memory is bounded whatever the number of files;
+:func:`predict` keeps only the small answers.
 
 Length: the weights were trained on ``num_steps`` (T) rows per sample.
 
@@ -22,8 +30,8 @@ Length: the weights were trained on ``num_steps`` (T) rows per sample.
 * ``"resample"``: linear interpolation in time onto T evenly spaced rows spanning the whole recording (another frame
   rate). None of the zoo's loaders resample, so this is an approximation; binary event data become fractional.
 
-No other preprocessing is applied. For a causal model's running decision frame by frame on a recording of any
-length, use ``tactile-zoo stream MODEL --pretrained ... --file FILE``.
+The preprocessing runs on the rows read, before the length is fitted. For a causal model's running decision frame
+by frame on a recording of any length, use ``tactile-zoo stream MODEL --pretrained ... --file FILE``.
 """
 
 from __future__ import annotations
