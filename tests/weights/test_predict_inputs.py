@@ -164,3 +164,12 @@ def test_the_cli_says_which_preprocessing_it_applied_and_raw_turns_it_off(tmp_pa
     assert main(["predict", "cnn_lstm", "--pretrained", "biotac_dos", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["preprocessing"] == out["predictions"][0]["preprocessing"] == "biotac_dos normalize='minmax'"
+
+
+def test_stream_takes_raw_only_with_a_file_and_pretrained_weights(trained: Trained,
+                                                                  capsys: pytest.CaptureFixture) -> None:
+    capsys.readouterr()
+    assert main(["stream", MODEL, *_local(trained), "--index", "0", "--raw"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "tactile-zoo: error: --raw goes with --file and pretrained weights (--pretrained or --weights): a dataset "
+        "sample or a checkpoint's file is fed as it is"]
