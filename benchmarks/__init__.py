@@ -17,6 +17,7 @@ BENCHMARKS = {
     "bench_wall": "bench_wall",
     "progress_overhead": "progress_overhead",
     "dcnn_memory": "dcnn_memory",
+    "predict_memory": "predict_memory",
     "vs_pinned": "vs_pinned",
     "profile_models": "profile_models",
     "grid_size": "grid_size",

@@ -9,7 +9,7 @@ from typing import Any
 
 from .. import registry
 from ._common import checkpoint_dataset, echo
-from .weights import add_pretrained_flags, pretrained_model
+from .weights import add_pretrained_flags, add_raw_flag, preprocessing_of_files, pretrained_model
 
 __all__ = ["add_stream"]
 
@@ -31,6 +31,7 @@ def add_stream(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--file", default=None, metavar="FILE",
                    help="your recording (.csv/.npy: one row per time step, taxels row-major then globals) instead "
                         "of a dataset sample")
+    add_raw_flag(p)
     p.add_argument("--split", default="test", help="split to take the sample from (default test)")
     p.add_argument("--fold", default=None, help="fold (default: the checkpoint's when the dataset is the same)")
     p.add_argument("--every", type=int, default=1, metavar="K", help="print every K-th step (and the last)")
@@ -90,9 +91,16 @@ def _cmd_stream(args: argparse.Namespace) -> int:
         config, label = blob["config"], args.checkpoint
         name = config["model"]
         check_streaming(name, dict(registry.get_model_entry(name).meta))  # before any data is loaded
+    if args.raw and not (args.file and entry is not None):
+        raise ConfigError("--raw goes with --file and pretrained weights (--pretrained or --weights): a dataset sample "
+                          "or a checkpoint's file is fed as it is")
+    applied = said = None
     if args.file:
         spec = spec if spec is not None else _checkpoint_spec(args, config)
-        recording = read_recording(args.file, spec, length=None)  # every row: a stream has no fixed length
+        if entry is not None:  # pretrained weights carry their preprocessing (a checkpoint is fed the file as read)
+            applied, said = preprocessing_of_files(model, args.raw)
+        # every row: a stream has no fixed length
+        recording = read_recording(args.file, spec, length=None, preprocessing=applied)
         x, g, y = recording.x, recording.g, None
         frame_period, what, source = _frame_period(config["dataset"]), args.file, {"file": args.file}
     else:
@@ -129,6 +137,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
                   "correct": preds[k - 1] == trace.target if known else None} for k in shown]
         echo(json.dumps({"checkpoint": None if blob is None else args.checkpoint, "model": name,
                          "weights": None if entry is None else entry.qualified_tag, **source,
+                         "preprocessing": None if applied is None else applied.name,
                          "num_steps": T, "frame_period_s": trace.frame_period, "loss": trace.loss,
                          "true_class": names[trace.target] if known else None, "steps": steps,
                          "final_scores": trace.scores[-1].tolist(), "settled_step": settled,
@@ -139,6 +148,8 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     width = max(len("top class"), *(len(n) for n in names))
     echo(f"{name} ({label}) on {what}: {T} steps"
          + ("" if trace.frame_period is None else f" of {1000 * trace.frame_period:g} ms"))
+    if said is not None:
+        echo(said)
     echo(f"{'step':>5}  {'time':>12}  {'top class':<{width}}  {'p':>5}" + ("  correct" if known else ""))
     for k in shown:
         pred = preds[k - 1]

@@ -13,7 +13,8 @@ from .. import registry
 from ..errors import ConfigError
 from ._common import echo
 
-__all__ = ["add_weights", "add_predict", "add_pretrained_flags", "pretrained_model"]
+__all__ = ["add_weights", "add_predict", "add_pretrained_flags", "pretrained_model", "add_raw_flag",
+           "preprocessing_of_files"]
 
 logger = logging.getLogger("tactile_zoo.cli")
 
@@ -133,47 +134,75 @@ def add_predict(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--length", default="crop", choices=["crop", "pad", "resample"],
                    help="a recording of another length: crop (default: cut a longer one, refuse a shorter one), pad "
                         "(zeros after a shorter one), resample (linear interpolation onto the weights' steps)")
+    add_raw_flag(p)
     p.add_argument("--device", default="cpu", help="cpu (default), cuda, auto")
     p.add_argument("--json", action="store_true", help="print the predictions as JSON")
     p.set_defaults(handler=_cmd_predict)
 
 
+def add_raw_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--raw", action="store_true",
+                   help="feed the file's values as they are; by default the preprocessing the weights' dataset applies "
+                        "to a raw recording (recorded in their manifest: BioTac-DoS's normalisation, for instance) is "
+                        "applied first, and named in the output")
+
+
+def preprocessing_of_files(model: Any, raw: bool) -> tuple[Any, str]:
+    """``(the RecordingPreprocessing applied to the files or None, the line saying so)``, resolved as predict does."""
+    from ..weights import entry_preprocessing
+
+    entry = model.zoo_pretrained
+    if raw:
+        return None, "preprocessing: none (--raw: the values as read)"
+    applied = entry_preprocessing(entry)
+    if applied is None:
+        return None, f"preprocessing: none ({entry.dataset} feeds recordings as they are)"
+    return applied, f"preprocessing: {applied} (the weights' own, from their manifest; --raw turns it off)"
+
+
 def _cmd_predict(args: argparse.Namespace) -> int:
-    """Answer every file that can be read; each one that cannot gets one error line (naming it and what is wrong).
-    Exit 0 when all were answered, 1 when some were, 2 when none was."""
-    from ..weights import Refused, predict
+    """Answer every file that can be read, as the files are read (in bounded batches, so any number of files fits in
+    memory); each one that cannot gets one error line (naming it and what is wrong). Exit 0 when all were answered,
+    1 when some were, 2 when none was."""
+    from ..weights import Refused, iter_predict
 
     if args.top_k < 1:
         raise ConfigError(f"--top-k must be a positive integer, got {args.top_k}")
     model = pretrained_model(args.model, args)
     entry = model.zoo_pretrained
-    answers = predict(model, args.files, top_k=args.top_k, length=args.length, device=args.device,
-                      on_error="report")
-    refused = [a for a in answers if isinstance(a, Refused)]
-    results = [a for a in answers if not isinstance(a, Refused)]
-    for bad in refused:
-        logger.error("%s", bad.reason)
-    if not results:
-        return 2
-    code = 1 if refused else 0
-    if args.json:
-        echo(json.dumps({"model": entry.model, "weights": entry.qualified_tag, "dataset": entry.dataset,
-                         "test_accuracy": entry.accuracy, "note": entry.note or None,
-                         "predictions": [{k: v for k, v in r.to_dict().items() if k != "probabilities"}
-                                         for r in results],
-                         "refused": [bad.to_dict() for bad in refused]}, indent=2))
-        return code
-    accuracy = "" if entry.accuracy is None else f", test accuracy {entry.accuracy:.4f}"
-    echo(f"{entry.model} with weights {entry.qualified_tag} (trained on {entry.dataset}{accuracy})")
-    if entry.note:
-        echo(f"note: {entry.note}")
-    width = max(len("class"), *(len(name) for r in results for name, _ in r.top_k))
-    for r in results:
+    applied, preprocessing = preprocessing_of_files(model, args.raw)
+    answers = iter_predict(model, args.files, top_k=args.top_k, length=args.length, device=args.device,
+                           on_error="report", raw=args.raw)
+    results: list[dict[str, Any]] = []  # --json: the small per-file summaries only, never the inputs
+    refused: list[Any] = []
+    answered = 0
+    width = max(len("class"), *(len(name) for name in entry.spec["class_names"]))
+    for r in answers:
+        if isinstance(r, Refused):
+            logger.error("%s", r.reason)
+            refused.append(r)
+            continue
+        answered += 1
+        if args.json:
+            results.append({k: v for k, v in r.to_dict().items() if k != "probabilities"})
+            continue
+        if answered == 1:  # the header with the first answer: nothing on stdout when no file could be read
+            accuracy = "" if entry.accuracy is None else f", test accuracy {entry.accuracy:.4f}"
+            echo(f"{entry.model} with weights {entry.qualified_tag} (trained on {entry.dataset}{accuracy})")
+            if entry.note:
+                echo(f"note: {entry.note}")
+            echo(preprocessing)
         fitted = "" if r.length == "as recorded" else f", {r.length} to {entry.spec['num_steps']}"
         echo(f"{r.source} ({r.steps_read} steps{fitted})")
         for rank, (name, prob) in enumerate(r.top_k, start=1):
             echo(f"  {rank:>2}  {name:<{width}}  {prob:.3f}")
-    if refused:
-        echo(f"{len(refused)} of {len(answers)} file(s) not answered: {', '.join(bad.source for bad in refused)} "
-             f"(why: the error lines on stderr)")
+    code = 2 if not answered else 1 if refused else 0
+    if args.json and answered:
+        echo(json.dumps({"model": entry.model, "weights": entry.qualified_tag, "dataset": entry.dataset,
+                         "test_accuracy": entry.accuracy, "note": entry.note or None,
+                         "preprocessing": None if applied is None else applied.name, "predictions": results,
+                         "refused": [bad.to_dict() for bad in refused]}, indent=2))
+    elif refused and answered:
+        echo(f"{len(refused)} of {answered + len(refused)} file(s) not answered: "
+             f"{', '.join(bad.source for bad in refused)} (why: the error lines on stderr)")
     return code

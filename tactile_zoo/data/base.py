@@ -31,6 +31,7 @@ from .._files import atomic_path
 from ..errors import ConfigError, DatasetError
 from .augment import apply_augmentation, resolve_augmentations
 from .guard import check_readable
+from .preprocess import RecordingPreprocessing
 from .sensors import Sensor
 from .spec import DatasetSpec, TactileSample
 from .splits import carve_holdout, stratified_group_kfold
@@ -44,11 +45,36 @@ CACHE_FORMAT = 1  # bump when the processed layout changes
 
 
 def data_home(root: str | os.PathLike | None = None) -> Path:
-    """The data home: ``root``, else ``$TACTILE_ZOO_DATA``, else ``~/.cache/tactile_zoo/data``."""
+    """The data home: ``root``, else ``$TACTILE_ZOO_DATA``, else ``~/.cache/tactile_zoo/data``.
+
+    Raises:
+        ConfigError: the data home, or the nearest of its parents that exists, is a file: every dataset's files would
+            be looked for (and a download written) under a path that cannot exist.
+    """
     if root is not None:
-        return Path(root).expanduser()
-    env = os.environ.get("TACTILE_ZOO_DATA")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "tactile_zoo" / "data"
+        home, origin = Path(root).expanduser(), "the data root"
+    else:
+        env = os.environ.get("TACTILE_ZOO_DATA")
+        home, origin = ((Path(env).expanduser(), "the data home (from $TACTILE_ZOO_DATA)") if env else
+                        (Path.home() / ".cache" / "tactile_zoo" / "data", "the default data home"))
+    _check_not_a_file(home, origin)
+    return home
+
+
+def _check_not_a_file(home: Path, origin: str) -> None:
+    """Refuse a data home that is a file, or lies under one (``/etc/passwd/data``). A home that does not exist yet is
+    fine (a download creates it); one that cannot be inspected is left to the reader that opens it."""
+    for path in (home, *home.parents):
+        try:
+            if not path.exists():  # also False under a file (ENOTDIR): the next parent says which
+                continue
+        except OSError:
+            return
+        if path.is_dir():
+            return
+        inside = f"{home} is a file" if path == home else f"{path}, a parent of {home}, is a file"
+        raise ConfigError(f"{origin}: {inside}, not a folder; give a folder that holds one folder per "
+                          f"dataset (<root>/<dataset>/raw/)")
 
 
 def cache_home() -> Path:
@@ -197,6 +223,14 @@ class TactileDataset(torch.utils.data.Dataset):
     def missing_message(self) -> str:
         return f"{self.name}: raw data not found at {self.raw_dir}. {self.obtain}".strip()
 
+    @classmethod
+    def recording_preprocessing(cls, options: dict[str, Any]) -> RecordingPreprocessing | None:
+        """What loading with ``options`` (the constructor's keyword options, defaults filled in) does to one raw
+        recording before the models read it, for pretrained weights to apply to a user's file; ``None`` (the default):
+        recordings are fed as they are. A subclass that transforms recordings overrides it with the function its own
+        :meth:`process` applies."""
+        return None
+
     def download(self) -> None:
         raise DatasetError(f"{self.name} cannot be downloaded automatically. {self.obtain}".strip())
 
@@ -245,6 +279,11 @@ class TactileDataset(torch.utils.data.Dataset):
         key = self._cache_key()
         path = self.processed_dir / f"{key}.pt" if key else None
         if path is not None and path.exists():
+            if not path.is_file():
+                # not a file this cache wrote (a folder, a FIFO): it is the user's, never deleted or read over
+                raise DatasetError(f"{self.name}: the processed cache file {path} is a "
+                                   f"{'folder' if path.is_dir() else 'special file'}, not a cache file; move it away "
+                                   f"(it is rebuilt from the raw data), or set TACTILE_ZOO_CACHE to another folder")
             try:
                 blob = torch.load(path, weights_only=True)
                 return TensorData(blob["x"], blob["g"], blob["y"], blob["groups"], tuple(blob["partition"]))

@@ -13,7 +13,8 @@ Parts (one concept per module):
 - :mod:`.files`: locating a file (installed, local, or a URL downloaded into the cache), sha256-checked;
 - :mod:`.heads`: the classifier-head convention (``zoo_head``) that ``new_head=True`` relies on;
 - :mod:`.load`: ``create_model(name, spec=None, pretrained=..., new_head=False)``;
-- :mod:`.predict`: reading recordings in the bring-your-own format, and :func:`predict`.
+- :mod:`.predict`: reading recordings in the bring-your-own format, and :func:`predict` (:func:`iter_predict`:
+  the same, streamed in bounded batches).
 
 Sources of weights: (a) a distribution that declares a ``tactile_zoo.weights`` entry point (``pip install
 ./plugins/tactile-zoo-weights``); (b) a local ``.safetensors`` file with a manifest (``<stem>.json`` or
@@ -30,18 +31,31 @@ from .heads import head_keys, head_name
 from .load import check_fit, create_model, list_models, load_pretrained, local_weights, resolve_weights
 from .manifest import (
     DEFAULT_LICENCE,
+    dataset_options,
     entry_from_record,
+    entry_preprocessing,
     parse_manifest,
     preprocessing_of,
     read_manifest,
     write_manifest,
 )
-from .predict import LENGTHS, ON_ERROR, Prediction, Recording, Refused, predict, read_recording
+from .predict import (
+    DEFAULT_BATCH,
+    LENGTHS,
+    ON_ERROR,
+    Prediction,
+    Recording,
+    Refused,
+    iter_predict,
+    predict,
+    read_recording,
+)
 
 __all__ = [
     "WeightEntry", "MANIFEST_FORMAT", "ENTRY_KEYS", "make_tag", "tag_key", "read_manifest", "parse_manifest",
     "write_manifest", "entry_from_record", "preprocessing_of", "DEFAULT_LICENCE", "WEIGHTS_GROUP", "WeightSource",
     "weight_sources", "list_weights", "find_weights", "reset_weights", "locate", "weights_cache", "head_name",
     "head_keys", "create_model", "list_models", "load_pretrained", "resolve_weights", "local_weights", "check_fit",
-    "predict", "read_recording", "Prediction", "Recording", "Refused", "LENGTHS", "ON_ERROR",
+    "predict", "iter_predict", "read_recording", "Prediction", "Recording", "Refused", "LENGTHS", "ON_ERROR",
+    "DEFAULT_BATCH", "dataset_options", "entry_preprocessing",
 ]

@@ -22,11 +22,12 @@ from pathlib import Path
 from typing import Any
 
 from .._files import atomic_write_text
-from ..errors import ConfigError
+from ..data.preprocess import RecordingPreprocessing
+from ..errors import ConfigError, UnknownNameError
 from .entry import MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
 
 __all__ = ["read_manifest", "parse_manifest", "write_manifest", "entry_from_record", "unpublishable",
-           "preprocessing_of", "DEFAULT_LICENCE"]
+           "preprocessing_of", "dataset_options", "entry_preprocessing", "DEFAULT_LICENCE"]
 
 #: The licence of weights trained by tactile-zoo (the project's own); the data they were trained on keep their terms.
 DEFAULT_LICENCE = "MIT (the weights, like tactile-zoo); the training data keep their own terms (dataset_licence)"
@@ -114,7 +115,7 @@ def _json_value(value: Any) -> Any:
     return repr(value)
 
 
-def _dataset_options(cls: type, dataset_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+def dataset_options(cls: type, dataset_kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """The keyword options of dataset class ``cls`` (its constructor's keyword-only parameters, defaults filled in)
     with ``dataset_kwargs`` applied: what loading the dataset with those keywords used."""
     options: dict[str, Any] = {}
@@ -163,7 +164,7 @@ def preprocessing_of(model: str, dataset: str, spec: Mapping[str, Any], hparams:
         cls = registry.get_dataset_entry(dataset).obj
     except Exception:  # noqa: BLE001 - a dataset plugin that is not installed
         cls = None
-    options = _dataset_options(cls, dataset_kwargs) if isinstance(cls, type) else _json_value(dataset_kwargs)
+    options = dataset_options(cls, dataset_kwargs) if isinstance(cls, type) else _json_value(dataset_kwargs)
     period = getattr(cls, "frame_period", None)
     return {"dataset_options": options, "frame_period_s": None if period is None else float(period),
             "frame_bin_size": _frame_bin_size(model, json.dumps(dict(spec), sort_keys=True),
@@ -177,6 +178,26 @@ def unpublishable(config: Mapping[str, Any]) -> str | None:
     if config.get("subset"):
         return f"trained on a subset of the data ({dict(config['subset'])}, --quick)"
     return None
+
+
+def entry_preprocessing(entry: WeightEntry) -> RecordingPreprocessing | None:
+    """The preprocessing ``entry``'s weights expect on a raw recording, as timm's pretrained configs carry their
+    transforms: what their dataset's loader does to one recording with the entry's ``dataset_kwargs`` (defaults filled
+    in; ``preprocessing`` says the same, for people). ``None``: the dataset feeds recordings as they are.
+
+    Raises:
+        ConfigError: the weights' dataset is not installed here, so its preprocessing is unknown.
+    """
+    from .. import registry
+
+    try:
+        cls = registry.get_dataset_entry(entry.dataset).obj
+    except UnknownNameError:
+        raise ConfigError(f"weights {entry.qualified_tag} were trained on dataset {entry.dataset!r}, which is not "
+                          f"installed here, so the preprocessing they expect is unknown: install it, or feed values "
+                          f"already preprocessed with raw=True (--raw)") from None
+    hook = getattr(cls, "recording_preprocessing", None)
+    return hook(dataset_options(cls, entry.dataset_kwargs)) if hook is not None and isinstance(cls, type) else None
 
 
 def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | None = None, *,

@@ -79,7 +79,7 @@ def test_a_1_gib_npy_is_predicted_in_bounded_memory(trained: Trained, tmp_path: 
     base, base_out = _peak_kib(trained, small, tmp_path)
     peak, out = _peak_kib(trained, big, tmp_path)
     assert f"({rows} steps, cropped to 12)" in out  # every row counted, the first 12 used
-    assert out.splitlines()[3].split()[1] == base_out.splitlines()[3].split()[1]  # the small file's answer
+    assert out.splitlines()[4].split()[1] == base_out.splitlines()[4].split()[1]  # the small file's answer
     growth_mib = (peak - base) / 1024
     print(f"peak RSS: {base / 1024:.0f} MiB on 12 rows, {peak / 1024:.0f} MiB on 1 GiB (+{growth_mib:.0f} MiB)")
     assert growth_mib < 300, f"peak {peak / 1024:.0f} MiB on the 1 GiB file vs {base / 1024:.0f} MiB on 12 rows"

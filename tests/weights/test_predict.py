@@ -145,8 +145,10 @@ def test_a_batch_with_bad_files_answers_the_good_ones_in_place(trained: Trained,
     assert answers[2].reason == f"{tmp_path / 'absent.csv'}: file not found"
     assert answers[4].source == "<array 4>" and answers[4].reason.startswith("<array 4>: expected a 2-D real array")
     assert answers[1].to_dict() == {"file": answers[1].source, "error": answers[1].reason}
-    with pytest.raises(DatasetError, match="nan.npy: index"):
+    with pytest.raises(DatasetError, match="absent.csv: file not found"):  # a missing file: before reading any
         tz.predict(trained.model, inputs)
+    with pytest.raises(DatasetError, match="nan.npy: index"):
+        tz.predict(trained.model, inputs[:2])
     with pytest.raises(ConfigError, match="on_error must be one of raise, report"):
         tz.predict(trained.model, inputs, on_error="skip")
 

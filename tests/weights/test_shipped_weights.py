@@ -228,7 +228,8 @@ def test_npy_files_of_real_test_samples_get_evaluates_prediction(entry: WeightEn
     for i in chosen:  # one sample of the documented recordings format per file: (T, N * C + G)
         files.append(tmp_path / f"sample{i}.npy")
         np.save(files[-1], sample_table(test, i))
-    assert main(["predict", entry.model, "--pretrained", entry.dataset, *map(str, files), "--json"]) == 0
+    # the samples are the loader's output, already preprocessed: --raw, or BioTac-DoS's normalisation would run twice
+    assert main(["predict", entry.model, "--pretrained", entry.dataset, *map(str, files), "--json", "--raw"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["weights"] == f"tactile-zoo-weights:{entry.tag}" and out["test_accuracy"] == entry.accuracy
     expected = [result.predictions[i] for i in chosen]
@@ -236,6 +237,33 @@ def test_npy_files_of_real_test_samples_get_evaluates_prediction(entry: WeightEn
     assert [p["file"] for p in out["predictions"]] == [str(f) for f in files]
     assert expected == [_record(entry)["predictions"]["test"]["predictions"][i] for i in chosen]
     assert len(set(expected)) > 1  # the samples are not all read as one class
-    api = tz.predict(entry.model, files, pretrained=entry.dataset)  # the Python equivalent
+    api = tz.predict(entry.model, files, pretrained=entry.dataset, raw=True)  # the Python equivalent
     assert [p.index for p in api] == expected
     assert np.allclose([p.probabilities for p in api], [result.probabilities[i] for i in chosen], atol=1e-6)
+
+
+@pytest.mark.real_data
+@pytest.mark.xdist_group("plugin_weights")
+@pytest.mark.parametrize(("file", "label"), [("n/bottle12.csv", "n"), ("s/bottle16.csv", "s")])
+def test_a_raw_biotac_dos_file_is_answered_after_the_weights_own_preprocessing(file: str, label: str,
+                                                                               request: pytest.FixtureRequest,
+                                                                               capsys: pytest.CaptureFixture) -> None:
+    """Issue 38, item 16: a release file of BioTac-DoS, as recorded, used to be read as class 'e' with p = 0.926;
+    X-Tacformer's weights were trained on min-max scaled readings, which their manifest records and predict now
+    applies by default (and names); ``--raw`` feeds the raw values and gets the old answer."""
+    path = SHARED_DATA / "biotac_dos" / "raw" / "csvs" / file
+    if not path.is_file():
+        pytest.skip(f"real BioTac-DoS file {path} not found; set TACTILE_ZOO_SHARED_DATA to run this test")
+    request.getfixturevalue("installed")
+    capsys.readouterr()
+    assert main(["predict", "x_tacformer", "--pretrained", "biotac_dos", str(path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    answer = out["predictions"][0]
+    assert out["preprocessing"] == answer["preprocessing"] == "biotac_dos normalize='minmax'"
+    assert answer["class"] == label and answer["probability"] > 0.99
+    assert main(["predict", "x_tacformer", "--pretrained", "biotac_dos", str(path), "--raw", "--json"]) == 0
+    raw = json.loads(capsys.readouterr().out)["predictions"][0]
+    assert raw["class"] == "e" and raw["preprocessing"] is None  # the wrong answer the issue reported
+    assert main(["predict", "x_tacformer", "--pretrained", "biotac_dos", str(path)]) == 0
+    assert "preprocessing: biotac_dos normalize='minmax': each reading scaled by its own range" in \
+        capsys.readouterr().out

@@ -53,9 +53,10 @@ def test_predict_prints_the_top_classes_of_each_file(trained: Trained, tmp_path:
     names = trained.test.spec.class_names
     assert text[0].startswith(f"{MODEL} with weights cnn_lstm.full_sim_uskin_textures (trained on {DATASET}")
     assert text[1] == "note: trained by the test suite"
-    assert text[2] == f"{first} (12 steps)" and text[5] == f"{second} (24 steps, cropped to 12)"
-    assert text[3].split()[:2] == ["1", names[result.predictions[0]]] and text[4].split()[0] == "2"
-    assert len(text) == 8
+    assert text[2] == f"preprocessing: none ({DATASET} feeds recordings as they are)"
+    assert text[3] == f"{first} (12 steps)" and text[6] == f"{second} (24 steps, cropped to 12)"
+    assert text[4].split()[:2] == ["1", names[result.predictions[0]]] and text[5].split()[0] == "2"
+    assert len(text) == 9
 
 
 def test_predict_errors_are_one_line_naming_the_file(trained: Trained, tmp_path: Path,
@@ -88,8 +89,9 @@ def test_stream_replays_a_recording_file_with_local_weights(trained: Trained, tm
     assert main(["stream", MODEL, *_local(trained), "--file", str(longer), "--every", "6"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith(f"{MODEL} (weights cnn_lstm.full_sim_uskin_textures) on {longer}: 24 steps")
-    assert [line.split()[0] for line in out[2:6]] == ["6", "12", "18", "24"]  # a stream reads every row
-    assert out[6].startswith("final prediction: ") and "true class of a file is unknown" in out[6]
+    assert out[1] == f"preprocessing: none ({DATASET} feeds recordings as they are)"
+    assert [line.split()[0] for line in out[3:7]] == ["6", "12", "18", "24"]  # a stream reads every row
+    assert out[7].startswith("final prediction: ") and "true class of a file is unknown" in out[7]
     assert main(["stream", MODEL, *_local(trained), "--index", "0", "--file", str(exact)]) == 2
     assert "give --index N (a sample of the dataset) or --file FILE" in capsys.readouterr().err
 
@@ -129,10 +131,10 @@ def test_predict_answers_each_good_file_and_lists_the_bad_ones(trained: Trained,
     assert main(["predict", MODEL, *_local(trained), str(good), str(nan), str(missing)]) == 1
     out, err = capsys.readouterr()
     assert err.splitlines() == [f"tactile-zoo: error: {nan}: index (3, 5): non-finite reading nan (1 non-finite "
-                                f"value(s) in all); NaN/Inf readings are refused",
+                                f"value(s) in all, as float32); NaN/Inf readings and values beyond float32 are refused",
                                 f"tactile-zoo: error: {missing}: file not found"]
     lines = out.splitlines()
-    assert lines[2] == f"{good} (12 steps)" and len(lines) == 2 + 1 + 3 + 1
+    assert lines[3] == f"{good} (12 steps)" and len(lines) == 3 + 1 + 3 + 1
     assert lines[-1] == f"2 of 3 file(s) not answered: {nan}, {missing} (why: the error lines on stderr)"
     assert main(["predict", MODEL, *_local(trained), str(good), str(nan), "--json"]) == 1
     out, err = capsys.readouterr()

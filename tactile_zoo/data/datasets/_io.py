@@ -34,7 +34,7 @@ import numpy as np
 from ...errors import ConfigError, DatasetError
 
 __all__ = ["read_csv_lines", "parse_numeric_rows", "read_numeric_csv", "read_csv_table", "load_npy", "open_npy",
-           "open_input", "max_input_bytes", "check_finite", "is_number", "Table", "MAX_INPUT_ENV",
+           "open_input", "max_input_bytes", "check_finite", "is_number", "Table", "MAX_INPUT_ENV", "FLOAT32_OVERFLOW",
            "DEFAULT_MAX_INPUT_MB"]
 
 _NPY_MAGIC = b"\x93NUMPY"
@@ -346,11 +346,19 @@ def read_numeric_csv(path: str | os.PathLike, num_columns: int | None = None, he
     return read_csv_table(path, num_columns=num_columns, header=header, optional_header=optional_header).table
 
 
+#: The smallest magnitude that float32 rounds to infinity (half an ulp above its largest finite value): every model
+#: computes in float32, so a reading at or beyond it is infinite by the time a model sees it.
+FLOAT32_OVERFLOW = 2.0**128 - 2.0**103
+
+
 def check_finite(array: np.ndarray, path: str | os.PathLike, line_numbers: Sequence[int] | None = None) -> None:
-    """Refuse NaN and Inf readings, naming the first one (by CSV line when ``line_numbers`` maps the table's rows)."""
+    """Refuse readings that are not finite once cast to float32: NaN, Inf, and finite float64 values beyond float32's
+    range (``1e300``), which the cast would turn into Inf and the model into NaN scores. The first one is named (by CSV
+    line and column when ``line_numbers`` maps the table's rows, else by index)."""
     if array.dtype.kind not in "fc":
         return
-    bad = ~np.isfinite(array)
+    with np.errstate(invalid="ignore", over="ignore"):  # float16/32: the bound becomes inf, finite values stay below
+        bad = ~(np.abs(array) < FLOAT32_OVERFLOW)  # NaN compares False: caught with Inf and the too large
     if bad.any():
         where = np.argwhere(bad)[0]
         value = array[tuple(where)]
@@ -358,8 +366,11 @@ def check_finite(array: np.ndarray, path: str | os.PathLike, line_numbers: Seque
             loc = f"line {line_numbers[int(where[0])]}, column {int(where[1]) + 1}"
         else:
             loc = f"index {tuple(int(i) for i in where)}"
-        raise DatasetError(f"{path}: {loc}: non-finite reading {float(value)!r} ({int(bad.sum())} non-finite "
-                           f"value(s) in all); NaN/Inf readings are refused")
+        what = (f"non-finite reading {float(value)!r}" if not np.isfinite(value) else
+                f"reading {float(value)!r} is beyond float32's range (largest {float(np.finfo(np.float32).max):.7g}), "
+                f"where models compute")
+        raise DatasetError(f"{path}: {loc}: {what} ({int(bad.sum())} non-finite value(s) in all, as float32); NaN/Inf "
+                           f"readings and values beyond float32 are refused")
 
 
 def _npy_header(fp: BinaryIO, size: int, label: str | os.PathLike) -> tuple[tuple[int, ...], bool, np.dtype, int]:

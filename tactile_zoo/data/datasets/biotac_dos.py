@@ -52,11 +52,12 @@ import torch
 from ...errors import ConfigError, DatasetError
 from ...registry import register_dataset
 from ..base import TactileDataset, TensorData, data_home
+from ..preprocess import RecordingPreprocessing
 from ..sensors import BIOTAC_SP
 from ..splits import carve_holdout
 from ._io import read_numeric_csv
 
-__all__ = ["BioTacDoS", "OBJECT_SETS", "CLASSES"]
+__all__ = ["BioTacDoS", "OBJECT_SETS", "CLASSES", "normalize_recording"]
 
 REPOSITORY = "https://github.com/yayaneath/BioTacSP-DoS"
 CLASSES = ("n", "s", "e", "w", "cw", "aw", "t")
@@ -69,6 +70,21 @@ _FILE = re.compile(r"^([A-Za-z]+?)[_-]?(\d+)\.csv$")
 _UNSEEN = ("solids", "small", "textures")
 VALIDATIONS = ("recordings", "object")
 NORMALIZATIONS = ("baseline", "minmax", "none")
+
+
+def normalize_recording(readings: np.ndarray, normalize: str, baseline: int, scale: float, where: str
+                        ) -> np.ndarray:
+    """One recording ``(R, 24)`` in raw electrode units, normalised as the module docstring says (``"baseline"``,
+    ``"minmax"`` or ``"none"``); float64. The loader and pretrained weights' predictions both use it."""
+    if normalize == "baseline":
+        if readings.shape[0] < baseline:
+            raise DatasetError(f"{where}: {readings.shape[0]} readings, fewer than the {baseline} baseline readings")
+        return (readings[:baseline].mean(0, keepdims=True) - readings) / scale
+    if normalize == "minmax":  # each reading (R, 24) by its own range: the pattern, not the level
+        high, low = readings.max(1, keepdims=True), readings.min(1, keepdims=True)
+        span = high - low
+        return np.divide(high - readings, span, out=np.zeros(readings.shape), where=span > 0)
+    return readings
 
 
 @register_dataset(
@@ -219,16 +235,31 @@ class BioTacDoS(TactileDataset):
         r = readings.shape[0]
         if r < self.window:
             raise DatasetError(f"{path}: {r} readings, fewer than one window of {self.window}")
-        if self.normalize == "baseline":
-            if r < self.baseline:
-                raise DatasetError(f"{path}: {r} readings, fewer than the {self.baseline} baseline readings")
-            readings = (readings[: self.baseline].mean(0, keepdims=True) - readings) / self.scale
-        elif self.normalize == "minmax":  # each reading (R, 24) by its own range: the pattern, not the level
-            high, low = readings.max(1, keepdims=True), readings.min(1, keepdims=True)
-            span = high - low
-            readings = np.divide(high - readings, span, out=np.zeros(readings.shape), where=span > 0)
+        readings = normalize_recording(readings, self.normalize, self.baseline, self.scale, str(path))
         starts = np.arange(0, r - self.window + 1, self.stride)
         return np.stack([readings[s: s + self.window] for s in starts]).astype(np.float32)  # (K, W, 24)
+
+    @classmethod
+    def recording_preprocessing(cls, options: dict[str, Any]) -> RecordingPreprocessing | None:
+        """The normalisation ``options`` name (``normalize``, ``baseline``, ``scale``), applied to one raw recording
+        by the function :meth:`process` uses; ``None`` for ``normalize="none"``."""
+        normalize = options.get("normalize", "baseline")
+        baseline, scale = int(options.get("baseline", 10)), float(options.get("scale", 1000.0))
+        if normalize not in NORMALIZATIONS:
+            raise ConfigError(f"biotac_dos: normalize must be one of {', '.join(map(repr, NORMALIZATIONS))}, got "
+                              f"{normalize!r}")
+        if normalize == "none":
+            return None
+        if normalize == "minmax":
+            text = "each reading scaled by its own range over the 24 electrodes, (max E - E) / (max E - min E)"
+            head = 1
+        else:
+            text = (f"each electrode as (b - E) / {scale:g}, b its mean over the recording's first {baseline} "
+                    f"readings")
+            head = baseline
+        return RecordingPreprocessing(f"biotac_dos normalize={normalize!r}", text, head,
+                                      lambda table, where: normalize_recording(table, normalize, baseline, scale,
+                                                                               where))
 
     # ------------------------------------------------------------------------------------------- protocols
     def count_folds(self, data: TensorData) -> int:
