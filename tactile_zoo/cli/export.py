@@ -125,8 +125,10 @@ def _preprocessing(dataset: str | None, kwargs: dict[str, Any]) -> dict[str, Any
 def _cmd_export(args: argparse.Namespace) -> int:
     from ..engine import seed_everything
     from ..export import check_opset, check_steps, export_model, onnx_available, spec_for_dataset
+    from ..export.folder import ExportFolder
 
     check_steps(args.steps, "--steps")  # the cap; the memory the example input needs: export_model, with the spec
+    ExportFolder(args.out).check_owner()  # someone else's folder is refused before any weights are loaded
     formats = _formats(args.formats)
     if "onnx" in formats and onnx_available():  # before any weights are loaded
         check_opset(args.opset, "--opset")

@@ -92,10 +92,14 @@ class ExportFolder:
         return self._marker() is not None or self._legacy() is not None
 
     # ------------------------------------------------------------------------------------------- writing
+    def check_owner(self) -> list[str]:
+        """Refuse a folder that holds anything but is not an export folder; its entries otherwise."""
+        return check_folder(self.path, EXPORT_FOLDER, self.owned)
+
     def check(self, targets: Iterable[str]) -> None:
         """Before any work: refuse a folder that is not an export folder, and a file among ``targets`` (the names
-        this export writes) that is there but no export wrote."""
-        entries = check_folder(self.path, EXPORT_FOLDER, self.owned)
+        this export writes) that is there but no export wrote; then create the folder and prove it writable."""
+        entries = self.check_owner()
         ours = {f for files in self.sets().values() for f in files} | {MARKER}
         clash = [t for t in targets if t in entries and t not in ours]
         if clash:
