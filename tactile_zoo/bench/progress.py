@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .._files import atomic_write_text
+from ..engine.progress import format_seconds, make_bar
 
 __all__ = ["ProgressWriter", "add_listener", "remove_listener", "listening", "read_progress", "running_cells",
            "remove_progress", "CostModel", "ProgressDisplay", "format_seconds", "describe_running", "PROGRESS_DIR",
@@ -151,17 +152,6 @@ def remove_progress(out: str | os.PathLike, cell_id: str) -> None:
         (progress_dir(out) / f"{cell_id}.json").unlink()
 
 
-def format_seconds(seconds: float | None) -> str:
-    if seconds is None:
-        return "?"
-    seconds = max(0, int(round(seconds)))
-    if seconds < 60:
-        return f"{seconds}s"
-    if seconds < 3600:
-        return f"{seconds // 60}m{seconds % 60:02d}s"
-    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
-
-
 def _epoch_text(state: Mapping[str, Any], epoch: int | None = None, acc: Any = None, seconds: Any = None) -> str:
     """``epoch 3/15 val_acc 0.412 41.2s``: the latest epoch of ``state`` unless ``epoch`` is given."""
     if epoch is None:
@@ -275,10 +265,8 @@ class ProgressDisplay:
             return
         bar = self.bars.get(cell_id)
         if bar is None:
-            from tqdm.auto import tqdm
-
-            bar = tqdm(total=state["max_epochs"], desc=_label(state), unit="ep", leave=False, file=self.stream,
-                       dynamic_ncols=True, bar_format="{desc} |{bar:20}| {n_fmt}/{total_fmt} ep{postfix}")
+            bar = make_bar(state["max_epochs"], _label(state), "ep", self.stream,
+                           bar_format="{desc} |{bar:20}| {n_fmt}/{total_fmt} ep{postfix}")
             self.bars[cell_id] = bar
         bar.n = min(state["epoch"], state["max_epochs"])
         acc = state.get("val_accuracy")

@@ -35,7 +35,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .._files import atomic_write_text, open_temporary, torn_temporaries
+from .._files import atomic_write_text, torn_temporaries
+from .._owned import FolderRule, check_folder, make_writable
 from ..errors import ConfigError
 from .records import CellScan, InvalidCell, read_record, scan_cells
 
@@ -67,6 +68,10 @@ RUN_LOCK = "run.lock"
 #: documents a study may commit into its folder before the first cell runs (what it declares, how to read it);
 #: bench never writes these names, so a new folder holding only them is not refused as someone else's
 PLAN_DOCUMENTS = frozenset({"README.md", "PLAN.md"})
+#: ``--out`` of bench under the output-folder rule: besides the plan documents, the lock and run.json's temporary
+#: file are created before the marker, so a folder holding only them is not someone else's
+BENCH_FOLDER = FolderRule("--out", "bench", RUN_JSON, "a bench folder to resume",
+                          ignored=PLAN_DOCUMENTS | {RUN_LOCK}, ignored_prefixes=(f".{RUN_JSON}.",))
 
 
 class CellWriteError(OSError):
@@ -143,30 +148,14 @@ class RunDir:
             return True
         return bool(self.scan().records)
 
-    def _foreign_entries(self) -> list[str]:
-        """What is in the folder besides what a bench process creates first (the lock, run.json's temporary) and
-        the plan documents a study commits before its first cell (:data:`PLAN_DOCUMENTS`)."""
-        try:
-            names = sorted(os.listdir(self.path))
-        except FileNotFoundError:
-            return []
-        return [n for n in names if n != RUN_LOCK and n not in PLAN_DOCUMENTS
-                and not (n.startswith(f".{RUN_JSON}.") and n.endswith(".tmp"))]
-
     def prepare(self) -> RunDir:
         """Check that ``--out`` is new, empty or a bench folder, mark it as one (``run.json``), create its folders
-        and prove the location is writable. A folder holding anything else is refused before a byte is written, so
-        a bench run never overwrites files it did not write; that and an unwritable ``--out`` are ConfigErrors."""
+        and prove the location is writable: the output-folder rule every command shares (:mod:`tactile_zoo._owned`).
+        A folder holding anything else is refused before a byte is written, so a bench run never overwrites files
+        it did not write; that and an unwritable ``--out`` are ConfigErrors."""
+        check_folder(self.path, BENCH_FOLDER, self.is_bench_folder)
+        make_writable(self.path, BENCH_FOLDER)
         try:
-            foreign = self._foreign_entries()
-        except OSError:  # e.g. a path under a file: creating the folder below says so
-            foreign = []
-        if foreign and not self.is_bench_folder():
-            raise ConfigError(f"--out {self.path}: the folder holds other files ({', '.join(foreign[:3])}"
-                              f"{', ...' if len(foreign) > 3 else ''}) and is not a tactile-zoo bench folder (no "
-                              f"run.json marker); choose a new or empty folder, or a bench folder to resume")
-        try:
-            self.path.mkdir(parents=True, exist_ok=True)
             # the marker comes first, under the lock: a second bench starting on the same new folder sees either
             # an empty folder (bar the lock and run.json's temporary) or the marker, never a half-made folder
             with self.table_lock():
@@ -174,9 +163,7 @@ class RunDir:
                     atomic_write_json(self.path / RUN_JSON, {"format": BENCH_FORMAT, "status": "created"})
             for folder in (self.cells_dir, self.claims_dir, self.progress_dir):
                 folder.mkdir(parents=True, exist_ok=True)
-            fd, probe = open_temporary(self.cells_dir / "probe")
-            os.close(fd)
-            probe.unlink()
+            make_writable(self.cells_dir, BENCH_FOLDER)
         except OSError as exc:
             raise ConfigError(f"--out {self.path}: cannot write there ({exc.strerror or exc}); choose a writable "
                               f"folder") from None

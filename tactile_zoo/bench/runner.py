@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .. import registry
+from ..engine.progress import interactive, make_bar
 from ..errors import ResultsError, TactileZooError
 from .cell import CellTask
 from .config import BenchConfig
@@ -59,12 +60,10 @@ class _Console:
     def __init__(self, total: int, quiet: bool, out: TextIO, err: TextIO) -> None:
         self.quiet, self.out, self.err = quiet, out, err
         self.bar = None
-        if not quiet and total and getattr(err, "isatty", lambda: False)():
-            from tqdm.auto import tqdm
-
+        if not quiet and total and interactive(err):
             # tqdm's own ETA assumes equally costly cells; the cost-weighted one goes in the postfix (set_eta)
-            self.bar = tqdm(total=total, desc="cells", unit="cell", file=err, dynamic_ncols=True,
-                            bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
+            self.bar = make_bar(total, "cells", "cell", err, leave=True,
+                                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
 
     def line(self, text: str, always: bool = False) -> None:
         if self.quiet and not always:

@@ -8,12 +8,25 @@ from typing import Any
 from .. import registry
 from ..errors import ConfigError
 
-__all__ = ["echo", "add_recipe_flags", "add_tracker_flags", "with_tracker", "fold_arg", "checkpoint_dataset"]
+__all__ = ["echo", "add_quiet_flag", "progress_on", "add_recipe_flags", "add_tracker_flags", "with_tracker",
+           "fold_arg", "checkpoint_dataset"]
 
 
 def echo(*args: Any) -> None:
     """Print to stdout and flush (a long command's lines must show up while it runs, also through a pipe)."""
     print(*args, flush=True)
+
+
+def add_quiet_flag(p: argparse.ArgumentParser) -> None:
+    """``-q``: no progress (a command that can run for more than a few seconds shows its progress otherwise)."""
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress (a bar on a terminal, log lines on stderr otherwise)")
+
+
+def progress_on(args: argparse.Namespace) -> bool:
+    """Whether the command shows progress: not under the command's ``-q``, nor under ``tactile-zoo -q COMMAND``
+    (see :mod:`tactile_zoo.engine.progress` for what is shown where)."""
+    return not (getattr(args, "quiet", False) or getattr(args, "log_quiet", False))
 
 
 def add_recipe_flags(p: argparse.ArgumentParser) -> None:
@@ -37,7 +50,8 @@ def add_recipe_flags(p: argparse.ArgumentParser) -> None:
                    help="smoke run: 2 epochs, at most 64 train / 32 val / 64 test samples per split")
     p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=None, metavar="MODULE",
                    help="import MODULE first (it registers models or datasets); repeatable")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or per-cell lines")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress (bars on a terminal, log lines on stderr otherwise) and no per-cell lines")
 
 
 def add_tracker_flags(p: argparse.ArgumentParser, where: str) -> None:

@@ -17,7 +17,7 @@ from typing import Any
 
 from .. import registry
 from ..errors import ConfigError
-from ._common import echo
+from ._common import add_quiet_flag, echo, progress_on
 from .weights import add_pretrained_flags, pretrained_model
 
 __all__ = ["add_export"]
@@ -52,7 +52,8 @@ def add_export(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--batch", type=_positive("--batch"), default=1, metavar="B",
                    help="batch size of the exported graphs (default 1)")
     p.add_argument("--steps", type=_positive("--steps"), default=None, metavar="T",
-                   help="frames of the forward's input (default: the spec's number of steps)")
+                   help="frames of the forward's input (default: the spec's number of steps; capped, as the forward "
+                        "is unrolled over every frame: docs/pretrained.md)")
     p.add_argument("--no-step", dest="step", action="store_false", help="export the forward only")
     p.add_argument("--no-check", dest="check", action="store_false",
                    help="skip loading the files back and comparing them with the eager model")
@@ -63,6 +64,7 @@ def add_export(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=[], metavar="MODULE",
                    help="import MODULE first (it registers models or datasets); repeatable")
     p.add_argument("--json", action="store_true", help="print the export's description (MODEL.export.json)")
+    add_quiet_flag(p)
     p.set_defaults(handler=_cmd_export)
 
 
@@ -122,8 +124,11 @@ def _preprocessing(dataset: str | None, kwargs: dict[str, Any]) -> dict[str, Any
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from ..engine import seed_everything
-    from ..export import check_opset, export_model, onnx_available, spec_for_dataset
+    from ..export import check_opset, check_steps, export_model, onnx_available, spec_for_dataset
+    from ..export.folder import ExportFolder
 
+    check_steps(args.steps, "--steps")  # the cap; the memory the example input needs: export_model, with the spec
+    ExportFolder(args.out).check_owner()  # someone else's folder is refused before any weights are loaded
     formats = _formats(args.formats)
     if "onnx" in formats and onnx_available():  # before any weights are loaded
         check_opset(args.opset, "--opset")
@@ -163,7 +168,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     name = name.rpartition(":")[2]
     result = export_model(model, args.out, name=name, spec=spec, formats=formats, batch=args.batch,
                           steps=args.steps, step=args.step, check=args.check, seed=args.seed, opset=args.opset,
-                          info=info)
+                          info=info, progress=progress_on(args))
     desc = result.manifest
     if args.json:
         echo(json.dumps(desc, indent=2))

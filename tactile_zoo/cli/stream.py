@@ -8,7 +8,7 @@ import json
 from typing import Any
 
 from .. import registry
-from ._common import checkpoint_dataset, echo
+from ._common import add_quiet_flag, checkpoint_dataset, echo, progress_on
 from .weights import add_pretrained_flags, add_raw_flag, preprocessing_of_files, pretrained_model
 
 __all__ = ["add_stream"]
@@ -42,6 +42,7 @@ def add_stream(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=[], metavar="MODULE")
     p.add_argument("--json", action="store_true", help="print the trace as JSON")
+    add_quiet_flag(p)
     p.set_defaults(handler=_cmd_stream)
 
 
@@ -120,7 +121,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     model = model.to(device)
     check_streaming(name, model=model)
-    trace = replay(model, x, g, y, frame_period=frame_period, device=device)
+    trace = replay(model, x, g, y, frame_period=frame_period, device=device, progress=progress_on(args))
     names, T = spec.class_names, trace.num_steps
     shown = [k for k in range(1, T + 1) if k % args.every == 0 or k == T]
     probs, preds = trace.probabilities, trace.predictions

@@ -9,7 +9,15 @@ from typing import Any
 
 from .. import registry
 from ..errors import ConfigError
-from ._common import add_recipe_flags, add_tracker_flags, checkpoint_dataset, echo, fold_arg
+from ._common import (
+    add_quiet_flag,
+    add_recipe_flags,
+    add_tracker_flags,
+    checkpoint_dataset,
+    echo,
+    fold_arg,
+    progress_on,
+)
 
 __all__ = ["add_train", "add_evaluate"]
 
@@ -68,7 +76,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     spec = load_splits(dataset, config.root, fold, config.download, cell.dataset_kwargs, ("train",))["train"].spec
     check_model_builds(cell, spec, user_hparams(model, config))
     outcome = train_cell(cell, fold=fold, seed=seed, root=config.root, download=config.download,
-                         device=config.device, progress=not args.quiet)
+                         device=config.device, progress=progress_on(args))
     result, prefix = outcome.fit, outcome.prefix or {"fractions": [], "accuracy": []}
     metrics = {k: v for k, v in result.metrics.items() if k != "confusion"}
     summary = {"model": model, "dataset": dataset, "fold": fold, "seed": seed, "test": metrics,
@@ -137,6 +145,7 @@ def add_evaluate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default=None, help="auto, cpu, cuda")
     p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=[], metavar="MODULE")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_quiet_flag(p)
     p.set_defaults(handler=_cmd_evaluate)
 
 
@@ -159,7 +168,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         config = blob["config"]
         ds, dataset, fold = checkpoint_dataset(chosen, config, "DATASET")
         model = build_from_checkpoint(blob, ds.spec, where=f"checkpoint {args.checkpoint}")
-    result = evaluate(model, ds, device=args.device or "auto")
+    result = evaluate(model, ds, device=args.device or "auto", progress=progress_on(args))
     metrics = {k: v for k, v in result.metrics.items() if k != "confusion"}
     if args.json:
         echo(json.dumps({"checkpoint": args.checkpoint, "model": config["model"], "dataset": dataset,

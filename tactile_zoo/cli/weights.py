@@ -108,6 +108,8 @@ def pretrained_model(model: str, args: argparse.Namespace) -> Any:
         raise ConfigError("give --pretrained (installed weights) or --weights/--manifest (a local file), not both")
     if args.pretrained:
         return create_model(model, pretrained=args.pretrained)
+    if args.weights:
+        _check_weights_file(args.weights)
     if args.weights and args.manifest:
         return create_model(model, pretrained=local_weights(args.manifest, args.weights, model=model))
     if args.weights:
@@ -116,6 +118,36 @@ def pretrained_model(model: str, args: argparse.Namespace) -> Any:
         return create_model(model, pretrained=args.manifest)
     raise ConfigError("which weights? give --pretrained DATASET|TAG, or --weights FILE.safetensors (with "
                       "--manifest FILE.json)")
+
+
+#: suffixes that make a --weights value a file name rather than a tag (a tag's dot separates model and recipe)
+_FILE_SUFFIXES = (".safetensors", ".json", ".npy", ".npz", ".csv", ".pt", ".pth", ".ckpt", ".bin", ".onnx", ".h5",
+                  ".hdf5", ".pkl", ".txt", ".zip")
+
+
+def _check_weights_file(text: str) -> None:
+    """``--weights`` names a ``.safetensors`` file (or, as ``--pretrained`` does, an installed tag). A value that
+    looks like a path (a folder separator, a file suffix, or something that exists) but is not an existing
+    ``.safetensors`` or manifest ``.json`` file is refused here, saying what the flag expects and what the path is,
+    rather than being looked up as a tag."""
+    import os
+    from pathlib import Path
+
+    path = Path(text).expanduser()
+    suffix = path.suffix.lower()
+    if not ("/" in text or os.sep in text or suffix in _FILE_SUFFIXES or path.exists()):
+        return  # a tag: resolved (and refused, listing the installed ones) as --pretrained resolves it
+    expects = ("--weights expects a .safetensors weights file (described by --manifest FILE.json, or by FILE.json "
+               "or manifest.json next to it; installed weights go by --pretrained DATASET|TAG)")
+    if suffix in (".safetensors", ".json") and path.is_file():
+        return
+    if path.is_dir():
+        raise ConfigError(f"{expects}; {text} is a folder")
+    if not path.exists():
+        raise ConfigError(f"{expects}; {text} does not exist")
+    raise ConfigError(f"{expects}; {text} exists but is a {suffix or 'suffix-less'} file"
+                      + (" (a recording? predict and stream take recordings as FILE arguments or --file)"
+                         if suffix in (".npy", ".csv") else ""))
 
 
 def add_predict(sub: argparse._SubParsersAction) -> None:

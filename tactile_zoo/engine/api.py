@@ -24,7 +24,7 @@ __all__ = ["fit"]
 def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | str | None = None, seed: int = 0,
         val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None, *,
         test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None, root: Any = None,
-        fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = False,
+        fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = True,
         callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
     """Train ``model`` on ``dataset`` (the train split) and select the epoch on ``val_dataset``.
 
@@ -44,7 +44,9 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
         epochs: replaces the recipe's ``max_epochs``.
         test_dataset: evaluated once, with the selected (or refit) model.
         refit: retrain on train + val for the selected epoch count (needs ``val_dataset``).
-        progress: a tqdm bar over epochs (hidden when stderr is not a terminal).
+        progress: report the epochs (default ``True``): a bar when stderr is a terminal or in a notebook, else
+            one INFO record per epoch on the ``tactile_zoo.progress`` logger, shown once logging is configured
+            (:mod:`tactile_zoo.engine.progress`); ``False``: nothing.
         callback: called with each epoch's curve row.
     """
     if isinstance(model, str) and isinstance(dataset, str) and val_dataset is None and test_dataset is None:

@@ -196,7 +196,8 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         device: ``"auto"``, ``"cpu"``, ``"cuda"``, ...
         extra_splits: further test splits of the dataset, evaluated with the selected model.
         measure: also evaluate the test split's prefixes and time inference (the harness's per-cell extras).
-        progress, callback: a tqdm bar over epochs; a function called with each epoch's curve row.
+        progress, callback: report the epochs (:mod:`.progress`: a bar on a terminal, log records otherwise); a
+            function called with each epoch's curve row.
 
     Raises:
         ModelCannotConsume: the model's constructor refused the dataset.
@@ -223,7 +224,7 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         else:
             result = train_model(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev,
                                  refit=config.refit, progress=progress, callback=callback)
-        evals = {name: evaluate(result.model, split, loss=rec.loss, batch_size=rec.eval_batch_size)
+        evals = {name: evaluate(result.model, split, loss=rec.loss, batch_size=rec.eval_batch_size, progress=False)
                  for name, split in tests.items()}
         if measure:
             prefix = prefix_evaluation(result.model, tests["test"], config.prefixes or (1.0,), causal=config.causal,

@@ -16,6 +16,7 @@ from typing import Any
 import torch
 
 from .metrics import classification_metrics, scores_to_probabilities
+from .progress import LOG_SECONDS, Progress
 from .runtime import flush_denormals, resolve_device
 from .tensors import as_split
 
@@ -61,8 +62,9 @@ def _device_of(model: torch.nn.Module) -> torch.device:
 
 
 def predict_scores(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None, batch_size: int = 256,
-                   device: torch.device | None = None) -> torch.Tensor:
-    """The model's scores ``[S, K]`` on CPU, computed in eval mode, in batches, under ``inference_mode``."""
+                   device: torch.device | None = None, progress: Progress | None = None) -> torch.Tensor:
+    """The model's scores ``[S, K]`` on CPU, computed in eval mode, in batches, under ``inference_mode``;
+    ``progress`` (a :class:`~tactile_zoo.engine.progress.Progress` over batches) is updated after each batch."""
     device = device or _device_of(model)
     was_training = model.training
     model.eval()
@@ -77,6 +79,8 @@ def predict_scores(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | No
                     raise RuntimeError(f"{type(model).__name__}.forward returned shape {tuple(out.shape)}; expected "
                                        f"[batch={xb.shape[0]}, num_classes]")
                 outs.append(out.float().cpu())
+                if progress is not None:
+                    progress.update(1)
     finally:
         model.train(was_training)
     return torch.cat(outs) if outs else torch.empty(0, 0)
@@ -91,7 +95,7 @@ def _result(scores: torch.Tensor, y: torch.Tensor, num_classes: int, loss: str) 
 
 @flush_denormals()
 def evaluate(model: torch.nn.Module, dataset: Any, *, loss: str | None = None, batch_size: int = 256,
-             device: str | torch.device | None = None) -> EvalResult:
+             device: str | torch.device | None = None, progress: bool = True) -> EvalResult:
     """Evaluate ``model`` on a whole split: metrics (accuracy, balanced accuracy, macro F1, confusion matrix),
     per-sample predictions and probabilities.
 
@@ -101,12 +105,17 @@ def evaluate(model: torch.nn.Module, dataset: Any, *, loss: str | None = None, b
         loss: ``"ce"`` or ``"mse_rate"``: how scores become probabilities (default: what :func:`fit` or the
             model's registered recipe says, else ``"ce"``).
         device: where to run (default: where the model's parameters are; ``"auto"`` = CUDA when available).
+        progress: a bar over batches on a terminal, log records otherwise (see
+            :mod:`tactile_zoo.engine.progress`); ``False``: nothing.
     """
     split = as_split(dataset)
     dev = resolve_device(device) if device is not None else _device_of(model)
     if device is not None:
         model.to(dev)
-    scores = predict_scores(model, split.x, split.g, batch_size, dev)
+    name = getattr(split.spec, "name", "data")
+    with Progress(-(-split.x.shape[0] // batch_size), f"evaluate {type(model).__name__} on {name}", "batches",
+                  enabled=progress, log_every=LOG_SECONDS) as bar:
+        scores = predict_scores(model, split.x, split.g, batch_size, dev, progress=bar)
     return _result(scores, split.y, split.spec.num_classes, loss or model_loss(model))
 
 

@@ -22,6 +22,7 @@ import torch
 from ..errors import ConfigError
 from .evaluate import model_loss
 from .metrics import scores_to_probabilities
+from .progress import LOG_SECONDS, Progress
 
 __all__ = ["StreamTrace", "replay", "settled_step", "check_streaming"]
 
@@ -100,7 +101,7 @@ def check_streaming(name: str, meta: dict[str, Any] | None = None, model: torch.
 
 def replay(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None = None, y: int | None = None, *,
            loss: str | None = None, frame_period: float | None = None, device: torch.device | None = None,
-           warmup: bool = True) -> StreamTrace:
+           warmup: bool = True, progress: bool = True) -> StreamTrace:
     """Feed one sample ``x (T, N, C)``, ``g (T, G)`` to ``model.step`` frame by frame at batch size 1.
 
     Args:
@@ -112,6 +113,8 @@ def replay(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None = Non
         device: where to run (the model is moved there; default: where its parameters are).
         warmup: run one untimed step on a throw-away state first, so one-off costs (allocator, lazy init) do not
             land in the first step's latency.
+        progress: report the frames (a bar on a terminal, log records otherwise: :mod:`.progress`), outside the
+            timed ``step`` calls; ``False``: nothing.
     """
     check_streaming(type(model).__name__, model=model)
     if x.dim() != 3 or x.shape[0] == 0:
@@ -132,13 +135,16 @@ def replay(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None = Non
             if warmup:
                 model.step(frames[0], globs[0], model.init_state(1))
             state = model.init_state(1)
-            for x_t, g_t in zip(frames, globs):
-                sync()
-                start = time.perf_counter()
-                out, state = model.step(x_t, g_t, state)
-                sync()
-                seconds.append(time.perf_counter() - start)
-                scores.append(out.float().cpu())
+            with Progress(len(frames), f"stream {type(model).__name__}", "frames", enabled=progress,
+                          log_every=LOG_SECONDS) as bar:
+                for x_t, g_t in zip(frames, globs):
+                    sync()
+                    start = time.perf_counter()
+                    out, state = model.step(x_t, g_t, state)
+                    sync()
+                    seconds.append(time.perf_counter() - start)
+                    scores.append(out.float().cpu())
+                    bar.update(1)
     finally:
         model.train(was_training)
     stacked = torch.cat(scores) if scores else torch.empty(0, 0)  # (T, K)

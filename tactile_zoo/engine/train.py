@@ -35,6 +35,7 @@ from ..errors import ConfigError, TactileZooError
 from ..recipe import Recipe, lr_factor, resolve_recipe
 from .build import build_model, load_splits
 from .evaluate import EvalResult, evaluate, predict_scores
+from .progress import Progress
 from .runtime import count_parameters, flush_denormals, resolve_device, seed_everything
 from .tensors import TensorSplit, as_split, concat
 
@@ -206,7 +207,7 @@ def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: in
 def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | str | None = None,
                 seed: int = 0, val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None,
                 *, test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None,
-                root: Any = None, fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = False,
+                root: Any = None, fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = True,
                 callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
     """The training loop behind :func:`tactile_zoo.engine.fit` (see there for the arguments), without its by-name
     shortcut: a model name with a dataset name trains here on the dataset's splits, not as the harness's cell."""
@@ -242,7 +243,8 @@ def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dic
     best: tuple[float, float] | None = None
     best_state: dict[str, torch.Tensor] | None = None
     best_epoch, waited = 0, 0
-    bar = _epoch_bar(progress, rec.max_epochs, train.spec.name)
+    what = f"train {type(module).__name__} on {getattr(train.spec, 'name', 'its data')}"
+    bar = Progress(rec.max_epochs, what, "epochs", enabled=progress)
     try:
         for epoch in range(rec.max_epochs):
             t0 = time.perf_counter()
@@ -263,21 +265,20 @@ def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dic
             curve.append(row)
             if callback is not None:
                 callback(row)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f"{train_loss:.3f}", val_acc=f"{row['val_accuracy'] or 0:.3f}")
+            bar.update(1, f"loss {train_loss:.3f}" + ("" if row["val_accuracy"] is None else
+                                                      f" val_acc {row['val_accuracy']:.3f}"))
             if rec.patience is not None and val is not None and waited >= rec.patience:
                 break
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     if best_state is not None:
         module.load_state_dict(best_state)
     elif val is not None:
         raise TrainingError("no epoch produced a finite validation loss")
     elif trainer.average is not None:  # nothing selected: the last epoch's average is the model
         module.load_state_dict(trainer.evaluated.state_dict())
-    val_result = evaluate(module, val, loss=rec.loss, batch_size=rec.eval_batch_size) if val is not None else None
+    val_result = (evaluate(module, val, loss=rec.loss, batch_size=rec.eval_batch_size, progress=False)
+                  if val is not None else None)
 
     refit_curve: list[dict[str, Any]] = []
     if refit:
@@ -286,28 +287,20 @@ def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dic
         seed_everything(seed)
         both = concat(train, val)
         trainer = _Trainer(module, rec, both, seed, dev)
-        for epoch in range(best_epoch):
-            t0 = time.perf_counter()
-            loss = trainer.epoch(epoch)
-            refit_curve.append({"epoch": epoch + 1, "train_loss": loss, "lr": trainer.optimizer.param_groups[0]["lr"],
-                                "seconds": time.perf_counter() - t0})
+        with Progress(best_epoch, f"{what}: refit on train + val", "epochs", enabled=progress) as bar:
+            for epoch in range(best_epoch):
+                t0 = time.perf_counter()
+                loss = trainer.epoch(epoch)
+                refit_curve.append({"epoch": epoch + 1, "train_loss": loss,
+                                    "lr": trainer.optimizer.param_groups[0]["lr"], "seconds": time.perf_counter() - t0})
+                bar.update(1, f"loss {loss:.3f}")
         if trainer.average is not None:
             module.load_state_dict(trainer.evaluated.state_dict())
     train_seconds = time.perf_counter() - start
     test_result = None
     if test_dataset is not None:
-        test_result = evaluate(module, test_dataset, loss=rec.loss, batch_size=rec.eval_batch_size)
+        test_result = evaluate(module, test_dataset, loss=rec.loss, batch_size=rec.eval_batch_size, progress=False)
     return FitResult(model=module, recipe=rec, curve=curve, best_epoch=best_epoch, epochs_run=len(curve),
                      train_seconds=train_seconds, params=count_parameters(module), device=str(dev), seed=seed,
                      val=val_result, test=test_result, refit=refit, refit_curve=refit_curve,
                      n_train=len(train), n_val=len(val) if val is not None else 0)
-
-
-def _epoch_bar(progress: bool, total: int, name: str) -> Any:
-    if not progress:
-        return None
-    import sys
-
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=f"epochs {name}", leave=False, unit="ep", disable=not sys.stderr.isatty())

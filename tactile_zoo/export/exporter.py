@@ -19,12 +19,15 @@ from torch import Tensor, nn
 from .. import registry
 from .._files import atomic_write_text
 from .._version import __version__
+from ..engine.progress import Progress
 from ..errors import ConfigError, ExportError
+from .folder import _SUFFIX, ExportFolder, export_targets
 from .graphs import ForwardGraph, StateTensor, StepGraph, _dtype_name, _for_export, _registry_key
 from .onnx_io import (
     ONNX_INSTALL,
     check_opset,
     onnx_available,
+    onnx_opsets,
     onnx_runner,
     onnxruntime_available,
     opset_of,
@@ -32,8 +35,9 @@ from .onnx_io import (
     to_onnx,
 )
 
-__all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "ExportError", "StateTensor", "ForwardGraph", "StepGraph",
-           "ExportResult", "export_model", "initial_state", "spec_for_dataset"]
+__all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "MAX_STEPS", "MAX_INPUT_BYTES", "ExportError", "StateTensor",
+           "ForwardGraph", "StepGraph", "ExportResult", "export_model", "check_shape",
+           "check_steps", "initial_state", "spec_for_dataset"]
 
 #: The formats :func:`export_model` writes.
 FORMATS = ("torchscript", "onnx")
@@ -43,7 +47,37 @@ EXPORT_FORMAT = "tactile-zoo-export/1"
 TOLERANCE = 1e-5
 #: How to install what the ONNX export and its check need.
 
-_SUFFIX = {"torchscript": "pt", "onnx": "onnx"}
+#: The most frames (``steps``) a forward is exported for. The forward is unrolled over every frame, so its graph and
+#: its export time grow with them (Ev-Objects' 250 frames: 20-35 s); every dataset here has at most 325. A longer
+#: stream is what the step (one frame, any number of times) is for.
+MAX_STEPS = 4096
+#: The largest example input ``x`` (bytes, ``batch * steps * (N * C + G)`` values) an export builds: beyond it the
+#: export would exhaust memory before writing anything.
+MAX_INPUT_BYTES = 2**30
+#: Frames of the short forward traced first to learn whether onnx's version converter can convert the graph to an
+#: older opset (the converter's verdict depends on the operators, not on how many frames are unrolled).
+_PROBE_STEPS = 4
+
+
+def check_steps(steps: int | None, what: str = "export steps") -> None:
+    """Refuse ``steps`` above :data:`MAX_STEPS` (``what`` names the argument in the message, e.g. ``--steps``)."""
+    if steps is not None and steps > MAX_STEPS:
+        raise ConfigError(f"{what} {steps} is above the cap of {MAX_STEPS} frames: the forward is unrolled over every "
+                          f"frame (its graph and export time grow with them); for longer streams export the step, "
+                          f"which takes one frame at a time")
+
+
+def check_shape(spec: Any, batch: int, steps: int | None) -> None:
+    """Refuse, before any work, ``steps`` above :data:`MAX_STEPS` and an example input above
+    :data:`MAX_INPUT_BYTES` (it would exhaust memory before anything is written)."""
+    check_steps(steps)
+    t = spec.num_steps if steps is None else steps
+    values = spec.num_nodes * spec.num_channels + spec.num_globals
+    size = batch * t * values * 4
+    if size > MAX_INPUT_BYTES:
+        raise ConfigError(f"export batch {batch} x steps {t} needs an example input of {size / 2**30:.1f} GiB "
+                          f"({values} float32 values per frame), above the {MAX_INPUT_BYTES // 2**30} GiB an export "
+                          f"allows; lower the batch or the steps")
 
 
 def initial_state(manifest: Mapping[str, Any] | str | os.PathLike) -> list[Tensor]:
@@ -184,7 +218,7 @@ def _io(names: Sequence[str], values: Sequence[Tensor]) -> list[dict[str, Any]]:
 def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None = None, spec: Any = None,
                  formats: Sequence[str] = FORMATS, batch: int = 1, steps: int | None = None, step: bool = True,
                  forward: bool = True, check: bool = True, seed: int = 0, opset: int | None = None,
-                 info: Mapping[str, Any] | None = None) -> ExportResult:
+                 info: Mapping[str, Any] | None = None, progress: bool = True) -> ExportResult:
     """Write TorchScript and ONNX files of ``model``'s forward and, when it streams, of its step (module docstring),
     check them against the eager model, and describe them in ``<out>/<name>.export.json``.
 
@@ -206,6 +240,11 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
         opset: the ONNX opset (default: the exporter's); :func:`onnx_opsets` gives the range. The file carries it,
             or :class:`ExportError` is raised (the version converter could not convert the graph).
         info: extra JSON-able keys for the description (the weights, the preprocessing, ...).
+        progress: report the files (a bar on a terminal, log records otherwise:
+            :mod:`tactile_zoo.engine.progress`); ``False``: nothing.
+
+    ``out`` follows the output-folder rule (:mod:`tactile_zoo.export.folder`): a folder holding files but no
+    export marker is refused, and the model's files replace its previous export there as one set.
 
     Returns:
         an :class:`ExportResult`.
@@ -219,6 +258,7 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
     spec = spec if spec is not None else getattr(model, "spec", None)
     if spec is None:
         raise ConfigError("export_model: pass the spec the model was built for (the model has no .spec)")
+    check_shape(spec, batch, steps)
     name = name or _registered_name(model)
     key = _registry_key(name)
     try:
@@ -226,6 +266,26 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
     except registry.UnknownNameError:
         meta = dict(getattr(model, "zoo_meta", None) or {})
     streams = bool(meta.get("streaming")) and callable(getattr(model, "step", None))
+    if "onnx" in formats and not onnx_available():  # before any work
+        raise ExportError(f"ONNX export needs onnx and onnxscript: {ONNX_INSTALL}")
+    if "onnx" in formats:
+        check_opset(opset)
+    if not forward and not (step and streams):
+        raise ConfigError(f"nothing to export: forward=False, and {name} has no streaming step to export")
+    folder = ExportFolder(out)
+    folder.check(export_targets(name, formats, forward, step and streams))  # before any work: whose folder is it
+    try:
+        return _export(model, folder, name, key, spec, meta, streams, formats, batch, steps, step, forward, check,
+                       seed, opset, info, progress)
+    except BaseException:
+        folder.abort()  # the folder as it was: no staging folder, and no new folder of its own
+        raise
+
+
+def _export(model: nn.Module, folder: ExportFolder, name: str, key: str, spec: Any, meta: dict[str, Any],
+            streams: bool, formats: Sequence[str], batch: int, steps: int | None, step: bool, forward: bool,
+            check: bool, seed: int, opset: int | None, info: Mapping[str, Any] | None, progress: bool) -> ExportResult:
+    """:func:`export_model` once its arguments and its folder are checked."""
     # the reference every check compares with, a CPU copy in eval mode (the caller's model is left as it is), and
     # the copy that is traced, whose LIF layers compute the same numbers with plain operations
     eager = copy.deepcopy(model).cpu().eval()
@@ -233,24 +293,19 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
         p.requires_grad_(False)
     traced_model = _for_export(eager)
     dtype = next((p.dtype for p in eager.parameters()), torch.float32)
-    if "onnx" in formats and not onnx_available():  # before any work
-        raise ExportError(f"ONNX export needs onnx and onnxscript: {ONNX_INSTALL}")
-    if "onnx" in formats:
-        check_opset(opset)
-
-    if not forward and not (step and streams):
-        raise ConfigError(f"nothing to export: forward=False, and {name} has no streaming step to export")
     full, full_ref = ForwardGraph(traced_model, spec), ForwardGraph(eager, spec)
     x, g = _example(spec, batch, steps, seed, dtype)
     fwd_inputs = (x,) if g is None else (x, g)
     x2, g2 = _example(spec, batch, steps, seed + 1, dtype)  # checks run on other inputs than the traced ones
     check_inputs = (x2,) if g2 is None else (x2, g2)
     graphs: list[tuple[str, nn.Module, tuple[Tensor, ...]]] = [("forward", full, fwd_inputs)] if forward else []
-    stepper = None
+    stepper = stepper_ref = frames = globs = None
     if step and streams:
         stepper, stepper_ref = StepGraph(traced_model, spec, batch, key), StepGraph(eager, spec, batch, key)
         extra = () if g is None else (g[:, 0],)
         graphs.append(("step", stepper, (x[:, 0], *extra, *stepper.initial_state())))
+    if "onnx" in formats and opset is not None and opset < onnx_opsets()[0]:
+        _probe_opset(graphs, eager, name, spec, batch, steps, seed, dtype, opset)
 
     files: dict[tuple[str, str], Path] = {}
     checks: dict[str, Any] = {}
@@ -264,21 +319,46 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
                 raise ExportError(f"{name}: the step with its state as tensors does not reproduce {name}.step() "
                                   f"({checks['eager.step']}); its state must be tensors and numbers that only enter "
                                   f"arithmetic (see tactile_zoo.export)")
-    folder = Path(out)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"cannot create the export folder {folder}: {exc.strerror or exc}") from None
-    try:  # an existing read-only folder: say so now, not through torch's message about a file inside it
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as exc:
-        raise ConfigError(f"the export folder {folder} is not writable ({exc.strerror or exc})") from None
+    staging = folder.stage()
+    with Progress(len(graphs) * len(formats), f"export {name}", "files", enabled=progress) as bar:
+        _write(graphs, formats, name, staging, opset, check, full, full_ref, fwd_inputs, check_inputs, stepper_ref,
+               frames, globs, files, checks, bar)
+    manifest = _describe(name, spec, meta, eager, files, checks, full, fwd_inputs, stepper, graphs, info)
+    manifest_path = staging / f"{name}.export.json"
+    atomic_write_text(manifest_path, json.dumps(manifest, indent=2) + "\n")
+    folder.commit(name, [*(p.name for p in files.values()), manifest_path.name])
+    return ExportResult({k: folder.path / p.name for k, p in files.items()}, manifest,
+                        folder.path / manifest_path.name)
+
+
+def _probe_opset(graphs: list[tuple[str, nn.Module, tuple[Tensor, ...]]], eager: nn.Module, name: str, spec: Any,
+                 batch: int, steps: int | None, seed: int, dtype: torch.dtype, opset: int) -> None:
+    """Before the long exports: whether onnx's version converter can bring each graph to the older ``opset``; the
+    forward is tried short (:data:`_PROBE_STEPS` frames of a copy of the model: the same operators, a fraction of
+    the export time), the step as it is. :class:`ExportError` (what the full export would raise, minutes later)
+    when it cannot."""
+    with tempfile.TemporaryDirectory() as tmp, torch.no_grad():
+        for graph_name, graph, inputs in graphs:
+            if graph_name == "forward":
+                t = min(_PROBE_STEPS, spec.num_steps if steps is None else steps)
+                x, g = _example(spec, batch, t, seed, dtype)
+                inputs = (x,) if g is None else (x, g)
+                graph = ForwardGraph(_for_export(copy.deepcopy(eager)), spec)
+                graph(*inputs)  # fills the copy's caches, as before the real export
+            to_onnx(graph, inputs, Path(tmp) / f"{name}.{graph_name}.onnx", opset, optimize=graph_name == "step")
+
+
+def _write(graphs: list[tuple[str, nn.Module, tuple[Tensor, ...]]], formats: Sequence[str], name: str, folder: Path,
+           opset: int | None, check: bool, full: ForwardGraph, full_ref: ForwardGraph, fwd_inputs: tuple[Tensor, ...],
+           check_inputs: tuple[Tensor, ...], stepper_ref: StepGraph | None, frames: Tensor | None,
+           globs: Tensor | None, files: dict[tuple[str, str], Path], checks: dict[str, Any], bar: Progress) -> None:
+    """Trace and write every graph in every format into ``folder``, load each file back and check it."""
     with torch.no_grad():
         full(*fwd_inputs)  # one eager call first: fills the models' caches, which tracing then reads as constants
         for graph_name, graph, inputs in graphs:
             for fmt in formats:
                 path = folder / f"{name}.{graph_name}.{_SUFFIX[fmt]}"
+                bar.update(0, f"writing {path.name}")
                 if fmt == "torchscript":
                     try:
                         traced = _trace(graph, inputs)
@@ -294,26 +374,27 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
                     # small and the one a robot runs per frame, is optimised.
                     to_onnx(graph, inputs, path, opset, optimize=graph_name == "step")
                 files[(fmt, graph_name)] = path
-                if not check:
-                    continue
-                if fmt == "onnx" and not onnxruntime_available():
-                    checks[f"{fmt}.{graph_name}"] = {"ok": None, "skipped": f"onnxruntime is not installed "
-                                                                           f"({ONNX_INSTALL})"}
-                    continue
-                run = torch.jit.load(str(path)) if fmt == "torchscript" else onnx_runner(path)
-                if graph_name == "forward":
-                    result = _check_forward(run, full_ref, check_inputs)
-                else:
-                    result = _check_step(run, stepper_ref, frames, globs)
-                checks[f"{fmt}.{graph_name}"] = result
-                if not result["ok"]:
-                    raise ExportError(f"{path.name} does not reproduce the eager model: {result} (tolerance "
-                                      f"{TOLERANCE}); please report this")
+                if check:
+                    _check_file(fmt, graph_name, path, full_ref, check_inputs, stepper_ref, frames, globs, checks)
+                bar.update(1, f"{path.name} {'checked' if check else 'written'}")
 
-    manifest = _describe(name, spec, meta, eager, files, checks, full, fwd_inputs, stepper, graphs, info)
-    manifest_path = folder / f"{name}.export.json"
-    atomic_write_text(manifest_path, json.dumps(manifest, indent=2) + "\n")
-    return ExportResult(files, manifest, manifest_path)
+
+def _check_file(fmt: str, graph_name: str, path: Path, full_ref: ForwardGraph, check_inputs: tuple[Tensor, ...],
+                stepper_ref: StepGraph | None, frames: Tensor | None, globs: Tensor | None,
+                checks: dict[str, Any]) -> None:
+    if fmt == "onnx" and not onnxruntime_available():
+        checks[f"{fmt}.{graph_name}"] = {"ok": None, "skipped": f"onnxruntime is not installed ({ONNX_INSTALL})"}
+        return
+    run = torch.jit.load(str(path)) if fmt == "torchscript" else onnx_runner(path)
+    if graph_name == "forward":
+        result = _check_forward(run, full_ref, check_inputs)
+    else:
+        assert stepper_ref is not None and frames is not None
+        result = _check_step(run, stepper_ref, frames, globs)
+    checks[f"{fmt}.{graph_name}"] = result
+    if not result["ok"]:
+        raise ExportError(f"{path.name} does not reproduce the eager model: {result} (tolerance {TOLERANCE}); please "
+                          f"report this")
 
 
 def _describe(name: str, spec: Any, meta: Mapping[str, Any], eager: nn.Module, files: dict[tuple[str, str], Path],
