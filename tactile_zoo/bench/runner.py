@@ -24,15 +24,16 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .. import registry
-from ..errors import ResultsError
+from ..errors import ConfigError, ResultsError
 from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
 from .executors import Executor, LocalExecutor, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
 from .progress import CostModel, ProgressDisplay, format_seconds, remove_progress
-from .records import InvalidCell, move_aside
+from .records import CellScan, InvalidCell, move_aside
 from .results import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
+from .schema import RECORD_FORMAT, InvalidRecordError
 
 logger = logging.getLogger(__name__)
 
@@ -95,6 +96,10 @@ class _Console:
             self.bar.close()
 
 
+def _score(value: Any) -> str:
+    return "–" if value is None else f"{value:.3f}"  # None: an empty split has no score (.schema)
+
+
 def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
     head = f"[{index}/{total}] {record['status']:<7} {record['model']} x {record['dataset']} fold {record['fold']} " \
            f"seed {record['seed']}"
@@ -102,8 +107,9 @@ def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
         tail = f"  {record['epochs_run']} ep (best {record['best_epoch']})  {record['train_seconds']:.1f}s"
         test = record["metrics"].get("test")
         if test is None:  # a tuning cell: the validation score is all there is
-            return f"{head}: val acc {record['metrics']['val']['accuracy']:.3f} (test not read){tail}"
-        return f"{head}: acc {test['accuracy']:.3f} bal {test['balanced_accuracy']:.3f} f1 {test['macro_f1']:.3f}{tail}"
+            return f"{head}: val acc {_score(record['metrics']['val']['accuracy'])} (test not read){tail}"
+        return (f"{head}: acc {_score(test['accuracy'])} bal {_score(test.get('balanced_accuracy'))} "
+                f"f1 {_score(test.get('macro_f1'))}{tail}")
     return f"{head}: {record.get('error')}"
 
 
@@ -156,7 +162,11 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         print(f"output folder: {out_dir}", file=out)
         return BenchOutcome(out_dir, 0, grid)
 
-    run = RunDir(out_dir).prepare()
+    run = RunDir(out_dir)
+    run.check_format()  # before anything is read or written (prepare checks again, for its other callers)
+    scan = run.scan()
+    _refuse_newer(scan, out_dir)
+    run.prepare()
     started = time.time()
     started_text = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     executor = make_executor(config.executor, workers=config.workers, threads=config.threads,
@@ -167,7 +177,6 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
     status = "running"
     try:
         _run_json(run, config, grid, "running", {"started": started_text, "executor": executor.describe()})
-        scan = run.scan()
         existing = scan.records
         _name_damaged(scan.invalid, {c.cell_id for c in grid.cells}, skip_invalid, out_dir, console_error=err)
         todo = [c for c in grid.cells
@@ -232,6 +241,15 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         return outcome
     finally:
         executor.shutdown(cancel=status != "finished")
+
+
+def _refuse_newer(scan: CellScan, out_dir: Path) -> None:
+    """A cell file written by a newer tactile-zoo is not damaged and not this version's to recompute or move aside:
+    refuse the folder (ConfigError) before anything is written, naming the first such file."""
+    newer = [item for item in scan.invalid if item.newer]
+    if newer:
+        others = f" (and {len(newer) - 1} more)" if len(newer) > 1 else ""
+        raise ConfigError(f"--out {out_dir}: {newer[0]}{others}; nothing was written")
 
 
 def _name_damaged(invalid: list[InvalidCell], grid_ids: set[str], skip_invalid: bool, out_dir: Path,
@@ -345,7 +363,7 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                         record = _worker_failure(cell, exc)
                     record["attempts"] = attempts
                     try:
-                        run.write_cell(record)
+                        record = _write_record(run, cell, record)
                     except CellWriteError as exc:
                         display.done(cell.cell_id)
                         claim.release()
@@ -397,10 +415,23 @@ def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, i
     inflight[future] = (cell, claim)
 
 
-def _worker_failure(cell: Cell, exc: BaseException) -> dict[str, Any]:
-    from .cell import RECORD_FORMAT
+def _write_record(run: RunDir, cell: Cell, record: dict[str, Any]) -> dict[str, Any]:
+    """Write the cell's record; one that fails the schema (a NaN score, a count below 0: a bug in a model or a
+    plugin, :mod:`.schema`) is written as a failed cell naming what is wrong instead, so the grid goes on, the cell is
+    retried by the next run, and the run exits 1. Returns the record written."""
+    try:
+        run.write_cell(record)
+        return record
+    except InvalidRecordError as exc:
+        failed = _worker_failure(cell, exc, f"its {record.get('status')} record is not valid, so it is not kept: "
+                                            f"{'; '.join(exc.problems[:3])}")
+        failed["attempts"] = record.get("attempts")
+        run.write_cell(failed)
+        return failed
 
-    text = f"{type(exc).__name__}: {exc}".strip()
+
+def _worker_failure(cell: Cell, exc: BaseException, text: str | None = None) -> dict[str, Any]:
+    text = text or f"{type(exc).__name__}: {exc}".strip()
     if "BrokenProcessPool" in type(exc).__name__ or "KilledWorker" in type(exc).__name__:
         text = f"the worker process running this cell died (out of memory or killed): {text}"
     return {"format": RECORD_FORMAT, "cell_id": cell.cell_id, "model": cell.model, "dataset": cell.dataset,
