@@ -393,9 +393,13 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                 _submit(executor, cell, claim, config, inflight, run)
             else:
                 claim.release()
+    except BaseException:  # Ctrl-C: stop the cells in flight first, so no worker writes their progress after this
+        if inflight:
+            executor.abandon()
+        raise
     finally:
         for cell, claim in inflight.values():
-            display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): not running any more
+            display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): its progress file goes, not running
             claim.release()
         if isinstance(executor, LocalExecutor):
             executor.listener = None
