@@ -9,8 +9,8 @@ Anything else (unreadable, empty, truncated, ``[]``, ``"accuracy": "high"``, an 
 dropped: ``tactile-zoo report`` names each one (file, field and value) and refuses to write tables unless
 ``--skip-invalid``; ``tactile-zoo bench`` names each one, moves a damaged cell of its grid aside to
 ``cells/damaged/`` before recomputing it (:func:`move_aside`), and exits non-zero unless ``--skip-invalid``. A cell
-written by a newer tactile-zoo (``InvalidCell.newer``) is not damaged: ``bench`` refuses the folder before it writes
-anything rather than move it aside.
+written by a newer tactile-zoo (``InvalidCell.newer``) is not damaged: ``bench`` and ``report`` refuse the folder
+(:func:`refuse_newer`) before they write anything, rather than move it aside or leave it out.
 """
 
 from __future__ import annotations
@@ -23,13 +23,13 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
-from ..errors import ResultsError, TactileZooError
+from ..errors import ConfigError, ResultsError, TactileZooError
 from ..recipe import recipe_name_of
 from .schema import CELL_STATUSES, RECORD_FORMAT, InvalidRecordError, check_record, joined, nan_to_null, newer_format
 
 __all__ = ["CELL_STATUSES", "CELLS_DIR", "DAMAGED_DIR", "RECORD_FORMAT", "InvalidCell", "CellScan", "InvalidCellsError",
-           "InvalidRecordError", "check_record", "nan_to_null", "read_record", "scan_cells", "move_aside", "cell_files",
-           "run_records", "revision_gaps", "qualifying_cells", "recipe_name_of"]
+           "InvalidRecordError", "check_record", "nan_to_null", "read_record", "scan_cells", "refuse_newer",
+           "move_aside", "cell_files", "run_records", "revision_gaps", "qualifying_cells", "recipe_name_of"]
 
 #: a bench folder's folder of cell records, one ``<cell id>.json`` each
 CELLS_DIR = "cells"
@@ -118,6 +118,16 @@ def scan_cells(folder: str | os.PathLike) -> CellScan:
         else:
             scan.records[result["cell_id"]] = result
     return scan
+
+
+def refuse_newer(scan: CellScan, where: str) -> None:
+    """A cell file written by a newer tactile-zoo is not damaged, and not this version's to read, recompute or move
+    aside: raise ConfigError naming the first one (``where``: the folder as the command names it), before the
+    caller writes anything."""
+    newer = [item for item in scan.invalid if item.newer]
+    if newer:
+        others = f" (and {len(newer) - 1} more)" if len(newer) > 1 else ""
+        raise ConfigError(f"{where}: {newer[0]}{others}; nothing was written")
 
 
 def move_aside(path: str | os.PathLike) -> Path:

@@ -35,7 +35,7 @@ from typing import Any
 
 from ..errors import ResultsError
 from .plots import write_plots
-from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, revision_gaps
+from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, refuse_newer, revision_gaps
 from .results import RunDir, atomic_write_text
 from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
 
@@ -87,6 +87,7 @@ def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool =
         raise ConfigError(f"{run.path} has no cells/ folder: not a tactile-zoo bench output")
     run.check_format()  # a run.json of a newer format: its grid may not mean what this code reads into it
     scan = run.scan()
+    refuse_newer(scan, str(run.path))  # a newer tactile-zoo's cell is not damaged: --skip-invalid does not skip it
     if scan.invalid and not skip_invalid:
         raise InvalidCellsError(scan.invalid, run.cells_dir, "nothing written. `tactile-zoo bench` with the same "
                                 "arguments moves them to cells/damaged/ and recomputes them; --skip-invalid builds "

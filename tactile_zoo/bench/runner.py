@@ -24,14 +24,14 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .. import registry
-from ..errors import ConfigError, ResultsError
+from ..errors import ResultsError
 from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
 from .executors import Executor, LocalExecutor, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
 from .progress import CostModel, ProgressDisplay, format_seconds, remove_progress
-from .records import CellScan, InvalidCell, move_aside
+from .records import InvalidCell, move_aside, refuse_newer
 from .results import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
 from .schema import RECORD_FORMAT, InvalidRecordError
 
@@ -165,7 +165,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
     run = RunDir(out_dir)
     run.check_format()  # before anything is read or written (prepare checks again, for its other callers)
     scan = run.scan()
-    _refuse_newer(scan, out_dir)
+    refuse_newer(scan, f"--out {out_dir}")
     run.prepare()
     started = time.time()
     started_text = time.strftime("%Y-%m-%dT%H:%M:%S%z")
@@ -241,15 +241,6 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         return outcome
     finally:
         executor.shutdown(cancel=status != "finished")
-
-
-def _refuse_newer(scan: CellScan, out_dir: Path) -> None:
-    """A cell file written by a newer tactile-zoo is not damaged and not this version's to recompute or move aside:
-    refuse the folder (ConfigError) before anything is written, naming the first such file."""
-    newer = [item for item in scan.invalid if item.newer]
-    if newer:
-        others = f" (and {len(newer) - 1} more)" if len(newer) > 1 else ""
-        raise ConfigError(f"--out {out_dir}: {newer[0]}{others}; nothing was written")
 
 
 def _name_damaged(invalid: list[InvalidCell], grid_ids: set[str], skip_invalid: bool, out_dir: Path,

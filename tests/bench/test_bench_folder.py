@@ -125,7 +125,8 @@ def test_a_cell_of_a_newer_record_format_stops_bench_and_report(reference_run: P
     assert f"--out {out}: {cell}: format is 9, newer than the cell record format this tactile-zoo reads (1)" in line
     assert _tree(out) == before
     assert main(["report", str(out), "--no-plots"]) == 2
-    assert f"{cell}: format is 9, newer" in capsys.readouterr().err
+    line = _one_error_line(capsys.readouterr().err)
+    assert f"{out}: {cell}: format is 9, newer than the cell record format this tactile-zoo reads (1)" in line
     assert _tree(out) == before
 
 
