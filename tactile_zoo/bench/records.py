@@ -91,6 +91,8 @@ def read_record(path: str | os.PathLike) -> dict[str, Any] | InvalidCell:
     except json.JSONDecodeError as exc:
         why = exc.msg.removesuffix(" at").lower()
         return InvalidCell(path, f"not valid JSON at line {exc.lineno} column {exc.colno} ({why}); truncated?")
+    except (ValueError, RecursionError) as exc:  # an integer of over 4300 digits; arrays nested thousands deep
+        return InvalidCell(path, f"cannot be read as a cell record ({str(exc).split(';')[0] or type(exc).__name__})")
     problems = check_record(record)
     if problems:
         return InvalidCell(path, joined(problems), newer=isinstance(record, dict) and bool(newer_format(record)))

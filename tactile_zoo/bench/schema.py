@@ -67,8 +67,8 @@ def _is_count(value: Any) -> bool:
 
 
 def _is_amount(value: Any) -> bool:
-    """A finite number, 0 or more: seconds, milliseconds, megabytes."""
-    return _is_number(value) and math.isfinite(value) and value >= 0
+    """A finite number, 0 or more: seconds, milliseconds, megabytes (an int is finite, however large)."""
+    return _is_number(value) and value >= 0 and (isinstance(value, int) or math.isfinite(value))
 
 
 def _is_fraction(value: Any) -> bool:
@@ -230,7 +230,7 @@ def _finite(value: Any) -> bool:
         items = value if kind is list else value.values()
         try:
             return all(map(math.isfinite, items))
-        except TypeError:  # not all plain numbers: look inside each item
+        except (TypeError, OverflowError):  # not all plain numbers (or an int too large for a float): one by one
             return all(map(_finite, items))
     return True
 

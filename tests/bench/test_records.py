@@ -265,3 +265,20 @@ def test_a_record_failing_the_schema_is_written_as_a_failed_cell(tmp_path: Path,
     record = json.loads(path.read_text())  # valid JSON: no NaN literal
     assert record["status"] == "failed" and "metrics" not in record
     assert record["error"].startswith("its ok record is not valid, so it is not kept: metrics.test.accuracy is NaN")
+
+
+def test_numbers_no_float_can_hold_are_named_not_a_traceback(reference_run: Path, tmp_path: Path) -> None:
+    """An integer too large for a float is finite (no crash in the finite check); one too long for Python to read,
+    or arrays nested too deep for the parser, make an invalid cell, not a traceback."""
+    from tactile_zoo.bench.records import InvalidCell, read_record
+
+    record = json.loads(sorted((reference_run / "cells").glob("*.json"))[0].read_text())
+    path = tmp_path / "cell.json"
+    path.write_text(json.dumps({**record, "config": {**record["config"], "note": 10 ** 400}, "seconds": 10 ** 400}))
+    assert isinstance(read_record(path), dict)
+    path.write_text(json.dumps(record).replace('"fold": 0', '"fold": ' + "9" * 5000))
+    result = read_record(path)
+    assert isinstance(result, InvalidCell) and "cannot be read as a cell record" in result.reason
+    path.write_text(json.dumps({**record, "notes": "DEEP"}).replace('"DEEP"', "[" * 100_000 + "]" * 100_000))
+    result = read_record(path)
+    assert isinstance(result, InvalidCell) and "cannot be read as a cell record" in result.reason
