@@ -32,14 +32,13 @@ selected epoch and the early-classification prefixes.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from tactile_zoo.bench import BenchConfig, build_grid
 from tactile_zoo.bench.grid import HASH_FORMAT, cell_id, config_hash
-from tactile_zoo.bench.records import cell_files, recipe_name_of, run_records
+from tactile_zoo.bench.records import InvalidCell, cell_files, read_record, recipe_name_of, run_records
 from tactile_zoo.bench.results import atomic_write_json
 
 REVISION_KEYS = ("model_revision", "dataset_revision")
@@ -158,6 +157,14 @@ def add_groups(path: Path, record: dict[str, Any], root: str | None) -> str:
     return f"groups added to {', '.join(added)}" if added else "nothing to add (each sample its own unit)"
 
 
+def _read(path: Path) -> dict[str, Any]:
+    """The record in ``path``; a file that fails the cell schema (.schema) stops the tool, named."""
+    record = read_record(path)
+    if isinstance(record, InvalidCell):
+        raise SystemExit(f"error: damaged cell file {record}")
+    return record
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, help="a bench output folder (its cells/ holds the records)")
@@ -176,11 +183,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.add_groups:
         for path in paths:
-            print(f"{path.name}: {add_groups(path, json.loads(path.read_text()), args.root)}")
+            print(f"{path.name}: {add_groups(path, _read(path), args.root)}")
         return 0
     counts = {"maps": 0, "stale": 0, "differs": 0}
     for path in paths:
-        record = json.loads(path.read_text())
+        record = _read(path)
         status, why, current = check(record, args.root)
         counts[status] += 1
         line = f"{status:<7} {path.name}: {why}"

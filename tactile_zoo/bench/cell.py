@@ -27,10 +27,9 @@ from ..engine.cell import CellConfig, CellResult, train_cell
 from ..engine.runtime import cpu_isa, cpu_model, flush_denormals, resolve_device, set_threads, versions
 from ..errors import ModelCannotConsume
 from .progress import ProgressWriter
+from .schema import RECORD_FORMAT, nan_to_null
 
 __all__ = ["CellTask", "run_cell", "setup_worker", "save_weights", "RECORD_FORMAT"]
-
-RECORD_FORMAT = 1
 
 
 @dataclass(frozen=True)
@@ -132,17 +131,20 @@ def _predictions(result: CellResult) -> dict[str, Any]:
 
 def _ok_record(result: CellResult) -> dict[str, Any]:
     fit = result.fit
+    # the measured numbers go through nan_to_null: JSON has no NaN, and an empty split's scores (NaN from
+    # engine.metrics) or a validation loss that overflowed are written null; the schema says where null may stand
     return dict(
         status="ok", n_train=result.n_train, n_val=result.n_val, n_test=result.n_test, spec=result.spec.to_dict(),
         class_names=list(result.spec.class_names),
-        metrics={"val": fit.val.metrics if fit.val is not None else None,
-                 **{name: ev.metrics for name, ev in result.tests.items()}},
+        metrics=nan_to_null({"val": fit.val.metrics if fit.val is not None else None,
+                             **{name: ev.metrics for name, ev in result.tests.items()}}),
         predictions=_predictions(result),
-        curve=fit.curve, refit_curve=fit.refit_curve, best_epoch=fit.best_epoch, epochs_run=fit.epochs_run,
-        train_seconds=round(fit.train_seconds, 3), prefix=result.prefix, infer_ms_per_sample=result.infer_ms_per_sample,
-        params=fit.params, peak_memory_mb=result.peak_memory_mb, peak_memory_source=result.peak_memory_source,
-        peak_gpu_memory_mb=result.peak_gpu_memory_mb, recipe=fit.recipe.to_dict(), test_reads=result.test_reads,
-        **({"reference": result.reference} if result.reference is not None else {}))
+        curve=nan_to_null(fit.curve), refit_curve=nan_to_null(fit.refit_curve), best_epoch=fit.best_epoch,
+        epochs_run=fit.epochs_run, train_seconds=round(fit.train_seconds, 3), prefix=nan_to_null(result.prefix),
+        infer_ms_per_sample=result.infer_ms_per_sample, params=fit.params, peak_memory_mb=result.peak_memory_mb,
+        peak_memory_source=result.peak_memory_source, peak_gpu_memory_mb=result.peak_gpu_memory_mb,
+        recipe=fit.recipe.to_dict(), test_reads=result.test_reads,
+        **({"reference": nan_to_null(result.reference)} if result.reference is not None else {}))
 
 
 def save_weights(model: torch.nn.Module, path: Path, metadata: dict[str, str]) -> dict[str, Any]:

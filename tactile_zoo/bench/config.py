@@ -42,6 +42,7 @@ Unknown keys anywhere in the file are a :class:`ConfigError` that names them.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
@@ -171,6 +172,8 @@ class BenchConfig:
         for name, kwargs in self.dataset_kwargs.items():
             if not isinstance(kwargs, Mapping):
                 raise ConfigError(f"dataset_kwargs.{name} must be a mapping of keyword arguments")
+        for key in ("recipe", "hparams", "model_overrides", "dataset_kwargs"):
+            _refuse_non_finite(key, getattr(self, key))
         return self
 
     @property
@@ -329,6 +332,19 @@ def parse_prefixes(value: Any) -> list[float]:
             raise ConfigError(f"--prefixes: {item!r} is not a fraction in (0, 1] (or a percentage)")
         out.add(round(frac, 6))
     return sorted(out | {1.0})
+
+
+def _refuse_non_finite(where: str, value: Any) -> None:
+    """A NaN or infinite setting (``--hparam dropout=nan``, ``.inf`` in a YAML file) is bad input: every cell
+    records its settings, and a record holds no NaN or infinity (:mod:`.schema`)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"{where} is {value}, expected a finite number")
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            _refuse_non_finite(f"{where}.{key}", item)
+    elif isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            _refuse_non_finite(f"{where}[{i}]", item)
 
 
 def parse_value(text: str) -> Any:

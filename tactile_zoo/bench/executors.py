@@ -102,6 +102,11 @@ class Executor:
         rescheduled); ``None`` when unknown."""
         return 1
 
+    def abandon(self) -> None:
+        """Stop the cells in flight now (the run was interrupted): once this returns, none of them writes anything
+        more, so the runner can mark them as no longer running. Executors that cannot stop a running cell (Dask:
+        a worker thread cannot be interrupted) do nothing."""
+
     def shutdown(self, cancel: bool = False) -> None:
         pass
 
@@ -199,6 +204,27 @@ class ProcessExecutor(Executor):
 
     def result(self, future: cf.Future) -> dict[str, Any]:
         return future.result()
+
+    def abandon(self) -> None:
+        """Terminate the pool's workers and wait for them. A worker that did not get the Ctrl-C itself (``kill
+        -INT`` of the run, or a run outside the terminal's foreground group) would go on training a cell whose
+        record nobody writes, rewriting its progress file after the runner removed it, and the run could not exit
+        before the cell ended: ``concurrent.futures`` joins its workers when the interpreter exits."""
+        terminate = getattr(self._pool, "terminate_workers", None)  # Python 3.14
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        if terminate is not None:
+            terminate()
+        else:
+            for process in processes:
+                with contextlib.suppress(OSError, ValueError, AttributeError):
+                    process.terminate()
+        for process in processes:
+            with contextlib.suppress(OSError, ValueError, AttributeError, AssertionError):
+                process.join(timeout=10)
+                if process.is_alive():
+                    process.kill()
+                    process.join(timeout=5)
+        self._pool.shutdown(wait=False, cancel_futures=True)
 
     def shutdown(self, cancel: bool = False) -> None:
         self._pool.shutdown(wait=not cancel, cancel_futures=cancel)

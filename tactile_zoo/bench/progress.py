@@ -8,6 +8,12 @@ runner's restart, and lets a second terminal (``tactile-zoo report OUT --running
 other hosts write there only if ``--out`` is on a file system they share; otherwise progress is silently off for
 their cells and everything else works as before.
 
+A progress file left behind by a process that was killed says nothing about the present, so each one names the
+process that writes it: its pid, host, and (on Linux) ``pid_start``, the boot and start time of that process
+(:func:`process_start`). ``report --running`` lists a cell as running only while that process still exists on this
+host and is the same process (a pid the kernel has since given to another one is not it); otherwise the cell is
+listed as stopped (:func:`describe_running`). A file written on another host cannot be checked from here and says so.
+
 The writer only reads the epoch's curve row after the epoch ended: it touches no RNG, no model state and no tensor,
 so records and leaderboards are bit-identical with and without it (``tests/bench/test_progress.py``).
 
@@ -23,6 +29,7 @@ import json
 import logging
 import os
 import socket
+import sys
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping
@@ -34,7 +41,7 @@ from ..engine.progress import format_seconds, make_bar
 
 __all__ = ["ProgressWriter", "add_listener", "remove_listener", "listening", "read_progress", "running_cells",
            "remove_progress", "CostModel", "ProgressDisplay", "format_seconds", "describe_running", "PROGRESS_DIR",
-           "DEFAULT_EPOCH_SECONDS"]
+           "DEFAULT_EPOCH_SECONDS", "process_start", "process_alive"]
 
 logger = logging.getLogger(__name__)
 
@@ -75,7 +82,8 @@ class ProgressWriter:
     def __init__(self, folder: str | os.PathLike, cell: Mapping[str, Any], max_epochs: int) -> None:
         self.path = Path(folder) / f"{cell['cell_id']}.json"
         self.base = {**{k: cell[k] for k in ("cell_id", "model", "dataset", "fold", "seed")},
-                     "max_epochs": int(max_epochs), "pid": os.getpid(), "host": socket.gethostname()}
+                     "max_epochs": int(max_epochs), "pid": os.getpid(), "host": socket.gethostname(),
+                     "pid_start": process_start(os.getpid())}
         self.started = time.time()
         # the last KEPT_EPOCHS [epoch, val_accuracy, seconds]: a reader polling less often than epochs end still logs
         # each of them, and the file stays small (rewriting the whole history would cost O(epochs) per epoch)
@@ -127,6 +135,51 @@ def listening(listener: Callable[[dict[str, Any]], None] | None) -> Any:
         remove_listener(listener)
 
 
+# ----------------------------------------------------------------------------------------------- the writer's process
+def process_start(pid: int) -> str | None:
+    """``"<boot id>:<start time>"`` of process ``pid`` (Linux ``/proc``: the start time in clock ticks since boot,
+    field 22 of ``/proc/PID/stat``), which tells the process apart from a later one given the same pid; ``None``
+    where ``/proc`` is not there (macOS, Windows) or the process is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+        # the command name (field 2) is in parentheses and may hold spaces: count the fields after its ")"
+        return f"{boot}:{stat.rpartition(')')[2].split()[19]}"
+    except (OSError, IndexError):
+        return None
+
+
+def _zombie(pid: int) -> bool:
+    """An exited process whose parent has not collected it yet: it still has a pid, and runs nothing."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] == "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def process_alive(pid: Any, host: Any, start: Any = None) -> bool | None:
+    """Whether process ``pid`` on ``host``, started at ``start`` (:func:`process_start`, when it was recorded),
+    still runs: ``False`` when it has exited or its pid now belongs to another process, ``None`` when this machine
+    cannot tell (another host, or no way to ask)."""
+    if host != socket.gethostname() or not isinstance(pid, int) or pid <= 0 or sys.platform == "win32":
+        return None
+    try:
+        os.kill(pid, 0)  # signal 0: only asks whether the process exists
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # it exists, under another user
+    except OSError:
+        return None
+    if _zombie(pid):
+        return False
+    if start is not None:
+        now = process_start(pid)
+        if now is not None and now != start:
+            return False  # the pid was given to another process since
+    return True
+
+
 # ----------------------------------------------------------------------------------------------- reader side
 def read_progress(out: str | os.PathLike, cell_id: str) -> dict[str, Any] | None:
     try:
@@ -166,10 +219,22 @@ def _label(state: Mapping[str, Any]) -> str:
 
 
 def describe_running(out: str | os.PathLike, now: float | None = None) -> list[str]:
-    """One line per cell with a progress file, for ``tactile-zoo report OUT --running``."""
+    """One line per cell with a progress file, for ``tactile-zoo report OUT --running``: ``running ...`` while the
+    process that writes it still runs (:func:`process_alive`), ``stopped ...`` once it does not (interrupted or
+    killed: its last epoch is all there is), and ``running ..., not checked`` for a process on another host."""
     now = time.time() if now is None else now
-    return [f"running {_label(s)}: {_epoch_text(s)}, updated {format_seconds(now - s['updated'])} ago "
-            f"(pid {s['pid']} on {s['host']})" for s in running_cells(out)]
+    lines = []
+    for s in running_cells(out):
+        where = f"pid {s['pid']} on {s['host']}"
+        alive = process_alive(s.get("pid"), s.get("host"), s.get("pid_start"))
+        head = f"{_label(s)}: {_epoch_text(s)}, updated {format_seconds(now - s['updated'])} ago"
+        if alive is False:
+            lines.append(f"stopped {head} ({where} is no longer running: the run was interrupted or killed; "
+                         f"rerunning its bench command resumes the cell)")
+        else:
+            unchecked = alive is None and s.get("host") != socket.gethostname()
+            lines.append(f"running {head} ({where}{', another host: not checked' if unchecked else ''})")
+    return lines
 
 
 # ----------------------------------------------------------------------------------------------- cost and ETA

@@ -35,7 +35,7 @@ from typing import Any
 
 from ..errors import ResultsError
 from .plots import write_plots
-from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, revision_gaps
+from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, refuse_newer, revision_gaps
 from .results import RunDir, atomic_write_text
 from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
 
@@ -73,6 +73,7 @@ def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool =
     folder's table lock (another bench process on the same folder waits; it never sees half a table). With
     ``all_cells`` every cell file of the folder counts (see the module docstring).
 
+    A ``run.json`` of a format this code does not know raises ConfigError (:meth:`~.results.RunDir.check_format`).
     A damaged cell file (:mod:`.records`) raises :class:`~.records.InvalidCellsError` naming every one before
     anything is written; with ``skip_invalid`` the tables are built without them, ``on_invalid`` is called with
     each, and report.md lists them. A folder where the tables cannot be written raises
@@ -84,7 +85,9 @@ def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool =
         raise ConfigError(f"{run.path} is not a folder (expected a bench output folder with cells/)")
     if not run.cells_dir.is_dir():
         raise ConfigError(f"{run.path} has no cells/ folder: not a tactile-zoo bench output")
+    run.check_format()  # a run.json of a newer format: its grid may not mean what this code reads into it
     scan = run.scan()
+    refuse_newer(scan, str(run.path))  # a newer tactile-zoo's cell is not damaged: --skip-invalid does not skip it
     if scan.invalid and not skip_invalid:
         raise InvalidCellsError(scan.invalid, run.cells_dir, "nothing written. `tactile-zoo bench` with the same "
                                 "arguments moves them to cells/damaged/ and recomputes them; --skip-invalid builds "

@@ -39,6 +39,7 @@ from .._files import atomic_write_text, torn_temporaries
 from .._owned import FolderRule, check_folder, make_writable
 from ..errors import ConfigError
 from .records import CellScan, InvalidCell, read_record, scan_cells
+from .schema import InvalidRecordError, check_record
 
 # The table maths lives in .tables; its names stay importable from here for code written against the old layout.
 from .tables import (
@@ -60,9 +61,11 @@ __all__ = ["atomic_write_text", "atomic_write_json", "RunDir", "Claim", "CellWri
            "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows", "rows_to_csv", "prefix_label"]
 
 
-#: ``run.json``'s ``format``: the marker of a bench folder, written when ``bench`` creates the folder
-BENCH_FORMAT = "tactile-zoo-bench/1"
+#: the version of ``run.json``'s ``format`` this code reads and writes (a higher one: a newer tactile-zoo wrote it)
+BENCH_VERSION = 1
 BENCH_FORMAT_PREFIX = "tactile-zoo-bench/"
+#: ``run.json``'s ``format``: the marker of a bench folder, written when ``bench`` creates the folder
+BENCH_FORMAT = f"{BENCH_FORMAT_PREFIX}{BENCH_VERSION}"
 RUN_JSON = "run.json"
 RUN_LOCK = "run.lock"
 #: documents a study may commit into its folder before the first cell runs (what it declares, how to read it);
@@ -88,9 +91,11 @@ def _json_default(value: Any) -> Any:
 
 def atomic_write_json(path: str | os.PathLike, obj: Any) -> None:
     """``obj`` as JSON, one top-level key per line with its value written compactly: a cell's per-sample lists
-    (predictions, probabilities, recordings) take a line each instead of a line per number, a fifth of the bytes."""
+    (predictions, probabilities, recordings) take a line each instead of a line per number, a fifth of the bytes.
+    A NaN or infinity raises ``ValueError`` before anything is written: JSON has neither, and a file holding one is
+    refused by every reader (:mod:`.schema`)."""
     def dump(value: Any, **kwargs: Any) -> str:
-        return json.dumps(value, default=_json_default, allow_nan=True, **kwargs)
+        return json.dumps(value, default=_json_default, allow_nan=False, **kwargs)
 
     if isinstance(obj, dict) and obj:
         body = ",\n".join(f" {dump(str(k))}: {dump(v, separators=(',', ':'))}" for k, v in obj.items())
@@ -133,6 +138,27 @@ class RunDir:
         except (OSError, ValueError):
             return None
 
+    def check_format(self) -> None:
+        """Refuse a folder whose ``run.json`` declares a format this code does not know: a higher
+        ``tactile-zoo-bench/N`` (a newer tactile-zoo wrote it, and may have put there what this one would drop when
+        it rewrites the file) or any other ``format``. Raises ConfigError naming the file and both formats; call it
+        before writing anything into the folder. A folder without run.json, or with one of a version before the
+        marker (no ``format``), passes."""
+        info = self._run_info()
+        if not isinstance(info, dict) or "format" not in info or info["format"] == BENCH_FORMAT:
+            return
+        found = info["format"]
+        version = found[len(BENCH_FORMAT_PREFIX):] if isinstance(found, str) \
+            and found.startswith(BENCH_FORMAT_PREFIX) else ""
+        if version.isdigit() and int(version) < BENCH_VERSION:  # an older format: read as it is (none exists yet)
+            return
+        newer = version.isdigit() and int(version) > BENCH_VERSION
+        raise ConfigError(f"{self.path / RUN_JSON}: format {found!r} is "
+                          + (f"newer than the one this tactile-zoo reads and writes ({BENCH_FORMAT!r}): a newer "
+                             f"tactile-zoo wrote this folder; upgrade tactile-zoo to use it"
+                             if newer else f"not one this tactile-zoo knows (it reads and writes {BENCH_FORMAT!r})")
+                          + "; nothing was written")
+
     def marked(self) -> bool:
         """Whether ``run.json`` carries the bench folder marker (``"format": "tactile-zoo-bench/N"``)."""
         info = self._run_info()
@@ -152,7 +178,9 @@ class RunDir:
         """Check that ``--out`` is new, empty or a bench folder, mark it as one (``run.json``), create its folders
         and prove the location is writable: the output-folder rule every command shares (:mod:`tactile_zoo._owned`).
         A folder holding anything else is refused before a byte is written, so a bench run never overwrites files
-        it did not write; that and an unwritable ``--out`` are ConfigErrors."""
+        it did not write; that, a ``run.json`` of a format this code does not know (:meth:`check_format`) and an
+        unwritable ``--out`` are ConfigErrors."""
+        self.check_format()
         check_folder(self.path, BENCH_FOLDER, self.is_bench_folder)
         make_writable(self.path, BENCH_FOLDER)
         try:
@@ -194,7 +222,13 @@ class RunDir:
         return self.scan().records
 
     def write_cell(self, record: dict[str, Any]) -> Path:
+        """Write ``record`` as its cell's file. A record that fails the schema (:func:`~.schema.check_record`: a NaN
+        score, a negative fold) raises :class:`~.schema.InvalidRecordError` and nothing is written, so no reader
+        is ever handed a record it would refuse; a file that cannot be written raises :class:`CellWriteError`."""
         path = self.cell_path(record["cell_id"])
+        problems = check_record(record)
+        if problems:
+            raise InvalidRecordError(path, problems)
         try:
             atomic_write_json(path, record)
         except OSError as exc:

@@ -32,8 +32,9 @@ from .environment import environment
 from .executors import Executor, LocalExecutor, check_workers, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
 from .progress import CostModel, ProgressDisplay, format_seconds, remove_progress
-from .records import InvalidCell, move_aside
+from .records import InvalidCell, move_aside, refuse_newer
 from .results import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
+from .schema import RECORD_FORMAT, InvalidRecordError
 
 logger = logging.getLogger(__name__)
 
@@ -94,6 +95,10 @@ class _Console:
             self.bar.close()
 
 
+def _score(value: Any) -> str:
+    return "–" if value is None else f"{value:.3f}"  # None: an empty split has no score (.schema)
+
+
 def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
     head = f"[{index}/{total}] {record['status']:<7} {record['model']} x {record['dataset']} fold {record['fold']} " \
            f"seed {record['seed']}"
@@ -101,8 +106,9 @@ def _cell_line(record: dict[str, Any], index: int, total: int) -> str:
         tail = f"  {record['epochs_run']} ep (best {record['best_epoch']})  {record['train_seconds']:.1f}s"
         test = record["metrics"].get("test")
         if test is None:  # a tuning cell: the validation score is all there is
-            return f"{head}: val acc {record['metrics']['val']['accuracy']:.3f} (test not read){tail}"
-        return f"{head}: acc {test['accuracy']:.3f} bal {test['balanced_accuracy']:.3f} f1 {test['macro_f1']:.3f}{tail}"
+            return f"{head}: val acc {_score(record['metrics']['val']['accuracy'])} (test not read){tail}"
+        return (f"{head}: acc {_score(test['accuracy'])} bal {_score(test.get('balanced_accuracy'))} "
+                f"f1 {_score(test.get('macro_f1'))}{tail}")
     return f"{head}: {record.get('error')}"
 
 
@@ -156,11 +162,14 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         print(f"output folder: {out_dir}", file=out)
         return BenchOutcome(out_dir, 0, grid)
 
-    run = RunDir(out_dir).prepare()
+    run = RunDir(out_dir)
+    run.check_format()  # before anything is read or written (prepare checks again, for its other callers)
+    scan = run.scan()
+    refuse_newer(scan, f"--out {out_dir}")
+    run.prepare()
     started = time.time()
     started_text = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-    scan = run.scan()
-    existing = scan.records
+    existing = scan.records  # prepare() writes no cell: the scan above still holds
     todo = [c for c in grid.cells if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
     # a local pool starts no more workers than there are cells to run (and warns above the cores)
     executor = make_executor(config.executor, workers=config.workers, threads=config.threads,
@@ -351,7 +360,7 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                         record = _worker_failure(cell, exc)
                     record["attempts"] = attempts
                     try:
-                        run.write_cell(record)
+                        record = _write_record(run, cell, record)
                     except CellWriteError as exc:
                         display.done(cell.cell_id)
                         claim.release()
@@ -381,9 +390,13 @@ def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor
                 _submit(executor, cell, claim, config, inflight, run)
             else:
                 claim.release()
+    except BaseException:  # Ctrl-C: stop the cells in flight first, so no worker writes their progress after this
+        if inflight:
+            executor.abandon()
+        raise
     finally:
         for cell, claim in inflight.values():
-            display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): not running any more
+            display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): its progress file goes, not running
             claim.release()
         if isinstance(executor, LocalExecutor):
             executor.listener = None
@@ -403,10 +416,23 @@ def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, i
     inflight[future] = (cell, claim)
 
 
-def _worker_failure(cell: Cell, exc: BaseException) -> dict[str, Any]:
-    from .cell import RECORD_FORMAT
+def _write_record(run: RunDir, cell: Cell, record: dict[str, Any]) -> dict[str, Any]:
+    """Write the cell's record; one that fails the schema (a NaN score, a count below 0: a bug in a model or a
+    plugin, :mod:`.schema`) is written as a failed cell naming what is wrong instead, so the grid goes on, the cell is
+    retried by the next run, and the run exits 1. Returns the record written."""
+    try:
+        run.write_cell(record)
+        return record
+    except InvalidRecordError as exc:
+        failed = _worker_failure(cell, exc, f"its {record.get('status')} record is not valid, so it is not kept: "
+                                            f"{'; '.join(exc.problems[:3])}")
+        failed["attempts"] = record.get("attempts")
+        run.write_cell(failed)
+        return failed
 
-    text = f"{type(exc).__name__}: {exc}".strip()
+
+def _worker_failure(cell: Cell, exc: BaseException, text: str | None = None) -> dict[str, Any]:
+    text = text or f"{type(exc).__name__}: {exc}".strip()
     if "BrokenProcessPool" in type(exc).__name__ or "KilledWorker" in type(exc).__name__:
         text = f"the worker process running this cell died (out of memory or killed): {text}"
     return {"format": RECORD_FORMAT, "cell_id": cell.cell_id, "model": cell.model, "dataset": cell.dataset,

@@ -99,8 +99,10 @@ def add_report(sub: argparse._SubParsersAction) -> None:
                    help="every cell file in the folder, not only the grid of the last bench command (for a table "
                         "built by several commands into one folder)")
     p.add_argument("--running", action="store_true",
-                   help="only list the cells running now (from DIR/progress/, written after every epoch) and exit; "
-                        "`watch tactile-zoo report DIR --running` follows a run from a second terminal")
+                   help="only list the cells running now (from DIR/progress/, written after every epoch, checked "
+                        "against the processes that write them; a cell whose process has ended is listed as "
+                        "stopped) and exit; `watch tactile-zoo report DIR --running` follows a run from a second "
+                        "terminal")
     _add_skip_invalid(p)
     p.set_defaults(handler=_cmd_report)
 
@@ -111,8 +113,10 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     running = describe_running(args.dir)
     if args.running:
-        for line in running or [f"no cell is running in {args.dir}"]:
+        for line in running:
             echo(line)
+        if not any(line.startswith("running ") for line in running):
+            echo(f"no cell is running in {args.dir}")
         return 0
     written = write_outputs(args.dir, plots=not args.no_plots, all_cells=args.all_cells,
                             skip_invalid=args.skip_invalid,

@@ -91,6 +91,45 @@ def test_bench_folders_of_older_versions_still_resume(legacy: str, reference_run
     assert json.loads((out / "run.json").read_text())["format"] == "tactile-zoo-bench/1"  # marked from now on
 
 
+@pytest.mark.parametrize("found", ["tactile-zoo-bench/9", "tactile-zoo-bench/x", 9])
+def test_a_run_json_of_a_newer_or_unknown_format_is_refused_before_anything_is_written(
+        found: object, reference_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """Issue 38: a run.json that a newer tactile-zoo wrote (format /9, with a key this version does not know) was
+    rewritten as /1 and the key lost. bench and report now refuse the folder, naming the file and both formats."""
+    out = tmp_path / "run"
+    shutil.copytree(reference_run, out)
+    info = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**info, "format": found, "from_the_future": {"keep": True}}))
+    before = _tree(out)
+    assert run_cli([*SMALL, "--out", str(out), "--force"]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert f"{out / 'run.json'}: format {found!r} is " in line and "'tactile-zoo-bench/1'" in line
+    assert ("newer than the one this tactile-zoo reads and writes" in line) == (found == "tactile-zoo-bench/9")
+    assert _tree(out) == before  # run.json (and its extra key) untouched, no cell recomputed
+    assert main(["report", str(out), "--no-plots"]) == 2
+    assert f"{out / 'run.json'}: format {found!r}" in _one_error_line(capsys.readouterr().err)
+    assert _tree(out) == before
+
+
+def test_a_cell_of_a_newer_record_format_stops_bench_and_report(reference_run: Path, tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture) -> None:
+    """A cell file written by a newer tactile-zoo is not damaged, and not this version's to move aside and
+    recompute: bench refuses the folder before writing anything; report names it like any cell it cannot read."""
+    out = tmp_path / "run"
+    shutil.copytree(reference_run, out)
+    cell = sorted((out / "cells").glob("*.json"))[0]
+    cell.write_text(json.dumps({**json.loads(cell.read_text()), "format": 9}))
+    before = _tree(out)
+    assert run_cli([*SMALL, "--out", str(out)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert f"--out {out}: {cell}: format is 9, newer than the cell record format this tactile-zoo reads (1)" in line
+    assert _tree(out) == before
+    assert main(["report", str(out), "--no-plots"]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert f"{out}: {cell}: format is 9, newer than the cell record format this tactile-zoo reads (1)" in line
+    assert _tree(out) == before
+
+
 def test_committed_result_folders_are_bench_folders() -> None:
     from tactile_zoo.bench.results import RunDir
 

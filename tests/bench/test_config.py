@@ -82,3 +82,17 @@ def test_config_validation() -> None:
     with pytest.raises(ConfigError, match="--executor"):
         BenchConfig(executor="slurm")
     assert BenchConfig(quick=True).effective_epochs() == 2 and BenchConfig(quick=True, epochs=4).effective_epochs() == 4
+
+
+@pytest.mark.parametrize(("flag", "items", "message"), [
+    ("hparams", ["dropout=nan"], "hparams.dropout is nan, expected a finite number"),
+    ("hparams", ["tiny_mlp:hidden=-inf"], "model_overrides.tiny_mlp.hparams.hidden is -inf"),
+    ("sets", ["schedule={type: multistep, milestones: [.inf]}"], "recipe.schedule.milestones[0] is inf"),
+    ("dataset_args", ["noise=.nan"], "dataset_kwargs.*.noise is nan"),
+])
+def test_a_non_finite_setting_is_refused(flag: str, items: list[str], message: str) -> None:
+    """Issue 38: every cell records its settings and a record holds no NaN or infinity, so ``--hparam x=nan`` is bad
+    input, refused before anything runs (it crashed the run.json writer, and before that was written as NaN)."""
+    with pytest.raises(ConfigError) as caught:
+        merge_config(None, {"models": ["tiny_mlp"]}, **{flag: items})
+    assert str(caught.value).startswith(message)

@@ -127,3 +127,39 @@ def test_pool_workers_exit_when_the_run_is_killed() -> None:
     finally:
         run.kill()
         run.wait(timeout=30)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+def test_an_interrupted_process_bench_leaves_no_cell_listed_as_running(tmp_path: Path,
+                                                                        capsys: pytest.CaptureFixture) -> None:
+    """Issue 38: after SIGINT of a process-executor bench (``kill -INT``: its pool workers do not get the signal, as
+    they do from a terminal's Ctrl-C), the workers trained on, rewriting their progress files after the runner had
+    removed them, the run could not exit before its cells ended, and ``report --running`` listed the dead worker
+    as running long after. Now the run stops its workers and exits 130 at once, and no dead pid is listed."""
+    from tactile_zoo.bench.progress import running_cells
+    from tactile_zoo.cli import main
+
+    out = tmp_path / "run"
+    proc = bench_subprocess(["--models", "tiny_slow", "--datasets", "tiny_blobs", "--seeds", "0", "--threads", "1",
+                             "--no-plots", "--executor", "process", "--workers", "1", "--epochs", "1000",
+                             "--set", "patience=null", "--out", str(out)])
+    try:
+        deadline = time.time() + 240
+        while not (states := running_cells(out)) and time.time() < deadline:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.05)
+        assert states, "no progress file appeared"
+        worker = states[0]["pid"]
+        assert worker != proc.pid and _alive(worker)
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=60)  # before: not before the worker had trained all 1000 epochs
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert proc.returncode == 130
+    assert not _alive(worker)  # stopped, not left training for nobody
+    assert main(["report", str(out), "--running"]) == 0
+    text = capsys.readouterr().out
+    assert f"pid {worker} " not in "".join(line for line in text.splitlines() if line.startswith("running"))
+    assert "no cell is running" in text

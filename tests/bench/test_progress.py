@@ -131,6 +131,52 @@ def test_report_lists_running_cells(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert "no cell is running" in capsys.readouterr().out
 
 
+_WRITE_AND_EXIT = """
+import sys
+from tactile_zoo.bench.progress import ProgressWriter
+writer = ProgressWriter(sys.argv[1], {"cell_id": "c", "model": "tiny_mlp", "dataset": "tiny_blobs", "fold": 0,
+                                      "seed": 0}, 8)
+writer({"epoch": 2, "val_accuracy": 0.5, "seconds": 1.0})
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="tells processes apart by their /proc start time")
+def test_report_running_checks_the_process_behind_each_progress_file(tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture) -> None:
+    """Issue 38: a progress file outlives a killed run; ``report --running`` listed its dead pid as running. Now a
+    cell is running only while the process that writes its file exists and is the same process (not a later one
+    given the same pid); anything else is listed as stopped, and a process on another host as not checked."""
+    import socket
+    import subprocess
+    import sys
+
+    folder = tmp_path / "progress"
+    folder.mkdir()
+    subprocess.run([sys.executable, "-c", _WRITE_AND_EXIT, str(folder)], check=True, timeout=120)
+    (state,) = progress.running_cells(tmp_path)  # written by a process that has exited since
+    assert state["pid"] != os.getpid() and state["pid_start"] and progress.process_alive(
+        state["pid"], state["host"], state["pid_start"]) is False
+    assert main(["report", str(tmp_path), "--running"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [f"stopped tiny_mlp x tiny_blobs fold 0 seed 0: epoch 2/8 val_acc 0.500 1.0s, updated "
+                     f"{lines[0].split('updated ')[1].split(' ago')[0]} ago (pid {state['pid']} on "
+                     f"{socket.gethostname()} is no longer running: the run was interrupted or killed; rerunning "
+                     f"its bench command resumes the cell)", f"no cell is running in {tmp_path}"]
+    me = {**state, "cell_id": "d", "pid": os.getpid(), "pid_start": progress.process_start(os.getpid())}
+    assert progress.process_alive(me["pid"], me["host"], me["pid_start"]) is True
+    for name, change in (("alive", {}), ("reused", {"pid_start": "another boot:1"}), ("remote", {"host": "elsewhere"})):
+        (folder / f"{name}.json").write_text(json.dumps({**me, "cell_id": name, **change}))
+    (folder / "c.json").unlink()
+    assert main(["report", str(tmp_path), "--running"]) == 0
+    text = capsys.readouterr().out
+    assert "running tiny_mlp x tiny_blobs fold 0 seed 0: epoch 2/8" in text and "no cell is running" not in text
+    alive, remote, reused = text.splitlines()  # by file name
+    assert alive.startswith("running ") and alive.endswith(f"(pid {os.getpid()} on {socket.gethostname()})")
+    assert remote.startswith("running ") and remote.endswith(f"(pid {os.getpid()} on elsewhere, another host: "
+                                                             f"not checked)")
+    assert reused.startswith("stopped ") and "is no longer running" in reused  # the pid is now another process
+
+
 def test_display_logs_each_epoch_once_and_notices_a_restart(tmp_path: Path, caplog: pytest.LogCaptureFixture
                                                             ) -> None:
     display = ProgressDisplay(tmp_path, None, enabled=True, live=False)  # type: ignore[arg-type]

@@ -2,7 +2,6 @@ from __future__ import annotations
 
 import errno
 import json
-import math
 import os
 import subprocess
 import sys
@@ -163,12 +162,16 @@ def test_table_names_stay_importable_from_results() -> None:
 def test_cell_json_is_one_line_per_key_and_round_trips(tmp_path: Path) -> None:
     from tactile_zoo.bench.results import atomic_write_json
 
-    record = {"cell_id": "m__d__f0__s0__abc", "metrics": {"test": {"accuracy": 0.5, "loss": float("nan")}},
+    record = {"cell_id": "m__d__f0__s0__abc", "metrics": {"test": {"accuracy": 0.5, "loss": None}},
               "predictions": {"test": {"targets": list(range(1000)), "probabilities": [[0.25, 0.75]] * 1000}}}
     path = tmp_path / "cell.json"
     atomic_write_json(path, record)
     text = path.read_text()
     assert len(text.splitlines()) == len(record) + 2  # braces + one line per key, however long the lists
     back = json.loads(text)
-    assert back["predictions"] == record["predictions"] and math.isnan(back["metrics"]["test"]["loss"])
+    assert back["predictions"] == record["predictions"] and back["metrics"]["test"]["loss"] is None
+    # JSON has no NaN: the writer refuses one (issue 38; a record writes a number that is not one as null)
+    with pytest.raises(ValueError, match="not JSON compliant"):
+        atomic_write_json(path, {**record, "metrics": {"test": {"accuracy": float("nan")}}})
+    assert json.loads(path.read_text()) == back  # the file is as it was
     assert '"cell_id": "m__d__f0__s0__abc"' in text
