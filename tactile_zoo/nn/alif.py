@@ -42,8 +42,11 @@ class _GaussianSpike(torch.autograd.Function):
 
 
 def gaussian_spike(u: Tensor, width: float = 0.5, scale: float = 0.5) -> Tensor:
-    """Spikes ``u > 0`` as 0/1 in ``u``'s dtype, with the Gaussian surrogate gradient (module docstring)."""
-    return _GaussianSpike.apply(u, width, scale)
+    """Spikes ``u > 0`` as 0/1 in ``u``'s dtype, with the Gaussian surrogate gradient (module docstring). Without a
+    gradient to compute, plain tensor ops (what TorchScript and ONNX export can trace)."""
+    if torch.is_grad_enabled() and u.requires_grad:
+        return _GaussianSpike.apply(u, width, scale)
+    return u.gt(0).to(u.dtype)
 
 
 class AdaptiveLIF(nn.Module):
