@@ -14,7 +14,8 @@ from tactile_zoo.registry import get_model_entry, list_models, resolve_model_rec
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 DATASETS = ("ev_objects", "ev_containers", "biotac_dos")
-BUILT_IN = [m for m in list_models() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")]
+BUILT_IN = [m for m in list_models() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")
+            and "full" in get_model_entry(m).meta["recipes"]]  # models added later have no `full` count yet
 
 
 def declared_epochs(folder: Path) -> dict[tuple[str, str], int]:

@@ -35,6 +35,9 @@ def test_every_builtin_model_defaults_to_full_built_on_its_frozen_zoo_recipe() -
     frozen = json.loads(FREEZE.read_text())["models"]
     for name in builtins:
         meta = registry.get_model_entry(name).meta
+        if name not in frozen:  # added after round 3's freeze: no zoo cells, so no `full` count yet; `zoo` rules
+            assert meta["default_recipe"] == "zoo" and "full" not in meta["recipes"], name
+            continue
         # the round-3 plan's rule made `full` every built-in model's default (tools.table1_full --check agrees)
         assert meta["default_recipe"] == "full" and {"source", "zoo", "full"} <= set(meta["recipes"]), name
         assert meta["recipe"] == meta["recipes"]["full"], name  # the derived default, for older readers

@@ -55,6 +55,9 @@ CASES: dict[str, tuple[str, dict[str, Any]]] = {
     "convlstm": ("sim_uskin_textures", {"max_frames": 4}), "cnn_lstm": ("sim_evtouch", {"max_frames": 4}),
     "tacformer": ("sim_evtouch", {}), "x_tacformer": ("sim_uskin_textures", {}),
 }
+#: the multi-barrel SNN small (its read-out has 28M parameters) and short (its convolutions' 201 frames by default
+#: would unroll 11 steps of 8 populations into the graphs)
+CASES["multibarrel"] = ("sim_evtouch", {"readout_channels": 16, "kernel_size": 3, "dilation": 1, "readout_kernel": 2})
 DEFAULT_CASE = ("sim_uskin_textures", {})
 #: small simulator splits (the smallest number of steps each simulator allows, at least 8)
 DATA = {"sim_evtouch": {"num_steps": 20}, "sim_uskin_textures": {"num_steps": 10}, "sim_biotac_slip": {"num_steps": 8}}

@@ -1,0 +1,93 @@
+"""The multi-barrel SNN's options for the released code's quirks (the `source` recipe turns them on): BatchNorm frozen
+after the first training pass, noise and a random start at test time, softmax scores; and the recipes that declare
+them. Small sizes throughout (a 3-step read-out, 3-tap convolutions), on the tiny spec of the zoo-wide tests."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from test_zoo import make_batch, make_spec
+
+import tactile_zoo as tz
+from tactile_zoo.errors import ConfigError
+from tactile_zoo.registry import get_model_entry, resolve_model_recipe
+
+SMALL = {"channels": 8, "kernel_size": 3, "dilation": 1, "readout_channels": 6, "readout_kernel": 2, "hidden": 5,
+         "gate_hidden": 7}
+
+
+def _model(**hparams) -> torch.nn.Module:
+    torch.manual_seed(0)
+    return tz.create_model("multibarrel", make_spec("neutouch"), **SMALL, **hparams)
+
+
+def _bn(model: torch.nn.Module) -> list[torch.nn.Module]:
+    return [m for m in model.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+
+
+def test_batchnorm_freezes_after_the_first_training_pass_and_stays_frozen() -> None:
+    model = _model(bn_train_steps=1).train()
+    x, g, _ = make_batch(model.spec, 4, seed=1)
+    stats = [m.running_mean.clone() for m in _bn(model)]
+    model(x, g)
+    after_first = [m.running_mean.clone() for m in _bn(model)]
+    assert all(not torch.equal(a, b) for a, b in zip(stats, after_first))  # the first pass trains BatchNorm
+    model.eval()
+    model.train()  # what the training loop does every epoch: BatchNorm must stay in eval mode (the source's quirk)
+    assert model.training and not any(m.training for m in _bn(model))
+    model(x, g)
+    assert all(torch.equal(a, m.running_mean) for a, m in zip(after_first, _bn(model)))
+    restored = _model(bn_train_steps=1)
+    restored.load_state_dict(model.state_dict())  # a checkpoint remembers the freeze
+    restored.train()
+    restored(x, g)
+    assert not any(m.training for m in _bn(restored))
+
+
+def test_batchnorm_trains_as_usual_by_default() -> None:
+    model = _model().train()
+    x, g, _ = make_batch(model.spec, 4, seed=1)
+    model(x, g)
+    first = [m.running_mean.clone() for m in _bn(model)]
+    model(x, g)
+    assert all(m.training for m in _bn(model)) and "bn_steps_seen" not in model.state_dict()
+    assert all(not torch.equal(a, m.running_mean) for a, m in zip(first, _bn(model)))
+
+
+def test_test_time_noise_is_an_option() -> None:
+    x, g, _ = make_batch(make_spec("neutouch"), 3, seed=2)
+    quiet, noisy = _model().eval(), _model(eval_noise=True).eval()
+    with torch.no_grad():
+        assert torch.equal(quiet(x, g), quiet(x, g))
+        assert not torch.equal(noisy(x, g), noisy(x, g))  # the source's random start and membrane noise
+
+
+def test_softmax_output_and_the_recipes_that_declare_the_quirks() -> None:
+    x, g, _ = make_batch(make_spec("neutouch"), 3, seed=2)
+    probs = _model(output="softmax").eval()(x, g)
+    torch.testing.assert_close(probs.sum(dim=1), torch.ones(3))
+    meta = get_model_entry("multibarrel").meta
+    assert meta["default_recipe"] == "zoo" and set(meta["recipes"]) == {"source", "zoo"}
+    source, zoo = resolve_model_recipe(meta, "source", "ev_objects"), resolve_model_recipe(meta, "zoo", "ev_objects")
+    assert source.hparams == {"output": "softmax", "bn_train_steps": 1, "eval_noise": True} and zoo.hparams == {}
+    assert source.evaluation == "final" and source.recipe.max_epochs == zoo.recipe.max_epochs == 200
+    assert source.recipe.batch_size == 600 and source.recipe.optimizer == "adamw"
+
+
+def test_short_inputs_are_padded_and_bad_settings_are_one_clear_error() -> None:
+    model = _model()
+    assert model.min_steps == (2 + 2 - 1) * 2 + 2 + 1  # two read-out steps after two 3-tap convolutions
+    x, g, _ = make_batch(model.spec, 2, seed=3)
+    assert model(x[:, :1], g[:, :1]).shape == (2, 5)
+    with pytest.raises(ConfigError, match="output must be one of logits, softmax"):
+        _model(output="probs")
+    with pytest.raises(ConfigError, match="bn_train_steps must be >= 0"):
+        _model(bn_train_steps=-1)
+
+
+def test_a_source_recipe_cell_trains() -> None:
+    train = tz.load_dataset("sim_evtouch", split="train", n_train_per_class=2, n_test_per_class=1, num_steps=20)
+    # a split object, not a dataset name: the recipe's training keys apply, its hparams are given here
+    result = tz.fit("multibarrel", train, recipe="source", epochs=2, hparams={**SMALL, "bn_train_steps": 1})
+    assert result.epochs_run == 2 and int(result.model.bn_steps_seen) == 2  # one batch per epoch, as released
+    assert not any(m.training for m in _bn(result.model.train()))
