@@ -377,3 +377,17 @@ def test_the_harness_fails_a_planted_page_block_by_block(tmp_path: Path, plugins
     good.write_text("```bash\ntactile-zoo bench --models sgnet --datasets sim_evtouch --seeds 0,1 --dry-run\n"
                     "pip install ./plugins/tactile-zoo-tcn\n```\n")
     check_block(extract_blocks(good)[0], session)
+
+
+def test_the_models_table_gives_the_parameter_counts_of_the_table_i_cells() -> None:
+    """docs/models.md's "parameters (Ev-Objects, as in Table I)" column against the committed Table I cells (issue 38:
+    ConvLSTM was listed at 29.8 k, the default read-out's count, while every Table I cell, readout="taxels", has
+    39,540)."""
+    cells = sorted((REPO / "benchmarks" / "results" / "paper-table1-full" / "cells").glob("*__ev_objects__*.json"))
+    params = {json.loads(c.read_text())["model"]: json.loads(c.read_text())["params"] for c in cells}
+    rows = re.findall(r"^\| `(\w+)` \|[^|]*\|[^|]*\| ([\d.]+) (k|M)\b", (REPO / "docs" / "models.md").read_text(), re.M)
+    assert {model for model, _, _ in rows} == set(params) and len(params) == 6
+    for model, figure, unit in rows:
+        scale = 1e3 if unit == "k" else 1e6
+        assert abs(params[model] / scale - float(figure)) <= 0.5 * 10 ** -(len(figure.partition(".")[2])), \
+            f"models.md lists {model} at {figure} {unit}; its Table I cells have {params[model]:,} parameters"
