@@ -26,11 +26,11 @@ from ..errors import ConfigError
 __all__ = ["to_pyg"]
 
 
-def _graph(spec: Any, graph: str) -> tuple[torch.Tensor, torch.Tensor]:
+def _graph(spec: Any, graph: str, graph_kwargs: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor]:
     sensor = getattr(spec, "sensor", spec)  # a DatasetSpec or a Sensor
     if not hasattr(sensor, "edge_index"):
         raise ConfigError(f"to_pyg needs the dataset spec (or its sensor) for the taxel graph, got {spec!r}")
-    return sensor.edge_index(graph), torch.tensor(sensor.positions, dtype=torch.float32)
+    return sensor.edge_index(graph, **graph_kwargs), torch.tensor(sensor.positions, dtype=torch.float32)
 
 
 def _data(x: torch.Tensor, g: torch.Tensor, y: Any, edge_index: torch.Tensor, pos: torch.Tensor) -> Any:
@@ -44,7 +44,7 @@ def _data(x: torch.Tensor, g: torch.Tensor, y: Any, edge_index: torch.Tensor, po
     return Data(x=features, edge_index=edge_index, pos=pos, y=label, g=g.unsqueeze(0), num_nodes=nodes)
 
 
-def to_pyg(item: Any, spec: Any, graph: str = "default") -> Any:
+def to_pyg(item: Any, spec: Any, graph: str = "default", **graph_kwargs: Any) -> Any:
     """``item`` as PyG data over the sensor graph (see the module docstring).
 
     Args:
@@ -52,12 +52,14 @@ def to_pyg(item: Any, spec: Any, graph: str = "default") -> Any:
             g [B, T, G], y [B])`` as :func:`~tactile_zoo.data.spec.collate` returns it.
         spec: the dataset's :class:`~tactile_zoo.data.spec.DatasetSpec` (or its sensor), which holds the graph.
         graph: the graph kind (:meth:`~tactile_zoo.data.sensors.Sensor.edge_index`; ``"default"``: the sensor's own).
+        **graph_kwargs: the graph builder's parameters, passed to ``edge_index``: ``k=`` for ``"knn"`` (default 3),
+            ``r=`` for ``"radius"``, ``threshold=`` for ``"mst"``.
 
     Returns:
         a ``torch_geometric.data.Data`` for a sample, a ``torch_geometric.data.Batch`` for a batch.
     """
     x, g, y = item
-    edge_index, pos = _graph(spec, graph)
+    edge_index, pos = _graph(spec, graph, graph_kwargs)
     if x.dim() == 3:
         return _data(x, g, y, edge_index, pos)
     if x.dim() != 4:

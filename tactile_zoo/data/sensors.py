@@ -104,7 +104,7 @@ class Sensor:
     def edge_index(self, kind: str = "default", **kwargs: Any) -> torch.Tensor:
         """The taxel graph as a ``LongTensor [2, E]``: symmetric, no self-loops, no duplicate edges, sorted.
 
-        Kinds: ``mst`` (``threshold=`` adds all pairs closer than it), ``knn`` (``k=``), ``radius`` (``r=``),
+        Kinds: ``mst`` (``threshold=`` adds all pairs closer than it), ``knn`` (``k=``, default 3), ``radius`` (``r=``),
         ``full``, ``grid`` (4-neighbours on the image grid, within a group), ``edges`` (an explicit list,
         ``pairs=((a, b), ...)``), ``default`` (the sensor's own).
         """
@@ -188,8 +188,18 @@ def mst_edges(positions: tuple[Pos, ...], root: int | None = None, threshold: fl
     return pairs
 
 
-def knn_edges(positions: tuple[Pos, ...], k: int) -> set[tuple[int, int]]:
-    """Each taxel joined to its ``k`` nearest others (ties to the lower index), then symmetrised."""
+#: ``k`` of a ``knn`` graph when none is given: the TactileSGNet reference's (``TactileGraph(k=3, ...)`` in its
+#: to_graph.py), the one source among the zoo's that builds a knn taxel graph
+KNN_DEFAULT_K = 3
+
+
+def knn_edges(positions: tuple[Pos, ...], k: int = KNN_DEFAULT_K) -> set[tuple[int, int]]:
+    """Each taxel joined to its ``k`` nearest others (ties to the lower index), then symmetrised.
+
+    Args:
+        positions: the taxel positions.
+        k: neighbours per taxel, ``1 <= k < N`` (default :data:`KNN_DEFAULT_K`, 3).
+    """
     n = len(positions)
     if not isinstance(k, int) or not 1 <= k < n:
         raise ConfigError(f"knn graph needs an integer 1 <= k < {n}, got k={k!r}")

@@ -27,12 +27,13 @@ class TactileSample(NamedTuple):
     g: torch.Tensor
     y: int
 
-    def to_pyg(self, spec: DatasetSpec | Sensor, graph: str = "default") -> Any:
+    def to_pyg(self, spec: DatasetSpec | Sensor, graph: str = "default", **graph_kwargs: Any) -> Any:
         """This sample as a ``torch_geometric.data.Data`` over the sensor graph (:func:`tactile_zoo.data.pyg.to_pyg`;
-        the sample does not carry its sensor, so pass the dataset's ``spec``)."""
+        the sample does not carry its sensor, so pass the dataset's ``spec``; ``graph_kwargs`` such as ``k=`` go to
+        the graph builder)."""
         from .pyg import to_pyg
 
-        return to_pyg(self, spec, graph)
+        return to_pyg(self, spec, graph, **graph_kwargs)
 
 
 class TactileBatch(NamedTuple):
@@ -43,11 +44,11 @@ class TactileBatch(NamedTuple):
     g: torch.Tensor
     y: torch.Tensor
 
-    def to_pyg(self, spec: DatasetSpec | Sensor, graph: str = "default") -> Any:
+    def to_pyg(self, spec: DatasetSpec | Sensor, graph: str = "default", **graph_kwargs: Any) -> Any:
         """This batch as a ``torch_geometric.data.Batch`` of sensor graphs (:func:`tactile_zoo.data.pyg.to_pyg`)."""
         from .pyg import to_pyg
 
-        return to_pyg(self, spec, graph)
+        return to_pyg(self, spec, graph, **graph_kwargs)
 
 
 @dataclass(frozen=True)

@@ -99,3 +99,19 @@ def test_pre_transform_runs_once_per_sample_at_load_and_transform_on_reading() -
     assert len(calls) == len(ds)  # reading never runs it again
     with pytest.raises(tz.ConfigError, match="pre_transform must return TactileSample"):
         tz.load_dataset("sim_evtouch", split="train", pre_transform=lambda s: s.x, **SMALL)
+
+
+def test_to_pyg_takes_the_graph_builders_parameters_and_knn_has_the_sources_default_k() -> None:
+    # issue 38: to_pyg(spec, graph="knn") failed (knn_edges() missing 'k') and to_pyg could not pass k
+    ds = tz.load_dataset("sim_evtouch", split="test", n_train_per_class=2, n_test_per_class=1, num_steps=20)
+    sensor = ds.spec.sensor
+    default_knn = ds[0].to_pyg(ds.spec, graph="knn")
+    assert torch.equal(default_knn.edge_index, sensor.edge_index("knn", k=3))  # TactileSGNet's TactileGraph(k=3)
+    five = ds[0].to_pyg(ds.spec, graph="knn", k=5)
+    assert torch.equal(five.edge_index, sensor.edge_index("knn", k=5))
+    assert five.edge_index.shape[1] > default_knn.edge_index.shape[1]
+    batch = tz.collate([ds[0], ds[1]]).to_pyg(ds.spec, graph="radius", r=2.0)
+    assert batch.edge_index.shape[1] == 2 * sensor.edge_index("radius", r=2.0).shape[1]
+    assert torch.equal(tz.data.to_pyg(ds[0], ds.spec, "knn", k=5).edge_index, five.edge_index)
+    with pytest.raises(tz.ConfigError, match="knn graph needs an integer 1 <= k < 39, got k=39"):
+        ds[0].to_pyg(ds.spec, graph="knn", k=39)
