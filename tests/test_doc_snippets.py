@@ -386,6 +386,8 @@ def test_the_models_table_gives_the_parameter_counts_of_the_table_i_cells() -> N
     cells = sorted((REPO / "benchmarks" / "results" / "paper-table1-full" / "cells").glob("*__ev_objects__*.json"))
     params = {json.loads(c.read_text())["model"]: json.loads(c.read_text())["params"] for c in cells}
     rows = re.findall(r"^\| `(\w+)` \|[^|]*\|[^|]*\| ([\d.]+) (k|M)\b", (REPO / "docs" / "models.md").read_text(), re.M)
+    # models added after Table I (no cells yet) are checked by their own cards' tests
+    rows = [row for row in rows if row[0] in params]
     assert {model for model, _, _ in rows} == set(params) and len(params) == 6
     for model, figure, unit in rows:
         scale = 1e3 if unit == "k" else 1e6
