@@ -1,5 +1,5 @@
 """DeepTactile (Guo, Long, Yu, Li, Chen, Yan, Li, Gu, Guo, "Event-driven Tactile Sensing With Dense Spiking Graph
-Neural Networks", IEEE Transactions on Instrumentation and Measurement, 2024/2025; code: github.com/GuoFM/DeepTactile).
+Neural Networks", IEEE Transactions on Instrumentation and Measurement, 2024 in the release's citation; code: GuoFM/DeepTactile).
 
 A densely connected spiking graph network: every frame's taxel graph goes through a TAGConv stem and two dense blocks
 of spiking graph convolutions (DenseNet's pre-activation order, with threshold-dependent batch norm and LIF neurons
@@ -50,7 +50,7 @@ _SOURCE = {"loss": "mse_rate", "optimizer": "adam", "amsgrad": False, "lr": 1e-3
            "hparams": {"init": "default"}}
 # The zoo's protocol on the source's training (ours, not tuned: no trial has run): the epoch is selected on the
 # validation split and the test split read once; training stops after 20 epochs without a better validation accuracy
-# (a 100-epoch Ev-Objects cell costs CPU-hours); He-normal linear weights (the model's default), which keep the
+# (a 100-epoch Ev-Objects cell costs CPU-hours); LeCun-normal linear weights (the model's default), which keep the
 # spiking MLP firing at the start (see the model card). No `full` recipe: its epoch counts need `zoo` cells first.
 _ZOO = {k: v for k, v in _SOURCE.items() if k not in ("evaluation", "hparams")} | {"patience": 20}
 
@@ -115,7 +115,7 @@ class DeepTactile(BinnedStreamer):
     ``|mem - 0.5| < 0.5``), reset not detached. tdBN (:class:`~tactile_zoo.nn.tdbn.TdBatchNorm`) scales to the same
     threshold 0.5 with ``alpha = 1``.
 
-    Departures (ours): He-normal Linear weights (``init="default"``, as the ``source`` recipe sets, restores the
+    Departures (ours): LeCun-normal Linear weights (``init="default"``, as the ``source`` recipe sets, restores the
     source's), the first linear layer sized for the sensor's taxels (the source hard-codes ST-MNIST's 100), global
     features joining the flattened spikes before it, ``bin_size`` to sum frames (1, the source's full time
     resolution, by default); all frames through each layer in one call (same function). Model card: docs/models.md,
@@ -139,8 +139,9 @@ class DeepTactile(BinnedStreamer):
             (its taxel positions) the hand-made 73-edge graph of the source's ``to_graph.py``
             (:data:`~tactile_zoo.data.sensors.NEUTOUCH_HAND_EDGES`), on other sensors their default graph.
         lif_backend: ``"fused"`` or ``"snntorch"``; graph_backend: ``"dense"`` or ``"pyg"``.
-        init: ``"he"`` (He-normal Linear weights, as SGnet's default: with the source's initialisation the last two
-            LIF layers start silent) or ``"default"`` (PyTorch's and PyG's, as the source).
+        init: the linear layers' weights: ``"lecun"`` (default: normal, std 1 / sqrt(fan_in); with the source's
+            initialisation the last two LIF layers start silent), ``"he"`` (std sqrt(2 / fan_in), SGnet's default) or
+            ``"default"`` (PyTorch's, as the source). Graph convolutions and tdBN keep PyG's and PyTorch's.
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> rates ``(B, K)`` in [0, 1]; streaming:
