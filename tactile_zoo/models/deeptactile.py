@@ -1,5 +1,6 @@
 """DeepTactile (Guo, Long, Yu, Li, Chen, Yan, Li, Gu, Guo, "Event-driven Tactile Sensing With Dense Spiking Graph
-Neural Networks", IEEE Transactions on Instrumentation and Measurement, 2024 in the release's citation; code: GuoFM/DeepTactile).
+Neural Networks", IEEE Transactions on Instrumentation and Measurement, 2024 in the release's citation; code:
+github.com/GuoFM/DeepTactile).
 
 A densely connected spiking graph network: every frame's taxel graph goes through a TAGConv stem and two dense blocks
 of spiking graph convolutions (DenseNet's pre-activation order, with threshold-dependent batch norm and LIF neurons
