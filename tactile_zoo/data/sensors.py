@@ -8,7 +8,8 @@ carry it and caches can key on it. Four are built in:
     graph is the exact 38-edge tree the TactileSGNet reference trains on (:data:`TACTILESGNET_EDGES`): Prim's tree
     grown from taxel 20, with that code's own order among equal-length edges. :func:`mst_edges` (``"mst"``) builds
     the same tree with a rounding-proof tie rule and differs from it in 2 of 38 edges, each swapped for its mirror
-    image of equal length.
+    image of equal length. :data:`NEUTOUCH_HAND_EDGES` is the hand-made 73-edge graph of the same releases, which
+    DeepTactile trains on (``edge_index("edges", pairs=NEUTOUCH_HAND_EDGES)``).
 ``biotac_sp``
     BioTac SP of BioTac-DoS: 24 electrodes in 3-D; the image layout is the 12x11 one of the ConvLSTM source
     (Zapata-Impata et al., Sensors 2019), whose empty cells image models fill with their neighbours' mean twice.
@@ -37,8 +38,8 @@ import torch
 from ..errors import ConfigError
 from ..registry import register_sensor
 
-__all__ = ["Sensor", "TACTILESGNET_EDGES", "mst_edges", "knn_edges", "radius_edges", "rasterize", "NEUTOUCH",
-           "BIOTAC_SP", "OPTOFORCE3", "USKIN_ALLEGRO"]
+__all__ = ["Sensor", "TACTILESGNET_EDGES", "NEUTOUCH_HAND_EDGES", "mst_edges", "knn_edges", "radius_edges",
+           "rasterize", "NEUTOUCH", "BIOTAC_SP", "OPTOFORCE3", "USKIN_ALLEGRO"]
 
 Pos = tuple[float, ...]
 
@@ -307,6 +308,18 @@ TACTILESGNET_EDGES = (
     (13, 21), (14, 20), (15, 20), (16, 20), (17, 19), (18, 21), (19, 28), (20, 26), (21, 27), (22, 26), (23, 26),
     (23, 27), (24, 34), (25, 35), (27, 30), (27, 31), (28, 29), (28, 32), (29, 34), (30, 33), (30, 37), (31, 35),
     (32, 33), (32, 36), (33, 38),
+)
+#: The hand-made NeuTouch graph, 73 undirected edges (0-based taxels): the ``k=0`` branch of ``TactileGraph`` in the
+#: to_graph.py of both clear-nus/TactileSGNet and GuoFM/DeepTactile (the same 146 directed pairs, symmetric, without
+#: duplicates or self-loops), which DeepTactile's main.py trains on (``k=0, useKNN=False``); graph kind ``"edges"``.
+NEUTOUCH_HAND_EDGES = (
+    (0, 1), (0, 2), (0, 5), (1, 6), (1, 8), (2, 7), (2, 9), (3, 6), (3, 10), (4, 7), (4, 12), (5, 8), (5, 9), (5, 14),
+    (6, 11), (6, 17), (7, 13), (7, 18), (8, 11), (8, 15), (9, 13), (9, 14), (10, 17), (10, 24), (11, 15), (11, 19),
+    (12, 18), (12, 25), (13, 16), (13, 21), (14, 15), (14, 16), (14, 20), (15, 20), (15, 22), (16, 20), (16, 23),
+    (17, 19), (17, 24), (17, 29), (18, 21), (18, 25), (18, 31), (19, 22), (19, 28), (20, 22), (20, 23), (20, 26),
+    (21, 27), (22, 26), (22, 28), (23, 26), (23, 27), (23, 30), (24, 34), (25, 35), (26, 32), (26, 33), (27, 30),
+    (27, 31), (28, 29), (28, 32), (29, 34), (29, 36), (30, 33), (30, 37), (31, 35), (31, 37), (32, 33), (32, 36),
+    (33, 38), (36, 38), (37, 38),
 )
 NEUTOUCH = register_sensor(Sensor(
     name="neutouch", positions=_NEUTOUCH_POS, grid_shape=(9, 13), grid=rasterize(_NEUTOUCH_POS, (9, 13)),

@@ -1,3 +1,4 @@
 """The model zoo: one model family per module; importing a module registers its models."""
 
-from . import cnn_lstm, convlstm, dcnn, multibarrel, sgnet, tacformer, x_tacformer  # noqa: F401  (import registers the models)
+# importing a module registers its models
+from . import cnn_lstm, convlstm, dcnn, deeptactile, multibarrel, sgnet, tacformer, x_tacformer  # noqa: F401

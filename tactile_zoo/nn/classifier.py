@@ -4,8 +4,8 @@
 Every built-in model splits its forward pass in two: ``forward_features(x, g)`` computes what the final classifier
 layer reads, ``forward_head(features)`` turns it into scores, and ``forward(x, g) == forward_head(forward_features(x,
 g))`` exactly (the split moves no computation, so outputs and cell hashes are unchanged). The features are ``(B, F)``
-for every built-in model but SGnet, whose spiking classifier reads spike trains ``(B, T, F)`` (its scores are the
-output spike rates, so there is no pooled vector before the last layer).
+for every built-in model but SGnet and DeepTactile, whose spiking classifiers read spike trains ``(B, T, F)`` (their
+scores are the output spike rates, so there is no pooled vector before the last layer).
 
 The classifier layer is the model's ``zoo_head`` submodule, else its last ``nn.Linear`` (with ``num_classes``
 outputs when given): :func:`classifier_name`. ``reset_classifier(n)`` replaces that layer by a fresh ``nn.Linear``

@@ -14,6 +14,7 @@ import tactile_zoo as tz
 from tactile_zoo.nn import classifier
 
 SENSORS = ["neutouch", "uskin_allegro"]  # without and with global features
+SPIKE_TRAIN_HEADS = {"sgnet", "deeptactile"}  # scores are output spike rates: no pooled vector before the head
 
 
 @pytest.mark.parametrize("sensor", SENSORS)
@@ -29,8 +30,8 @@ def test_forward_head_of_forward_features_is_forward(name: str, sensor: str) -> 
         assert torch.equal(classifier.forward_features(model, x, g), features)  # the method wins over the fallback
     layer = model.get_classifier()
     assert isinstance(layer, nn.Linear) and layer.out_features == spec.num_classes
-    # (B, F) the classifier reads; SGnet's spiking classifier reads spike trains (B, T, F)
-    expected = (4, spec.num_steps, layer.in_features) if name == "sgnet" else (4, layer.in_features)
+    # (B, F) the classifier reads; the spiking classifiers of SGnet and DeepTactile read spike trains (B, T, F)
+    expected = (4, spec.num_steps, layer.in_features) if name in SPIKE_TRAIN_HEADS else (4, layer.in_features)
     assert features.shape == expected
 
 

@@ -81,7 +81,7 @@ def recipe_loss(name: str, out: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 
 def test_zoo_is_populated() -> None:
-    assert {"sgnet", "dcnn", "convlstm", "cnn_lstm", "tacformer", "x_tacformer"} <= set(MODELS), MODELS
+    assert {"sgnet", "dcnn", "convlstm", "cnn_lstm", "tacformer", "x_tacformer", "deeptactile"} <= set(MODELS), MODELS
     assert {"neutouch", "biotac_sp", "optoforce3", "uskin_allegro"} <= set(SENSORS)
 
 
