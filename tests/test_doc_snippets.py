@@ -18,7 +18,6 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from conftest import SHARED_DATA
 from doc_snippets import (
     EXEMPT_MAKE,
     FIXTURES,
@@ -33,6 +32,10 @@ from doc_snippets import (
     shell_commands,
     substitute_data,
 )
+
+#: the real data home (tests/conftest.py reads the same variable; importing conftest by name can reach
+#: tests/reliability/conftest.py instead, depending on collection order)
+SHARED_DATA = Path(os.environ.get("TACTILE_ZOO_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 pytestmark = pytest.mark.xdist_group("doc_snippets")  # the blocks of a page share its folder, in page order
 

@@ -58,8 +58,10 @@ RECIPE_VALUES: dict[str, st.SearchStrategy] = {
     "rate_targets": st.tuples(st.floats(0.5, 1.0), _nonneg(st.floats(0, 0.4))).map(list),
     "ema_decay": st.none() | st.floats(0.5, 0.999),
 }
-HPARAMS = st.dictionaries(st.sampled_from(["hidden", "dropout"]),
-                          st.one_of(st.integers(1, 64), _nonneg(st.floats(0, 0.9))), min_size=1)
+# valid values only: an invalid one (dropout=2, hidden=0.5) is refused when the grid is built (issue 38, item 3)
+_HIDDEN, _DROPOUT = st.integers(1, 64), _nonneg(st.floats(0, 0.9))
+HPARAMS = st.one_of(st.fixed_dictionaries({"hidden": _HIDDEN}, optional={"dropout": _DROPOUT}),
+                    st.fixed_dictionaries({"dropout": _DROPOUT}, optional={"hidden": _HIDDEN}))
 BASE = {"models": ["tiny_mlp", "tiny_rate"], "datasets": ["tiny_blobs", "tiny_kfold"], "folds": 1}
 
 
