@@ -28,6 +28,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from tactile_zoo.bench.records import run_records
 
@@ -54,6 +55,30 @@ sys.exit(code)
 """
 
 
+def launch_measured(args: list[str], env: dict[str, str], log: Path, hwm: Path
+                    ) -> tuple[int, float, Any, int, str]:
+    """Run ``tactile-zoo ARGS`` as a child process, its output into ``log``: exit code, wall seconds, its rusage, and
+    its peak RSS in kB with where that came from (``vmhwm``, which the child writes into ``hwm`` as it exits, else
+    ``ru_maxrss``, in kB on every platform)."""
+    hwm.unlink(missing_ok=True)
+    with log.open("w") as out:
+        start = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-c", _LAUNCH, str(hwm), *args], env=env, stdout=out,
+                                stderr=subprocess.STDOUT)
+        try:
+            _, status, usage = os.wait4(proc.pid, 0)
+        except BaseException:  # interrupted: do not leave the child running
+            proc.kill()
+            proc.wait()
+            raise
+        wall = time.perf_counter() - start
+    proc.returncode = code = os.waitstatus_to_exitcode(status)  # reaped here, so Popen must not wait again
+    rss_kb, source = (int(hwm.read_text()), "vmhwm") if hwm.exists() else (usage.ru_maxrss, "ru_maxrss")
+    if source == "ru_maxrss" and sys.platform == "darwin":
+        rss_kb //= 1024  # bytes there, kB on Linux
+    return code, wall, usage, rss_kb, source
+
+
 def bench_args(ctx: Context, out: Path, models: str = "all", datasets: str | None = None,
                extra: tuple[str, ...] = ()) -> list[str]:
     """The ``tactile-zoo bench`` arguments: the README's command on ``ctx.device``, with one worker process per
@@ -77,18 +102,7 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
         args = bench_args(ctx, tmp_path / "out", models, datasets, extra)
         env = {**os.environ, "TACTILE_ZOO_DATA": str(tmp_path / "data"), "TACTILE_ZOO_CACHE": str(tmp_path / "cache")}
         log = tmp_path / "log.txt"
-        with log.open("w") as out:
-            start = time.perf_counter()
-            proc = subprocess.Popen([sys.executable, "-c", _LAUNCH, str(tmp_path / "vmhwm"), *args], env=env,
-                                    stdout=out, stderr=subprocess.STDOUT)
-            try:
-                _, status, usage = os.wait4(proc.pid, 0)
-            except BaseException:  # interrupted: do not leave the bench running
-                proc.kill()
-                proc.wait()
-                raise
-            wall = time.perf_counter() - start
-        proc.returncode = code = os.waitstatus_to_exitcode(status)  # reaped here, so Popen must not wait again
+        code, wall, usage, rss_kb, rss_source = launch_measured(args, env, log, tmp_path / "vmhwm")
         records = run_records(tmp_path / "out")
         statuses = [str(r.get("status")) for r in records]
         cells, failed = statuses.count("ok"), sum(1 for s in statuses if s != "ok")
@@ -96,12 +110,8 @@ def run(ctx: Context, models: str = "all", datasets: str | None = None, extra: t
         keep = os.environ.get("BENCH_WALL_KEEP")
         if keep:
             shutil.copytree(tmp_path / "out", keep, dirs_exist_ok=True)
-        hwm = tmp_path / "vmhwm"
-        rss_kb, rss_source = (int(hwm.read_text()), "vmhwm") if hwm.exists() else (usage.ru_maxrss, "ru_maxrss")
         if code != 0:  # a failed run is no measurement
             raise RuntimeError(f"tactile-zoo bench exited with {code}:\n{log.read_text()[-3000:]}")
-    if rss_source == "ru_maxrss" and sys.platform == "darwin":
-        rss_kb //= 1024  # bytes there, kB on Linux
     cpu = usage.ru_utime + usage.ru_stime
     command = "tactile-zoo " + " ".join(a if "tz-bench-wall-" not in a else "<fresh tmp dir>" for a in args)
     epochs = os.environ.get("BENCH_WALL_EPOCHS")

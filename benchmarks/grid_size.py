@@ -17,15 +17,12 @@ loaded machine compare it with ``startup``, which bounds it from below.
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 from tactile_zoo.bench.config import MAX_CELLS
 
-from .bench_wall import _LAUNCH
+from .bench_wall import launch_measured
 from .common import Context, write_csv
 
 NAME = "grid_size"
@@ -38,24 +35,9 @@ CASES = {"huge_seed_range": "0-100000000", "startup": None, "one_seed": "0", "ma
 
 def _measure(args: list[str], tmp: Path) -> dict[str, object]:
     """Run ``tactile-zoo ARGS`` as a child process: exit code, wall seconds, peak RSS, and what it answered."""
-    hwm, log = tmp / "vmhwm", tmp / "log.txt"
-    hwm.unlink(missing_ok=True)
+    log = tmp / "log.txt"
     env = {**os.environ, "TACTILE_ZOO_CACHE": str(tmp / "cache")}
-    with log.open("w") as out:
-        start = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-c", _LAUNCH, str(hwm), *args], env=env, stdout=out,
-                                stderr=subprocess.STDOUT)
-        try:
-            _, status, usage = os.wait4(proc.pid, 0)
-        except BaseException:  # interrupted: do not leave the child running
-            proc.kill()
-            proc.wait()
-            raise
-        wall = time.perf_counter() - start
-    proc.returncode = code = os.waitstatus_to_exitcode(status)
-    rss_kb, source = (int(hwm.read_text()), "vmhwm") if hwm.exists() else (usage.ru_maxrss, "ru_maxrss")
-    if source == "ru_maxrss" and sys.platform == "darwin":
-        rss_kb //= 1024
+    code, wall, _, rss_kb, source = launch_measured(list(args), env, log, tmp / "vmhwm")
     lines = log.read_text().splitlines()
     answer = next((line for line in lines if line.startswith("tactile-zoo: error:")), lines[0] if lines else "")
     return {"exit_code": code, "wall_s": wall, "peak_rss_mb": rss_kb / 1024, "rss_source": source,
