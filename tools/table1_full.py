@@ -36,18 +36,8 @@ from typing import Any
 from tactile_zoo.bench.paired import holm, records_paired
 from tools.fidelity import cells, replace_block, update_page
 from tools.headline import registered_default
-from tools.paper_table1 import (
-    EV,
-    MODELS,
-    NAMES,
-    PAPER,
-    RESULTS,
-    ZOO_SPLITS,
-    _figure,
-    _group,
-    ensemble_table,
-    paper_column,
-)
+from tools.paper_table1 import ZOO_SPLITS, ensemble_table
+from tools.table1_common import EV, MODELS, NAMES, PAPER, RESULTS, _figure, _group, paper_column
 
 FULL, ZOO = RESULTS / "paper-table1-full", RESULTS / "paper-table1-zoo"
 REFERENCE, SGNET_REFERENCE = RESULTS / "paper-table1-reference", RESULTS / "reference-protocol"

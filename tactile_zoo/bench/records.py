@@ -25,11 +25,11 @@ from typing import Any
 from .. import registry
 from ..errors import ConfigError, ResultsError, TactileZooError
 from ..recipe import recipe_name_of
-from .schema import CELL_STATUSES, RECORD_FORMAT, InvalidRecordError, check_record, joined, nan_to_null, newer_format
+from .schema import check_record, joined, newer_format
 
-__all__ = ["CELL_STATUSES", "CELLS_DIR", "DAMAGED_DIR", "RECORD_FORMAT", "InvalidCell", "CellScan", "InvalidCellsError",
-           "InvalidRecordError", "check_record", "nan_to_null", "read_record", "scan_cells", "refuse_newer",
-           "move_aside", "cell_files", "run_records", "revision_gaps", "qualifying_cells", "recipe_name_of"]
+__all__ = ["CELLS_DIR", "DAMAGED_DIR", "InvalidCell", "CellScan", "InvalidCellsError", "read_record", "scan_cells",
+           "refuse_newer", "move_aside", "cell_files", "run_records", "revision_gaps", "qualifying_cells",
+           "recipe_name_of"]
 
 #: a bench folder's folder of cell records, one ``<cell id>.json`` each
 CELLS_DIR = "cells"
