@@ -48,11 +48,13 @@ lint: install
 benchmarks: install
 	$(BIN)/python -m benchmarks.run $(BENCHMARK_ARGS)
 
-# after committing new cells: the fidelity ledger, Table I (docs/table1.md) and the README's headline, checked by the suite
+# every generated page, checked by the suite: after committing new cells, the fidelity ledger, Table I (docs/table1.md)
+# and the README's headline; after changing a command's flags, the command-line reference (docs/cli.md)
 tables: install
 	$(BIN)/python -m tools.fidelity
 	$(BIN)/python -m tools.paper_table1 --readme
 	$(BIN)/python -m tools.table1_full --readme
+	$(BIN)/python -m tools.cli_reference
 
 # the docs site, into site/ (gitignored); --strict: a broken link or anchor, or a page left out of the nav, fails
 docs: install

@@ -67,7 +67,8 @@ def test_the_site_builds_strictly_with_every_nav_page_and_the_api_reference(site
     config = yaml.safe_load(CONFIG.read_text())
     pages = _nav_pages(config["nav"])
     assert {"quickstart.md", "datasets.md", "models.md", "harness.md", "pretrained.md", "plugins.md",
-            "performance.md", "table1.md", "fidelity.md", "published-results.md"} <= set(pages)
+            "performance.md", "table1.md", "fidelity.md", "published-results.md", "cli.md",
+            "changelog.md"} <= set(pages)
     for page in pages:
         assert _page_html(site, page).is_file(), page
     # the API reference is generated from the docstrings, not left as ":::" lines
@@ -95,6 +96,7 @@ def _copy_without_api_plugin(tmp_path: Path) -> Path:
     """The docs and configuration in ``tmp_path``, without mkdocstrings (the API pages become plain text): the same
     pages, nav and validation settings, built in about a second."""
     shutil.copytree(DOCS, tmp_path / "docs", ignore=shutil.ignore_patterns("pending"))
+    shutil.copy(REPO / "CHANGELOG.md", tmp_path)  # docs/changelog.md includes it (docs/hooks/changelog.py)
     config = yaml.safe_load(CONFIG.read_text())
     config["plugins"] = [p for p in config["plugins"] if not (isinstance(p, dict) and "mkdocstrings" in p)]
     (tmp_path / "mkdocs.yml").write_text(yaml.safe_dump(config, sort_keys=False))
@@ -130,6 +132,31 @@ def test_notes_in_docs_pending_never_break_the_build(tmp_path: Path) -> None:
     result = _build(config, tmp_path / "site")
     assert result.returncode == 0, result.stdout
     assert not (tmp_path / "site" / "pending").exists()
+
+
+def test_the_changelog_is_on_the_site_with_its_links_into_the_docs(site: Path) -> None:
+    """docs/changelog.md is CHANGELOG.md (docs/hooks/changelog.py): every version heading is on the page, and its
+    links into docs/ resolve from the page (the strict build checked their anchors)."""
+    page = _page_html(site, "changelog.md").read_text()
+    changelog = (REPO / "CHANGELOG.md").read_text()
+    versions = re.findall(r"^## \[([^\]]+)\]", changelog, re.M)
+    assert versions[0] == "Unreleased" and len(versions) >= 2
+    for version in versions:
+        assert f">[{version}]" in page or f">{version}<" in page or f"[{version}]" in page, version
+    targets = re.findall(r"\]\(docs/([\w/-]+)\.md", changelog)
+    assert targets, "the changelog links to the pages that hold the details"
+    for target in set(targets):
+        assert f'href="../{target}/' in page, target
+
+
+def test_a_changelog_link_outside_the_site_fails_the_strict_build(tmp_path: Path) -> None:
+    config = _copy_without_api_plugin(tmp_path)
+    with (tmp_path / "CHANGELOG.md").open("a") as changelog:
+        changelog.write("\n- [the plan](benchmarks/results/PLAN.md), [a heading](docs/table1.md#no-such-heading)\n")
+    result = _build(config, tmp_path / "site")
+    assert result.returncode != 0
+    assert "'benchmarks/results/PLAN.md', but the target is not found" in result.stdout, result.stdout
+    assert "'table1.md#no-such-heading', but the doc 'table1.md' does not contain an anchor" in result.stdout
 
 
 def _readme_lines_outside_table1() -> list[str]:
