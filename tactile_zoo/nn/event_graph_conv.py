@@ -14,7 +14,7 @@ and sparse (Ev-Objects: 12.8 % of the 78 entries of a frame), so the product run
 and autograd carries its gradient back to the weights and the bias.
 
 The same function as the dense backend, rounded differently (relative differences around 1e-6 in float32;
-tests/nn/test_event_graph_conv.py). Off CPU and for tracer tensors it is the dense backend itself
+tests/nn/test_event_graph_conv.py). Off CPU and under a tracer it is the dense backend itself
 (``FrameGraphConv``), the oracle.
 """
 

@@ -19,8 +19,8 @@ product's sums with the zero terms left out, added in another order: outputs and
 The event list is computed from ``x`` here (``torch.nonzero``); a producer that already knows its active inputs (a
 LIF kernel emitting its spike indices) can pass it as ``events`` (:class:`EventList`) and skip that scan.
 
-CPU only: off CPU, and for tensors of a tracer (``torch.export``, ``torch.compile``), :func:`event_linear` is
-``F.linear`` (the dense path, which is the oracle the tests compare against).
+CPU only: off CPU, and while a tracer runs (``torch.export``, ``torch.compile``, ``torch.jit.trace``),
+:func:`event_linear` is ``F.linear`` (the dense path, which is the oracle the tests compare against).
 """
 
 from __future__ import annotations
@@ -113,7 +113,8 @@ _PLAIN = (Tensor, torch.nn.Parameter)
 
 def uses_events(x: Tensor, weight: Tensor) -> bool:
     """Whether :func:`event_linear` takes the event path for these tensors (else it is ``F.linear``)."""
-    plain = type(x) in _PLAIN and type(weight) in _PLAIN and not torch.compiler.is_compiling()
+    plain = type(x) in _PLAIN and type(weight) in _PLAIN and not torch.compiler.is_compiling() \
+        and not torch.jit.is_tracing()  # a TorchScript trace would record numpy calls it cannot replay
     return plain and x.device.type == "cpu" and weight.device.type == "cpu" and x.dtype == weight.dtype \
         and x.dtype in (torch.float32, torch.float64)
 

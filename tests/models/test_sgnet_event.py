@@ -83,7 +83,7 @@ def test_streaming_equals_forward() -> None:
 
 def test_event_products_run_only_where_promised(monkeypatch: pytest.MonkeyPatch) -> None:
     """compute="event" on CPU: two event products per forward (graph convolution, first linear layer); the default
-    model: none; off CPU (meta here) the event model runs the dense products."""
+    model: none; under a TorchScript trace and off CPU (meta here) the event model runs the dense products."""
     calls = []
     apply = el._EventLinear.apply
     monkeypatch.setattr(el._EventLinear, "apply", lambda *a: calls.append(a[1].shape) or apply(*a))
@@ -96,6 +96,9 @@ def test_event_products_run_only_where_promised(monkeypatch: pytest.MonkeyPatch)
         event(x)
     n = spec.num_nodes
     assert calls == [(n * 2, n * 64), (n * 64, 128)]
+    # a TorchScript trace (what the exporter writes) records the dense products
+    traced = torch.jit.trace(event, (x,), check_trace=False)
+    assert len(calls) == 2 and torch.equal(traced(x), dense(x))
     meta = event.to("meta")
     assert meta(x.to("meta")).shape == (2, spec.num_classes) and len(calls) == 2
 
