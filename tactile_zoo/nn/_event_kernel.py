@@ -1,4 +1,4 @@
-"""The event list of a sparse matrix in one compiled pass (numba): its nonzero entries by row and by column.
+"""The event list of a sparse matrix in one compiled pass (numba): its nonzero entries by row, then by column.
 
 Imported lazily by :mod:`tactile_zoo.nn.event_linear`, which falls back to ``torch.nonzero`` and a sort where numba
 is missing. Nothing here is public. ``torch.nonzero`` on SGnet's spikes (2000 x 2496 at batch 8) costs about as much
@@ -15,11 +15,10 @@ __all__ = ["scan", "by_column"]
 
 
 @njit(cache=True, nogil=True)
-def scan(x: np.ndarray, cols: np.ndarray, values: np.ndarray, row_offsets: np.ndarray,
-         col_counts: np.ndarray) -> tuple[int, bool]:  # pragma: no cover - compiled
+def scan(x: np.ndarray, cols: np.ndarray, values: np.ndarray,
+         row_offsets: np.ndarray) -> tuple[int, bool]:  # pragma: no cover - compiled
     """Row-major nonzeros of ``x (R, C)`` into ``cols`` and ``values`` (each at least ``R * C`` long); each
-    row's start into ``row_offsets (R,)``; events per column into ``col_counts (C,)`` (zeroed by the caller).
-    Returns (number of events, whether every value is 1)."""
+    row's start into ``row_offsets (R,)``. Returns (number of events, whether every value is 1)."""
     n_rows, n_cols = x.shape
     k = 0
     binary = True
@@ -30,7 +29,6 @@ def scan(x: np.ndarray, cols: np.ndarray, values: np.ndarray, row_offsets: np.nd
             if v != 0:
                 cols[k] = c
                 values[k] = v
-                col_counts[c] += 1
                 binary &= v == 1
                 k += 1
     return k, binary

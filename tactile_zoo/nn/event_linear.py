@@ -16,8 +16,9 @@ forward and by column for the weight gradient, so no ``(events, out)`` tensor is
 product's sums with the zero terms left out, added in another order: outputs and gradients differ from
 ``F.linear``'s by float rounding (relative differences around 1e-6 in float32; tests/nn/test_event_linear.py).
 
-The event list is computed from ``x`` here (``torch.nonzero``); a producer that already knows its active inputs (a
-LIF kernel emitting its spike indices) can pass it as ``events`` (:class:`EventList`) and skip that scan.
+The event list is computed from ``x`` here (one compiled scan, :func:`events_of`); a producer that already knows its
+active inputs (a LIF kernel emitting its spike indices) can pass them as ``events``
+(:func:`events_from_rows`) and skip that scan.
 
 CPU only: off CPU, and while a tracer runs (``torch.export``, ``torch.compile``, ``torch.jit.trace``),
 :func:`event_linear` is ``F.linear`` (the dense path, which is the oracle the tests compare against).
@@ -33,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["EventList", "event_linear", "events_of", "uses_events"]
+__all__ = ["EventList", "event_linear", "events_from_rows", "events_of", "uses_events"]
 
 
 class EventList(NamedTuple):
@@ -65,20 +66,44 @@ def _offsets(index: Tensor, size: int) -> Tensor:
 def events_of(x: Tensor) -> EventList:
     """The event list of ``x (R, C)``: its nonzero entries, with their values unless all of them are 1.
 
-    One compiled scan where numba is installed (:mod:`._event_kernel`), else ``torch.nonzero`` and a stable sort;
-    both give the same lists."""
+    One compiled scan where numba is installed (:mod:`._event_kernel`), else ``torch.nonzero``; both give the same
+    lists."""
+    rows_n, cols_n = x.shape
     kernel = _kernel()
     if kernel is not None and x.is_contiguous() and type(x) is Tensor:
-        return _events_compiled(kernel, x)
-    rows_n, cols_n = x.shape
-    flat = (x != 0).view(-1).nonzero().squeeze(1)  # a flat scan over a bool mask: cheaper than 2-D nonzero
-    rows, cols = flat.div(cols_n, rounding_mode="floor"), flat.remainder(cols_n)
-    values = x.reshape(-1)[flat]
-    if bool((values == 1).all()):
-        values = None  # spikes: the sums need no multiplication (embedding_bag without per_sample_weights)
+        # room for every entry: untouched pages of an empty tensor cost nothing, and the lists are cut to length
+        cols, values = torch.empty(x.numel(), dtype=torch.int64), torch.empty(x.numel(), dtype=x.dtype)
+        row_offsets = torch.empty(rows_n, dtype=torch.int64)
+        count, binary = kernel.scan(x.numpy(), cols.numpy(), values.numpy(), row_offsets.numpy())
+        cols, values = cols[:count].clone(), None if binary else values[:count].clone()
+    else:
+        flat = (x != 0).view(-1).nonzero().squeeze(1)  # a flat scan over a bool mask: cheaper than 2-D nonzero
+        rows, cols = flat.div(cols_n, rounding_mode="floor"), flat.remainder(cols_n)
+        row_offsets = _offsets(rows, rows_n)
+        values = x.reshape(-1)[flat]
+        if bool((values == 1).all()):
+            values = None  # spikes: the sums need no multiplication (embedding_bag without per_sample_weights)
+    return events_from_rows(cols, row_offsets, cols_n, values)
+
+
+def events_from_rows(cols: Tensor, row_offsets: Tensor, num_cols: int, values: Tensor | None = None) -> EventList:
+    """The :class:`EventList` of a row-major event list, e.g. the spike indices a LIF kernel emits per time step:
+    ``cols`` (int64, ascending within each row) with each row's start in ``row_offsets``, ``values`` None for spikes.
+    Adds the column-major half the weight gradient reads (a counting sort: rows stay ascending within a column)."""
+    counts = torch.bincount(cols, minlength=num_cols)
+    col_offsets = torch.cumsum(counts, 0) - counts
+    kernel = _kernel()
+    if kernel is not None:
+        rows_by_col = torch.empty(len(cols), dtype=torch.int64)
+        values_by_col = torch.empty(0 if values is None else len(cols), dtype=values.dtype if values is not None
+                                    else torch.float32)
+        kernel.by_column(cols.numpy(), (values_by_col if values is None else values).numpy(), row_offsets.numpy(),
+                         col_offsets.numpy(), rows_by_col.numpy(), values_by_col.numpy(), values is not None)
+        return EventList(cols, row_offsets, rows_by_col, col_offsets, values, None if values is None else values_by_col)
+    row_counts = torch.diff(row_offsets, append=row_offsets.new_tensor([len(cols)]))
+    rows = torch.repeat_interleave(torch.arange(len(row_offsets)), row_counts)
     order = torch.sort(cols, stable=True).indices  # column-major order, rows ascending within a column
-    return EventList(cols, _offsets(rows, rows_n), rows[order], _offsets(cols, cols_n), values,
-                     None if values is None else values[order])
+    return EventList(cols, row_offsets, rows[order], col_offsets, values, None if values is None else values[order])
 
 
 @functools.cache
@@ -88,23 +113,6 @@ def _kernel() -> ModuleType | None:
     except ImportError:
         return None
     return _event_kernel
-
-
-def _events_compiled(kernel: ModuleType, x: Tensor) -> EventList:
-    rows_n, cols_n = x.shape
-    size = x.numel()
-    # room for every entry: untouched pages of an empty tensor cost nothing, and the lists are cut to length below
-    cols, values = torch.empty(size, dtype=torch.int64), torch.empty(size, dtype=x.dtype)
-    row_offsets, col_counts = torch.empty(rows_n, dtype=torch.int64), torch.zeros(cols_n, dtype=torch.int64)
-    count, binary = kernel.scan(x.numpy(), cols.numpy(), values.numpy(), row_offsets.numpy(), col_counts.numpy())
-    cols, values = cols[:count].clone(), values[:count]
-    col_offsets = torch.cumsum(col_counts, 0) - col_counts
-    rows_by_col = torch.empty(count, dtype=torch.int64)
-    values_by_col = torch.empty(0 if binary else count, dtype=x.dtype)
-    kernel.by_column(cols.numpy(), values.numpy(), row_offsets.numpy(), col_offsets.numpy(), rows_by_col.numpy(),
-                     values_by_col.numpy(), not binary)
-    return EventList(cols, row_offsets, rows_by_col, col_offsets, None if binary else values.clone(),
-                     None if binary else values_by_col)
 
 
 #: Tensor types the event path reads; a tracer's subclasses (fake, functional tensors) take the dense path.

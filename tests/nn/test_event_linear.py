@@ -90,6 +90,13 @@ def test_event_lists_describe_the_matrix_compiled_and_torch_alike(monkeypatch: p
     for listed in _dense(compiled, (30, 40)):
         assert torch.equal(listed, x)
     assert torch.all(torch.diff(compiled.rows_by_col[compiled.col_offsets[3]:compiled.col_offsets[4]]) > 0)
+    # a producer's row-major list (a LIF kernel's spike indices) completes to the same lists, either way
+    for done in (el.events_from_rows(compiled.cols, compiled.row_offsets, 40, compiled.values), fallback):
+        for a, b in zip(done, compiled):
+            assert (a is None and b is None) or torch.equal(a, b)
+    monkeypatch.undo()
+    for a, b in zip(el.events_from_rows(compiled.cols, compiled.row_offsets, 40, compiled.values), compiled):
+        assert (a is None and b is None) or torch.equal(a, b)
 
 
 def test_a_given_event_list_is_the_one_used() -> None:
