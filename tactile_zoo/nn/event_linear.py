@@ -137,10 +137,11 @@ class _EventLinear(torch.autograd.Function):
         if bias is not None:
             out += bias  # in place on the product's own buffer: no second (R, F_out) tensor
         ctx.save_for_backward(table)
-        ctx.events, ctx.rows, ctx.has_bias = events, x.shape[0], bias is not None
+        ctx.events, ctx.has_bias = events, bias is not None
         return out
 
     @staticmethod
+    @torch.autograd.function.once_differentiable  # the saved table is a copy outside the graph: no second order
     def backward(ctx: Any, grad: Tensor) -> tuple[Tensor | None, ...]:
         (table,) = ctx.saved_tensors
         ev = ctx.events

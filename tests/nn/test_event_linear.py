@@ -59,6 +59,16 @@ def test_without_bias_and_with_empty_rows() -> None:
     assert torch.equal(got[0][:5], torch.zeros(5, 8)) and torch.equal(got[0][9], torch.zeros(8))
 
 
+def test_no_events_at_all() -> None:
+    x = torch.zeros(5, 30)
+    weight = torch.randn(4, 30, generator=torch.Generator().manual_seed(11))
+    bias = torch.randn(4, generator=torch.Generator().manual_seed(12))
+    ref = _grads(F.linear, x, weight, bias, torch.ones(5, 4))
+    got = _grads(event_linear, x, weight, bias, torch.ones(5, 4))
+    for a, b in zip(got, ref):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-6)
+
+
 def _dense(events: el.EventList, shape: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
     """The matrix the row-major list describes, and the one the column-major list describes."""
     rows_n, cols_n = shape
