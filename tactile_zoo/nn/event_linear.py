@@ -21,7 +21,9 @@ active inputs (a LIF kernel emitting its spike indices) can pass them as ``event
 (:func:`events_from_rows`) and skip that scan.
 
 CPU only: off CPU, and while a tracer runs (``torch.export``, ``torch.compile``, ``torch.jit.trace``),
-:func:`event_linear` is ``F.linear`` (the dense path, which is the oracle the tests compare against).
+:func:`event_linear` is ``F.linear`` (the dense path, which is the oracle the tests compare against). First-order
+gradients reach the input, the weight and the bias; a second-order gradient through the event path raises (use the
+dense path for it).
 """
 
 from __future__ import annotations

@@ -59,6 +59,14 @@ def test_without_bias_and_with_empty_rows() -> None:
     assert torch.equal(got[0][:5], torch.zeros(5, 8)) and torch.equal(got[0][9], torch.zeros(8))
 
 
+def test_a_second_order_gradient_raises_instead_of_being_wrong() -> None:
+    x = _spikes((6, 20), 0.3, seed=13).requires_grad_()
+    weight = torch.randn(4, 20, generator=torch.Generator().manual_seed(14), requires_grad=True)
+    (gx,) = torch.autograd.grad(event_linear(x, weight).pow(2).sum(), x, create_graph=True)
+    with pytest.raises(RuntimeError, match="once_differentiable|twice"):
+        gx.sum().backward()
+
+
 def test_no_events_at_all() -> None:
     x = torch.zeros(5, 30)
     weight = torch.randn(4, 30, generator=torch.Generator().manual_seed(11))
