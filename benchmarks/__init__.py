@@ -9,6 +9,7 @@ BENCHMARKS = {
     "lif": "lif",
     "graph_conv": "graph_conv",
     "sgnet_epoch": "sgnet_epoch",
+    "sgnet_event": "sgnet_event",
     "epoch_all_models": "epoch_all_models",
     "inference": "inference",
     "streaming_latency": "streaming_latency",

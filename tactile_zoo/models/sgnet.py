@@ -22,6 +22,8 @@ from torch import Tensor, nn
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
 from ..nn.classifier import ClassifierMixin
+from ..nn.event_graph_conv import event_graph_conv
+from ..nn.event_linear import event_linear
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import MultiStepLIF
 from ..recipe import full_recipe
@@ -29,6 +31,9 @@ from ..registry import register_model
 from ._inputs import check_inputs
 
 __all__ = ["SGNet", "SGNetState"]
+
+#: ``compute``: the dense products (default) or the event-driven ones (opt-in, CPU)
+_COMPUTES = ("dense", "event")
 
 
 @dataclass
@@ -102,6 +107,11 @@ class SGNet(ClassifierMixin, nn.Module):
             another order, which skips a copy of the layer's output gradient (a training step on Ev-Objects at
             batch 8 about 8% faster on 1 CPU thread); the same function, rounded differently
             (:class:`~tactile_zoo.nn.graph.FrameGraphConv`'s ``weight_grad``).
+        compute: ``"dense"`` (default) or ``"event"`` (opt-in, CPU): the graph convolution as one product over the
+            input events (:func:`~tactile_zoo.nn.event_graph_conv.event_graph_conv`) and the first linear layer
+            over the first LIF's spikes (:func:`~tactile_zoo.nn.event_linear.event_linear`); the same function,
+            rounded differently (relative differences around 1e-6), so an hparam of its own, part of the cell hash.
+            Off CPU it runs the dense products, which are its oracle.
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> rates ``(B, K)`` in [0, 1]; streaming:
@@ -112,14 +122,17 @@ class SGNet(ClassifierMixin, nn.Module):
                  beta: float = 0.2, threshold: float = 0.5, surrogate: str = "rect", surrogate_width: float = 1.0,
                  detach_reset: bool = False, graph: str = "default", graph_kwargs: dict[str, Any] | None = None,
                  lif_backend: str = "fused", graph_backend: str = "dense", init: str = "he",
-                 graph_weight_grad: str = "autograd") -> None:
+                 graph_weight_grad: str = "autograd", compute: str = "dense") -> None:
         super().__init__()
         if init not in ("he", "default"):
             raise ConfigError(f"sgnet: init must be 'he' or 'default', got {init!r}")
+        if compute not in _COMPUTES or (compute == "event" and graph_backend != "dense"):
+            raise ConfigError(f"sgnet: compute must be one of {_COMPUTES} ('event' with graph_backend='dense'), got "
+                              f"{compute!r} with graph_backend {graph_backend!r}")
         hidden = tuple(int(h) for h in hidden)
         if not hidden or min(hidden) < 1 or graph_channels < 1:
             raise ConfigError(f"sgnet: widths must be positive, got graph_channels={graph_channels}, hidden={hidden}")
-        self.spec, self.init = spec, init
+        self.spec, self.init, self.compute = spec, init, compute
         n = spec.num_nodes
         edge_index = spec.sensor.edge_index(graph, **(graph_kwargs or {}))
         self.gc = FrameGraphConv(spec.num_channels, graph_channels, edge_index, n, kind="tag", K=hops,
@@ -138,13 +151,22 @@ class SGNet(ClassifierMixin, nn.Module):
         """The spike trains the classifier layer reads, time-major ``(T, B, width)``."""
         g = check_inputs("sgnet", self.spec, x, g)
         steps, batch = x.shape[1], x.shape[0]
-        h = self.gc(x.transpose(0, 1))  # (T, B, N, F): time-major before the convolution, where C is small
+        h = self._conv(x.transpose(0, 1))  # (T, B, N, F): time-major before the convolution, where C is small
         s = self.lifs[0](h.reshape(steps, batch, -1))  # (T, B, N * F)
         if g is not None:
             s = torch.cat([s, g.transpose(0, 1).to(s.dtype)], dim=-1)  # (T, B, N * F + G)
-        for fc, lif in zip(self.fcs[:-1], self.lifs[1:-1]):
-            s = lif(fc(s))  # (T, B, width)
+        for i, (fc, lif) in enumerate(zip(self.fcs[:-1], self.lifs[1:-1])):
+            s = lif(self._first(s) if i == 0 else fc(s))  # (T, B, width)
         return s
+
+    def _conv(self, x: Tensor) -> Tensor:
+        """The graph convolution, over the input events with ``compute="event"``."""
+        return event_graph_conv(self.gc, x) if self.compute == "event" else self.gc(x)
+
+    def _first(self, s: Tensor) -> Tensor:
+        """The first linear layer, over the first LIF's spikes with ``compute="event"``."""
+        fc = self.fcs[0]
+        return event_linear(s, fc.weight, fc.bias) if self.compute == "event" else fc(s)
 
     def _rates(self, s: Tensor) -> Tensor:
         """The spiking classifier: the last layer and its LIF on ``s (T, B, width)``, then the output spike rates."""
@@ -179,12 +201,12 @@ class SGNet(ClassifierMixin, nn.Module):
         """One frame: ``x_t (B, N, C)``, ``g_t (B, G)`` or None -> (running rates ``(B, K)``, new state). After
         step ``t`` the rates equal :meth:`forward` on the frames ``0..t``."""
         g_t = check_inputs("sgnet", self.spec, x_t, g_t, per_step=True)
-        s, mem = self.lifs[0].step(self.gc(x_t).reshape(x_t.shape[0], -1), state.mems[0])  # (B, N * F)
+        s, mem = self.lifs[0].step(self._conv(x_t).reshape(x_t.shape[0], -1), state.mems[0])  # (B, N * F)
         mems = [mem]
         if g_t is not None:
             s = torch.cat([s, g_t.to(s.dtype)], dim=-1)
-        for fc, lif, m in zip(self.fcs, self.lifs[1:], state.mems[1:]):
-            s, m = lif.step(fc(s), m)
+        for i, (fc, lif, m) in enumerate(zip(self.fcs, self.lifs[1:], state.mems[1:])):
+            s, m = lif.step(self._first(s) if i == 0 else fc(s), m)
             mems.append(m)
         count = state.count + s
         steps = state.steps + 1

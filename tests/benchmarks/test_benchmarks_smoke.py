@@ -117,3 +117,17 @@ def test_grid_size_measures_the_refused_huge_seed_range(tmp_path: Path) -> None:
 def test_write_csv_refuses_undeclared_columns(tmp_path: Path) -> None:
     with pytest.raises(KeyError, match="bogus"):
         common.write_csv(_ctx(tmp_path), "x", ("a",), [{"case": "c", "a": 1, "bogus": 2}])
+
+
+def test_sgnet_event_times_both_computations_on_the_same_network(tmp_path: Path) -> None:
+    """The opt-in event-driven SGnet against the dense default: same spikes, gradients to rounding, every row."""
+    from benchmarks import sgnet_event
+
+    rows = _read(sgnet_event.run(_ctx(tmp_path), variant="event", batches=1))
+    assert [r["case"] for r in rows] == ["train_step", "graph_conv", "first_linear", "event_scan"]
+    step = rows[0]
+    assert step["same_spikes"] == "True" and float(step["grad_rel_diff"]) < 1e-4
+    assert 0 < float(step["lif_rate"]) < 0.5 and step["variant"] == "event"
+    assert all(float(r["fast_median_s"]) > 0 for r in rows) and all(float(r["ratio"]) > 0 for r in rows[:3])
+    with pytest.raises(ValueError, match="variant"):
+        sgnet_event.run(_ctx(tmp_path), variant="sparse")
