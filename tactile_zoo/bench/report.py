@@ -316,8 +316,8 @@ def _other_metrics() -> str:
     extra = [m for m in registered_metrics() if m.name in metric_columns()]
     if not extra:
         return ""
-    return (" " + ", ".join(f"{m.label} (`{m.name}`, from the {m.needs})" for m in extra)
-            + " are computed from the test predictions or class probabilities each cell file stores.")
+    return (" Also on the test split, computed from what each cell file stores of it: "
+            + ", ".join(f"{m.label} (`{m.name}`, from the {m.needs})" for m in extra) + ".")
 
 
 def _unavailable_legend(board: list[dict[str, Any]]) -> list[str]:
