@@ -33,11 +33,20 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..engine.metrics import registered_metrics
 from ..errors import ResultsError
 from .plots import write_plots
 from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, refuse_newer, revision_gaps
 from .results import RunDir, atomic_write_text
-from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
+from .tables import (
+    UNAVAILABLE,
+    leaderboard_rows,
+    metric_columns,
+    prefix_label,
+    reference_rows,
+    rows_to_csv,
+    summary_rows,
+)
 
 __all__ = ["write_outputs", "load_run"]
 
@@ -232,7 +241,7 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
     out += ["", "Accuracy, balanced accuracy and macro-F1 are on each dataset's test split, for the epoch selected on "
                 "its validation split; mean ± sample standard deviation over folds and seeds. Rank is per dataset "
                 "(1 = best mean accuracy); mean rank is over the datasets a model ran on. Timings (train seconds, "
-                "inference ms per sample at batch 1) depend on the machine.", ""]
+                "inference ms per sample at batch 1) depend on the machine." + _other_metrics(), ""]
     if outdated:  # before the tables, so nobody quotes their numbers without seeing it
         out += ["## Warning: cells computed by older code", "",
                 "These cells were computed by an older revision of their model's or dataset's code than the one "
@@ -248,15 +257,19 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
             "(`tools/interval_coverage.py`). Models whose intervals overlap widely are not told apart by these "
             "cells.", ""]
     intervals = _intervals(records)
+    extra = metric_columns()
+    labels = {m.name: m.label for m in registered_metrics()}
     rows = [[s["model"], s["recipe"], s["dataset"], str(s["n_cells"]),
              f"{_f(s['accuracy_mean'])} ± {_f(s['accuracy_std'])}",
              _interval(intervals.get((s["model"], s["dataset"]))),
-             _f(s["balanced_accuracy_mean"]), _f(s["macro_f1_mean"]), _f(s["train_seconds_mean"], 1), _f(s["rank"]),
-             _f(s["mean_rank"], 2)]
+             _f(s["balanced_accuracy_mean"]), _f(s["macro_f1_mean"]), *[_f(s[f"{m}_mean"]) for m in extra],
+             _f(s["train_seconds_mean"], 1), _f(s["rank"]), _f(s["mean_rank"], 2)]
             for s in sorted(summary, key=lambda s: (s["dataset"], s["rank"] or 1e9, s["model"]))]
     out.append(_table(["model", "recipe", "dataset", "cells", "accuracy", "95 % interval", "balanced acc.",
-                       "macro-F1", "train s", "rank", "mean rank"], rows) if rows else "No finished cell yet.")
+                       "macro-F1", *[labels[m] for m in extra], "train s", "rank", "mean rank"], rows)
+               if rows else "No finished cell yet.")
     out.append("")
+    out += _unavailable_legend(board)
     out += _reference_section(records)
     out += _tuning_section(records)
     if "heatmap" in figures:
@@ -296,6 +309,30 @@ def _markdown(run: RunDir, records: list[dict[str, Any]], board: list[dict[str, 
     out += ["Per-cell numbers: `leaderboard.csv`; per model and dataset: `summary.csv`; everything else (predictions, "
             "probabilities, curves, configs) is in `cells/*.json`.", ""]
     return "\n".join(out)
+
+
+def _other_metrics() -> str:
+    """The sentence that introduces the registered metrics beyond the three fixed ones (none: nothing)."""
+    extra = [m for m in registered_metrics() if m.name in metric_columns()]
+    if not extra:
+        return ""
+    return (" Also on the test split, computed from what each cell file stores of it: "
+            + ", ".join(f"{m.label} (`{m.name}`, from the {m.needs})" for m in extra) + ".")
+
+
+def _unavailable_legend(board: list[dict[str, Any]]) -> list[str]:
+    """The legend of :data:`~.tables.UNAVAILABLE`: per metric, the cells that store no input it needs."""
+    why = {"probabilities": "a test split too large to keep them, or a record older than stored probabilities",
+           "predictions": "a record older than stored predictions"}
+    lines = []
+    for metric in registered_metrics():
+        cells = [row for row in board if row.get(metric.name) == UNAVAILABLE]
+        if cells:
+            where = ", ".join(sorted({f"{row['model']} on {row['dataset']}" for row in cells}))
+            lines.append(f"- `{UNAVAILABLE}` ({metric.label}): {len(cells)} cell file(s) store no test "
+                         f"{metric.needs}, which `{metric.name}` needs ({why[metric.needs]}): {where}. A mean over "
+                         f"such a cell is `{UNAVAILABLE}` too.")
+    return lines + [""] if lines else []
 
 
 def _intervals(records: list[dict[str, Any]]) -> dict[tuple[str, str], tuple[float, float] | None]:

@@ -9,6 +9,15 @@ the committed one byte for byte.
 
 Rows are plain dicts of Python values (``None`` where a value is missing), so callers and ``rows_to_csv`` never see
 numpy scalars (``repr(np.float64(x))`` is not ``repr(x)``) or NaN placeholders.
+
+The test metrics are the registered ones (:func:`tactile_zoo.engine.metrics.register_metric`), computed from the
+targets, predictions and class probabilities each record stores of its test split, so a metric registered today
+has a value for every finished cell. ``accuracy``, ``balanced_accuracy`` and ``macro_f1`` keep their fixed
+columns; every other metric gets a column after ``error`` (``<name>_mean`` in the summary). Where a record stores
+no input the metric needs (the probabilities of a test split over ``MAX_PROBABILITY_ROWS`` samples, or predictions
+in an older record), the cell shows :data:`UNAVAILABLE`, and so does a summary mean over it; a metric the record
+also stores as a number (the three above) falls back to that number. A row without a test split (a failed cell, a
+tuning trial) has no test metrics: its cells stay empty, as before.
 """
 
 from __future__ import annotations
@@ -19,13 +28,14 @@ import math
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
+from ..engine.metrics import MetricError, MetricInputMissing, metric_value, registered_metrics
 from .records import recipe_name_of
 
 if TYPE_CHECKING:  # pandas is imported on first use: it adds most of a second to every worker's start-up
     import pandas as pd
 
-__all__ = ["LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows",
-           "rows_to_csv", "prefix_label", "reference_rows"]
+__all__ = ["LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "TIMING_COLUMNS", "UNAVAILABLE", "leaderboard_rows",
+           "summary_rows", "rows_to_csv", "prefix_label", "reference_rows", "metric_columns", "record_metrics"]
 
 #: The leaderboard's fixed columns (the issue's list, in its order); extra columns follow ``error``:
 #: ``accuracy_<split>`` for each extra test split, ``accuracy_at_<p>`` per prefix percentage, ``earliness``.
@@ -42,6 +52,14 @@ SUMMARY_COLUMNS = (
 TIMING_COLUMNS = ("train_seconds", "infer_ms_per_sample", "peak_memory_mb", "train_seconds_mean")
 
 _SORT_KEYS = ("model", "dataset", "fold", "seed", "config_hash")
+#: what a metric's cell shows where the record stores no input the metric needs (report.md says which, below its
+#: summary table); never left blank, which would read as "not run"
+UNAVAILABLE = "n/a"
+#: the registered metrics that have fixed leaderboard columns
+_FIXED_METRICS = ("accuracy", "balanced_accuracy", "macro_f1")
+#: names a registered metric cannot take: they are other columns of the tables
+_TAKEN = (set(LEADERBOARD_COLUMNS) - set(_FIXED_METRICS)) | {"earliness", "evaluation", "val_accuracy",
+                                                              "best_test_epoch_accuracy", "recipe"}
 
 
 def _pd() -> Any:
@@ -61,11 +79,48 @@ def _num(value: Any) -> Any:
     return value
 
 
-def _cell_row(rec: dict[str, Any], extra_splits: set[str], prefixes: set[float]) -> dict[str, Any]:
+def metric_columns() -> list[str]:
+    """The registered metrics without a fixed leaderboard column, in registration order: the extra metric columns.
+
+    Raises:
+        MetricError: a registered metric whose name is another column of the tables.
+    """
+    names = [m.name for m in registered_metrics() if m.name not in _FIXED_METRICS]
+    taken = [n for n in names if n in _TAKEN]
+    if taken:
+        raise MetricError(f"metric {taken[0]!r} has the name of another table column; register it under another name")
+    return names
+
+
+def record_metrics(rec: dict[str, Any]) -> dict[str, Any]:
+    """Every registered metric of the record's ``test`` split, from its stored predictions or probabilities: a number,
+    ``None`` (an empty split), or :data:`UNAVAILABLE` where the record stores no input the metric needs and no value
+    of it either. ``{}`` for a record without test metrics (a failed cell, a tuning trial).
+
+    Raises:
+        MetricError: a metric raised or returned no number; the message names the metric and the cell.
+    """
+    test = (rec.get("metrics") or {}).get("test") or {}
+    if not test:
+        return {}
+    split = (rec.get("predictions") or {}).get("test") or {}
+    where = f"cell {rec.get('cell_id', '?')} ({rec.get('model')} on {rec.get('dataset')})"
+    out: dict[str, Any] = {}
+    for metric in registered_metrics():
+        try:
+            out[metric.name] = metric_value(metric, split, where)
+        except MetricInputMissing:
+            # the record's own number where it stores one (the three fixed metrics), else say it is missing
+            out[metric.name] = test[metric.name] if metric.name in test else UNAVAILABLE
+    return out
+
+
+def _cell_row(rec: dict[str, Any], extra_splits: set[str], prefixes: set[float], extra_metrics: list[str]
+              ) -> dict[str, Any]:
     """A cell record flattened to one leaderboard row; adds the extra test splits and prefix fractions it has to
     ``extra_splits`` and ``prefixes`` (the table's extra columns)."""
     metrics = rec.get("metrics") or {}
-    test = metrics.get("test") or {}
+    test = record_metrics(rec)
     versions = rec.get("versions") or {}
     row: dict[str, Any] = {
         "model": rec["model"], "recipe": recipe_name_of(rec.get("config") or {}), "dataset": rec["dataset"],
@@ -79,6 +134,7 @@ def _cell_row(rec: dict[str, Any], extra_splits: set[str], prefixes: set[float])
         "config_hash": rec.get("config_hash"), "tactile_zoo_version": versions.get("tactile_zoo"),
         "torch_version": versions.get("torch"), "error": rec.get("error"),
     }
+    row.update({name: test.get(name) for name in extra_metrics})
     for split, split_metrics in metrics.items():
         if split not in ("test", "val") and split_metrics:
             extra_splits.add(split)
@@ -123,8 +179,10 @@ def leaderboard_rows(records: Iterable[dict[str, Any]], skipped: Iterable[dict[s
     """One row per cell (and per skipped model x dataset pair); returns ``(rows, columns)``."""
     extra_splits: set[str] = set()
     prefixes: set[float] = set()
-    rows = [_cell_row(rec, extra_splits, prefixes) for rec in records] + [_skipped_row(skip) for skip in skipped]
-    columns = list(LEADERBOARD_COLUMNS) + [f"accuracy_{s}" for s in sorted(extra_splits)] + \
+    extra_metrics = metric_columns()
+    rows = [_cell_row(rec, extra_splits, prefixes, extra_metrics) for rec in records] + \
+        [_skipped_row(skip) for skip in skipped]
+    columns = list(LEADERBOARD_COLUMNS) + extra_metrics + [f"accuracy_{s}" for s in sorted(extra_splits)] + \
         [f"accuracy_at_{prefix_label(p)}" for p in sorted(prefixes)] + (["earliness"] if prefixes else [])
     if any(row.get("evaluation") == "reference" for row in rows):
         # --evaluation reference: ``accuracy`` is the final epoch's (nothing selected); the best test epoch's
@@ -137,12 +195,16 @@ def leaderboard_rows(records: Iterable[dict[str, Any]], skipped: Iterable[dict[s
     return (_sorted(rows) if rows else []), columns
 
 
-def _mean(values: list[Any]) -> float | None:
+def _mean(values: list[Any]) -> float | str | None:
+    if UNAVAILABLE in values:
+        return UNAVAILABLE  # a mean over the cells that have the metric would pass for a mean over all of them
     values = [v for v in values if v is not None]
     return sum(values) / len(values) if values else None
 
 
-def _std(values: list[Any]) -> float | None:
+def _std(values: list[Any]) -> float | str | None:
+    if UNAVAILABLE in values:
+        return UNAVAILABLE
     values = [v for v in values if v is not None]
     if len(values) < 2:
         return None  # one cell has no spread to report
@@ -167,7 +229,9 @@ def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple
     accuracy, ties share the best rank) and each model-and-recipe's mean rank over the datasets it ran on. Two
     recipes of one model are two rows, never one average."""
     pd = _pd()
-    extra = [c for c in columns if c.startswith("accuracy_") and c not in ("accuracy_mean",)] + \
+    named = {m.name for m in registered_metrics()} - set(_FIXED_METRICS)
+    extra = [c for c in columns if c in named] + \
+        [c for c in columns if c.startswith("accuracy_") and c not in ("accuracy_mean",)] + \
         (["earliness"] if "earliness" in columns else [])
     averaged = ["accuracy", "balanced_accuracy", "macro_f1", "train_seconds", *extra]
     ok = [row for row in leaderboard if row.get("status") == "ok"]
@@ -191,7 +255,8 @@ def summary_rows(leaderboard: list[dict[str, Any]], columns: list[str]) -> tuple
         out.append(entry)
     # a model's recipes rank as separate entries ("x_tacformer zoo" beside "x_tacformer source")
     frame = pd.DataFrame({"model": [f"{e['model']} {e['recipe']}" for e in out], "dataset": [e["dataset"] for e in out],
-                          "accuracy_mean": [e["accuracy_mean"] for e in out]}, dtype=object)
+                          "accuracy_mean": [None if e["accuracy_mean"] == UNAVAILABLE else e["accuracy_mean"]
+                                            for e in out]}, dtype=object)
     for entry, rank, mean_rank in zip(out, *_ranks(frame)):
         entry["rank"], entry["mean_rank"] = rank, mean_rank
     return out, summary_columns

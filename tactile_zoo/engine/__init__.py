@@ -17,12 +17,20 @@ from .evaluate import (
     time_inference,
 )
 from .metrics import (
+    NEEDS,
+    Metric,
+    MetricError,
+    MetricInputMissing,
     accuracy,
     balanced_accuracy,
     classification_metrics,
     confusion_matrix,
     macro_f1,
+    metric_value,
+    register_metric,
+    registered_metrics,
     scores_to_probabilities,
+    unregister_metric,
 )
 from .runtime import PeakMemory, count_parameters, resolve_device, seed_everything
 from .tensors import TensorSplit, as_split, concat, take
@@ -33,5 +41,7 @@ __all__ = [
     "resolve_recipe", "accuracy", "balanced_accuracy", "macro_f1", "confusion_matrix", "classification_metrics",
     "scores_to_probabilities", "predict_scores", "prefix_evaluation", "time_inference", "earliness",
     "DEFAULT_PREFIXES", "resolve_device", "seed_everything", "PeakMemory", "count_parameters", "TensorSplit",
-    "as_split", "take", "concat", "save_checkpoint", "load_checkpoint", "build_from_checkpoint",
+    "as_split", "take", "concat", "save_checkpoint", "load_checkpoint", "build_from_checkpoint", "Metric",
+    "MetricError", "MetricInputMissing", "NEEDS", "register_metric", "unregister_metric", "registered_metrics",
+    "metric_value",
 ]

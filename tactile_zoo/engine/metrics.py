@@ -12,6 +12,11 @@ The metrics are scikit-learn's (``sklearn.metrics``), so numbers are comparable 
 An empty split gives NaN scores and an all-zero confusion matrix (scikit-learn raises there instead). Labels must lie in
 ``[0, num_classes)``: scikit-learn would silently drop the others from the confusion matrix.
 
+The tables and ``tactile-zoo report`` read their test metrics from a registry (:func:`register_metric`): each
+registered metric is one function of the labels and either the predictions or the class probabilities, computed
+from what every cell record stores of its test split, so a metric added here appears for every finished cell,
+committed ones included. ``accuracy``, ``balanced_accuracy`` and ``macro_f1`` are registered below.
+
 Probabilities: ``softmax(scores)`` for a model trained with cross-entropy (``loss="ce"``, scores are logits);
 for spike-rate outputs (``loss="mse_rate"``) the rates are clipped at 0 and normalised to sum 1, a sample whose rates
 are all zero getting the uniform distribution.
@@ -20,17 +25,128 @@ are all zero getting the uniform distribution.
 from __future__ import annotations
 
 import contextlib
+import math
+import re
 import warnings
-from collections.abc import Iterator, Sequence
-from typing import Any
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
 
+from ..errors import ConfigError, TactileZooError
+
 __all__ = ["accuracy", "balanced_accuracy", "macro_f1", "confusion_matrix", "classification_metrics",
-           "scores_to_probabilities"]
+           "scores_to_probabilities", "Metric", "MetricError", "MetricInputMissing", "NEEDS", "register_metric",
+           "unregister_metric", "registered_metrics", "metric_value"]
 
 ArrayLike = Sequence[int] | np.ndarray | torch.Tensor
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+#: what a metric can be computed from, besides the true labels: the predicted classes, or the class probabilities
+NEEDS = ("predictions", "probabilities")
+# a metric becomes a table column (``leaderboard.csv``) and ``<name>_mean`` (``summary.csv``): a plain lower-case name
+_NAME = re.compile(r"[a-z][a-z0-9_]*")
+
+
+class MetricError(TactileZooError):
+    """A registered metric that raised, or returned something other than a number; the message names the metric."""
+
+
+class MetricInputMissing(LookupError):
+    """A split stores no ``needs`` (class probabilities, or predictions) for the metric ``name``."""
+
+    def __init__(self, name: str, needs: str) -> None:
+        super().__init__(f"metric {name!r} needs {needs}, which the split does not store")
+        self.name, self.needs = name, needs
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One registered metric: ``fn(labels, predictions)`` or ``fn(labels, probabilities)`` -> a number.
+
+    Attributes:
+        name: the column name (``leaderboard.csv``; ``<name>_mean`` in ``summary.csv``).
+        needs: ``"predictions"`` (int64 class indices ``[N]``) or ``"probabilities"`` (float64 ``[N, K]``).
+        fn: the function; the labels it gets are int64 ``[N]``.
+        label: the column title in ``report.md``.
+    """
+
+    name: str
+    needs: str
+    fn: Callable[[np.ndarray, np.ndarray], float]
+    label: str
+
+
+_METRICS: dict[str, Metric] = {}
+
+
+def register_metric(name: str, needs: str = "predictions", label: str | None = None) -> Callable[[_F], _F]:
+    """Decorator: register ``fn(labels, predictions)`` (or ``fn(labels, probabilities)``) as the metric ``name``.
+
+    The function is returned unchanged. The tables compute it from each cell record's stored test split; a record
+    that lacks what it ``needs`` shows a marker instead (see :mod:`tactile_zoo.bench.tables`).
+
+    Args:
+        name: a lower-case name (``[a-z][a-z0-9_]*``), not yet registered and not starting with ``accuracy_`` (the
+            tables' per-split and per-prefix accuracy columns).
+        needs: ``"predictions"`` or ``"probabilities"``.
+        label: the column title in ``report.md`` (default: ``name``).
+
+    Raises:
+        ConfigError: a bad or taken name, or an unknown ``needs``.
+    """
+    if not isinstance(name, str) or not _NAME.fullmatch(name) or name.startswith("accuracy_"):
+        raise ConfigError(f"metric name {name!r}: expected lower-case letters, digits and _ (not accuracy_...)")
+    if needs not in NEEDS:
+        raise ConfigError(f"metric {name!r}: needs={needs!r}; expected one of {', '.join(NEEDS)}")
+    if name in _METRICS:
+        raise ConfigError(f"metric {name!r} is already registered (by {_METRICS[name].fn.__module__})")
+
+    def decorate(fn: _F) -> _F:
+        _METRICS[name] = Metric(name, needs, fn, label or name)
+        return fn
+
+    return decorate
+
+
+def unregister_metric(name: str) -> None:
+    """Remove the metric ``name`` (a test's own metric, when the test ends); an unknown name is left alone."""
+    _METRICS.pop(name, None)
+
+
+def registered_metrics() -> tuple[Metric, ...]:
+    """Every registered metric, in registration order (the order of the table columns)."""
+    return tuple(_METRICS.values())
+
+
+def metric_value(metric: Metric, split: Mapping[str, Any], where: str = "") -> float | None:
+    """``metric`` computed from one stored split (``{"targets", "predictions"[, "probabilities"]}``, as a cell
+    record keeps it); ``None`` for an empty split or a NaN result.
+
+    Raises:
+        MetricInputMissing: the split stores no ``metric.needs``.
+        MetricError: the metric raised or returned something other than a real number (``where``, e.g. the cell,
+            is named with the metric).
+    """
+    values = split.get(metric.needs)
+    if values is None or split.get("targets") is None:
+        raise MetricInputMissing(metric.name, metric.needs)
+    at = f" on {where}" if where else ""
+    try:
+        labels = _np(split["targets"])
+        inputs = _np(values) if metric.needs == "predictions" else np.asarray(values, dtype=np.float64)
+        result = metric.fn(labels, inputs)
+    except Exception as exc:  # whatever a metric's own code raises, one error that names it
+        raise MetricError(f"metric {metric.name!r} ({metric.fn.__module__}.{metric.fn.__qualname__}) failed{at}: "
+                          f"{type(exc).__name__}: {exc}") from exc
+    if isinstance(result, (bool, np.bool_)) or not isinstance(result, (int, float, np.integer, np.floating)):
+        raise MetricError(f"metric {metric.name!r} returned {result!r}{at}; expected a number")
+    result = float(result)
+    if math.isinf(result):
+        raise MetricError(f"metric {metric.name!r} returned {result}{at}; expected a finite number")
+    return None if math.isnan(result) else result
 
 
 def _np(labels: ArrayLike) -> np.ndarray:
@@ -82,11 +198,13 @@ def confusion_matrix(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | No
         return _skm().confusion_matrix(t, p, labels=np.arange(k)).astype(np.int64, copy=False)
 
 
+@register_metric("accuracy", label="accuracy")
 def accuracy(y_true: ArrayLike, y_pred: ArrayLike) -> float:
     t, p = _pair(y_true, y_pred)
     return float(_skm().accuracy_score(t, p)) if t.size else float("nan")
 
 
+@register_metric("balanced_accuracy", label="balanced acc.")
 def balanced_accuracy(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | None = None) -> float:
     """Mean recall over the classes that occur in ``y_true``; ``num_classes`` only validates the labels (a class
     absent from ``y_true`` has no recall, whatever the number of classes)."""
@@ -99,6 +217,7 @@ def balanced_accuracy(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | N
         return float(_skm().balanced_accuracy_score(t, p))
 
 
+@register_metric("macro_f1", label="macro-F1")
 def macro_f1(y_true: ArrayLike, y_pred: ArrayLike, num_classes: int | None = None) -> float:
     """Mean F1 over the classes in ``y_true`` or ``y_pred`` (classes in neither do not count, whatever
     ``num_classes``, which only validates the labels)."""

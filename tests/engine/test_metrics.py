@@ -6,13 +6,20 @@ import torch
 from sklearn import metrics as skm
 
 from tactile_zoo.engine.metrics import (
+    MetricError,
+    MetricInputMissing,
     accuracy,
     balanced_accuracy,
     classification_metrics,
     confusion_matrix,
     macro_f1,
+    metric_value,
+    register_metric,
+    registered_metrics,
     scores_to_probabilities,
+    unregister_metric,
 )
+from tactile_zoo.errors import ConfigError
 
 
 @pytest.mark.filterwarnings("ignore:y_pred contains classes not in y_true")
@@ -92,3 +99,52 @@ def test_probabilities_rates_normalised_and_uniform_when_silent() -> None:
     torch.testing.assert_close(probs.sum(-1), torch.ones(3))
     with pytest.raises(ValueError, match="unknown loss"):
         scores_to_probabilities(rates, "hinge")
+
+
+# ----------------------------------------------------------------------------------------------- the registry
+def test_the_three_fixed_metrics_are_registered_first_and_match_the_stored_ones() -> None:
+    fixed = registered_metrics()[:3]
+    assert [(m.name, m.needs, m.label) for m in fixed] == [
+        ("accuracy", "predictions", "accuracy"), ("balanced_accuracy", "predictions", "balanced acc."),
+        ("macro_f1", "predictions", "macro-F1")]
+    split = {"targets": [0, 1, 2, 2, 1, 0, 2], "predictions": [0, 2, 2, 2, 1, 1, 0]}
+    stored = classification_metrics(split["targets"], split["predictions"], 3)
+    assert {m.name: metric_value(m, split) for m in fixed} == {k: stored[k] for k in (m.name for m in fixed)}
+
+
+@pytest.mark.parametrize(("name", "needs"), [("Top2", "predictions"), ("accuracy_test", "predictions"),
+                                             ("2nd", "predictions"), ("ok_name", "logits"),
+                                             ("accuracy", "predictions")])
+def test_a_bad_or_taken_name_or_need_is_refused(name: str, needs: str) -> None:
+    before = registered_metrics()
+    with pytest.raises(ConfigError, match=repr(name)):
+        register_metric(name, needs=needs)(lambda labels, predictions: 0.0)
+    assert registered_metrics() == before
+
+
+def test_metric_value_reads_the_stored_split_and_names_a_broken_metric() -> None:
+    seen = []
+
+    @register_metric("probe_mean_prob", needs="probabilities")
+    def probe(labels: np.ndarray, probabilities: np.ndarray) -> float:
+        seen.append((labels.dtype, labels.shape, probabilities.dtype, probabilities.shape))
+        return float(probabilities[np.arange(len(labels)), labels].mean())
+
+    register_metric("probe_text")(lambda labels, predictions: "high")
+    register_metric("probe_nan")(lambda labels, predictions: float("nan"))
+    try:
+        metric = {m.name: m for m in registered_metrics()}
+        split = {"targets": [1, 0], "predictions": [1, 1], "probabilities": [[0.25, 0.75], [0.5, 0.5]]}
+        assert metric_value(metric["probe_mean_prob"], split) == 0.625
+        assert seen == [(np.dtype(np.int64), (2,), np.dtype(np.float64), (2, 2))]
+        with pytest.raises(MetricInputMissing, match="probabilities"):
+            metric_value(metric["probe_mean_prob"], {"targets": [1], "predictions": [1]})
+        with pytest.raises(MetricError, match=r"metric 'probe_text' returned 'high' on cell x; expected a number"):
+            metric_value(metric["probe_text"], split, "cell x")
+        assert metric_value(metric["probe_nan"], split) is None  # as an empty split's accuracy: no number
+        with pytest.raises(MetricError, match=r"metric 'probe_mean_prob' .*failed on cell y: IndexError"):
+            metric_value(metric["probe_mean_prob"], {"targets": [5], "probabilities": [[0.5, 0.5]]}, "cell y")
+    finally:
+        for name in ("probe_mean_prob", "probe_text", "probe_nan"):
+            unregister_metric(name)
+    assert "probe_text" not in {m.name for m in registered_metrics()}
