@@ -42,14 +42,17 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "RECT", "ATAN", "CHUNK",
-           "EVERY", "SERIAL_BELOW", "checkpoint_rows"]
+__all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "active_csr", "RECT", "ATAN",
+           "CHUNK", "FORWARD_CHUNK", "EVERY", "SERIAL_BELOW", "checkpoint_rows"]
 
 #: Surrogate kinds the kernels evaluate themselves (others stay on the torch path).
 RECT, ATAN = 0, 1
 #: Neurons per work item: each step reads a contiguous run of CHUNK floats (32 KB) from every (T, N) array, and the
 #: backward's (EVERY + 1, CHUNK) window of membranes (544 KB) stays in L2 with its working rows.
 CHUNK = 8192
+#: Most neurons per work item of the forward, which sweeps whole rows step by step (time-major): its two membrane
+#: rows (512 KB each at most) stay in L2 while x and the spikes stream through. SGnet's 32 x 2496 is one row.
+FORWARD_CHUNK = 1 << 17
 #: Steps between two membrane checkpoints of the forward, which the backward recomputes its windows from.
 EVERY = 16
 #: Sequences with fewer elements (steps x neurons) than this run the serial builds even with several threads.
@@ -147,21 +150,50 @@ def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, 
 
 @_jit
 def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.float32, thr: np.float32,
-                 th_up: np.float32, subtract: bool) -> None:
-    """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif_fused._advance``."""
+                 th_up: np.float32, subtract: bool, scale: np.float32, scaled: bool) -> None:
+    """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif_fused._advance``;
+    with ``scaled`` the input is ``x * scale`` (one float32 multiply, as ``x * input_scale`` rounds it in torch)."""
     one, zero = np.float32(1.0), np.float32(0.0)
     if subtract:  # addcmul(x, U, ones, value=beta) then sub_(R, alpha=thr): fma(beta * U, 1, x), then fma(R, -thr, .)
         inf, nthr = np.float32(np.inf), -thr
-        for j in range(out.shape[0]):
-            p = prev[j]
-            r = one if (thr < p) & (p < inf) else zero  # R = (U > thr)
-            out[j] = _fma(r, nthr, _fma(beta * p, one, x[j]))
+        if scaled:
+            for j in range(out.shape[0]):
+                p = prev[j]
+                r = one if (thr < p) & (p < inf) else zero
+                out[j] = _fma(r, nthr, _fma(beta * p, one, x[j] * scale))
+        else:
+            for j in range(out.shape[0]):
+                p = prev[j]
+                r = one if (thr < p) & (p < inf) else zero  # R = (U > thr)
+                out[j] = _fma(r, nthr, _fma(beta * p, one, x[j]))
     else:  # addcmul(x, U, 1 - R, value=beta): fma(beta * U, 1 - R, x)
         ninf = np.float32(-np.inf)
-        for j in range(out.shape[0]):
-            p = prev[j]
-            keep = one if (ninf < p) & (p < th_up) else zero  # 1 - R = (U <= thr)
-            out[j] = _fma(beta * p, keep, x[j])
+        if scaled:
+            for j in range(out.shape[0]):
+                p = prev[j]
+                keep = one if (ninf < p) & (p < th_up) else zero
+                out[j] = _fma(beta * p, keep, x[j] * scale)
+        else:
+            for j in range(out.shape[0]):
+                p = prev[j]
+                keep = one if (ninf < p) & (p < th_up) else zero  # 1 - R = (U <= thr)
+                out[j] = _fma(beta * p, keep, x[j])
+
+
+@_jit
+def _spike_row(mem: np.ndarray, out: np.ndarray, thr: np.float32) -> None:
+    """``out = (mem > thr)`` as 0/1: ``open_interval_mask(U, thr, inf)``."""
+    one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
+    for j in range(out.shape[0]):
+        u = mem[j]
+        out[j] = one if (thr < u) & (u < inf) else zero
+
+
+@_jit
+def _scale_row(row: np.ndarray, scale: np.float32) -> None:
+    """``row *= scale``, one rounding each (``mul`` by a float32 scalar)."""
+    for j in range(row.shape[0]):
+        row[j] = row[j] * scale
 
 
 def checkpoint_rows(steps: int) -> int:
@@ -170,13 +202,16 @@ def checkpoint_rows(steps: int) -> int:
 
 
 def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.ndarray, ckpt: np.ndarray, save: bool,
-                beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, chunk: int) -> None:
+                beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, chunk: int,
+                in_scale: np.float32, scaled: bool) -> None:
     """Forward time loop. ``x (T, N)``, ``mem0 (N,)`` in; ``spikes (T, N)`` and ``last (N,)`` out (float32, C order).
     With ``save``, ``ckpt (checkpoint_rows(T), N)`` receives the membrane before every :data:`EVERY`-th step (row 0
-    is ``mem0``), which :func:`lif_backward` recomputes from."""
+    is ``mem0``), which :func:`lif_backward` recomputes from. With ``scaled`` the input current is ``x * in_scale``.
+
+    Time-major: each work item sweeps its ``chunk`` neurons (the caller passes the whole row, up to
+    :data:`FORWARD_CHUNK`) step after step, so its two membrane rows stay in L2 while ``x`` and the spikes stream."""
     steps, n = x.shape
     csr = _get_csr() & _MODE
-    one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
     for c in prange((n + chunk - 1) // chunk):
         own = _get_csr()
         _set_csr(csr)  # the caller's denormal and rounding modes
@@ -188,11 +223,8 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
         for s in range(steps):
             if save and s % EVERY == 0:
                 ckpt[s // EVERY, n0:n1] = mem
-            _advance_row(mem, x[s, n0:n1], nxt, beta, thr, th_up, subtract)
-            row = spikes[s, n0:n1]
-            for j in range(n1 - n0):
-                u = nxt[j]
-                row[j] = one if (thr < u) & (u < inf) else zero  # S = (U > thr): open_interval_mask(U, thr, inf)
+            _advance_row(mem, x[s, n0:n1], nxt, beta, thr, th_up, subtract, in_scale, scaled)
+            _spike_row(nxt, spikes[s, n0:n1], thr)  # S = (U > thr); the row is still in L1/L2
             mem, nxt = nxt, mem
         last[n0:n1] = mem
         _set_csr(own)
@@ -201,12 +233,15 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
 def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_grad_spikes: bool,
                  grad_last: np.ndarray, has_grad_last: bool, grad_x: np.ndarray, grad_mem0: np.ndarray,
                  beta: np.float32, thr: np.float32, th_up: np.float32, subtract: bool, detach_reset: bool, kind: int,
-                 lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32, block: int, chunk: int) -> None:
+                 lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32, block: int, chunk: int,
+                 in_scale: np.float32, scaled: bool) -> None:
     """Backward time loop. Recomputes the membranes of each :data:`EVERY`-step window, last window first, from the
     forward's checkpoints ``ckpt`` and from ``x``, then carries dL/dU back through the window as
     :meth:`tactile_zoo.nn.lif_fused._FusedLIF.backward` does, its ``block`` boundaries included. ``grad_spikes
     (T, N)`` and ``grad_last (N,)`` are read only where their ``has_`` flag is set; writes ``grad_x (T, N)`` and
-    ``grad_mem0 (N,)``."""
+    ``grad_mem0 (N,)``. With ``scaled`` the forward's input was ``x * in_scale``: the membranes are recomputed from
+    it, and each row of ``grad_x`` is multiplied by ``in_scale`` once the recurrence has read it (``MulBackward``'s
+    ``grad * in_scale``, one rounding)."""
     steps, n = x.shape
     csr = _get_csr() & _MODE
     one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
@@ -231,7 +266,8 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
                 s0 = s - s % EVERY
                 hist[0] = ckpt[s0 // EVERY, n0:n1]
                 for k in range(s + 1 - s0):
-                    _advance_row(hist[k], x[s0 + k, n0:n1], hist[k + 1], beta, thr, th_up, subtract)
+                    _advance_row(hist[k], x[s0 + k, n0:n1], hist[k + 1], beta, thr, th_up, subtract, in_scale,
+                                 scaled)
                 if s == steps - 1:
                     _surrogate_row(hist[s + 1 - s0], thr, kind, lo, hi, c1, c2, sg)  # S'(U[T-1])
             g = grad_x[s, n0:n1]
@@ -273,11 +309,37 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
                     for j in range(width):
                         m = u_prev[j]
                         decay[j] = _fma(-m, sg[j], one if (ninf < m) & (m < th_up) else zero)
+            if scaled and s + 1 < steps:  # dL/dU[s + 1] has been read for the last time: make it dL/dx[s + 1]
+                _scale_row(g_next, in_scale)
             g_next = g
         gm = grad_mem0[n0:n1]
         for j in range(width):  # the carry out of the first block: dL/dmem0
             gm[j] = g_next[j] * beta if plain else (g_next[j] * decay[j]) * scale
+        if scaled:
+            _scale_row(g_next, in_scale)
         _set_csr(own)
+
+
+@_jit
+def active_csr(spikes: np.ndarray, indptr: np.ndarray) -> np.ndarray:
+    """The nonzero columns of each row of ``spikes (R, F)``, in CSR form: fills ``indptr (R + 1,)`` (int64) and
+    returns ``indices (indptr[R],)`` (int32), the columns of row ``r`` in ``indices[indptr[r]:indptr[r + 1]]``,
+    ascending. Two passes: a count per row, then a branch-free fill (every column is written, the count advances
+    where the spike is nonzero)."""
+    rows, cols = spikes.shape
+    indptr[0] = 0
+    for r in range(rows):
+        row, count = spikes[r], 0
+        for j in range(cols):
+            count += row[j] != 0
+        indptr[r + 1] = indptr[r] + count
+    out = np.empty(indptr[rows] + 1, dtype=np.int32)  # one spare slot for the fill's last unconditional write
+    for r in range(rows):
+        row, k = spikes[r], indptr[r]
+        for j in range(cols):
+            out[k] = j
+            k += row[j] != 0
+    return out[:indptr[rows]]
 
 
 # Launching a parallel region wakes numba's worker threads, which costs tens of microseconds on a quiet machine and
