@@ -57,6 +57,7 @@ FORWARD_CHUNK = 1 << 17
 EVERY = 16
 #: Sequences with fewer elements (steps x neurons) than this run the serial builds even with several threads.
 SERIAL_BELOW = 1 << 16
+_PLAIN, _SUB, _ZERO_DETACHED, _ZERO = 0, 1, 2, 3  # how dU[t]/dU[t-1] is formed (lif_backward's reset modes)
 _MODE = np.uint32(0xFFFFFFC0)  # MXCSR without its sticky exception flags (bits 0-5): the mode to copy
 
 
@@ -146,6 +147,37 @@ def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, 
             t = (mem[j] - thr) * c1
             t = t * t
             out[j] = (one / (t + one)) * c2
+
+
+@_jit
+def _carry_row(gs: np.ndarray, sg: np.ndarray, decay: np.ndarray, g_next: np.ndarray, g: np.ndarray,
+               u_prev: np.ndarray, beta: np.float32, scale: np.float32, thr: np.float32, th_up: np.float32,
+               mode: int, kind: int, lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32) -> None:
+    """An ordinary step of the backward (grad_spikes given, no block boundary) in one pass over the row instead of
+    four: ``g = gs * S'(U[s])`` plus the carry of ``g_next`` as in :func:`lif_backward`, then ``sg = S'(U[s-1])``
+    and ``decay = dU[s]/dU[s-1]`` from ``u_prev = U[s-1]`` -- per element the same operations in the same order.
+    ``mode``: :data:`_PLAIN` (detached subtractive reset), :data:`_SUB`, :data:`_ZERO_DETACHED`, :data:`_ZERO`."""
+    one, zero, ninf, nthr = np.float32(1.0), np.float32(0.0), np.float32(-np.inf), -thr
+    for j in range(g.shape[0]):
+        if mode == _PLAIN:
+            g[j] = _fma(g_next[j], beta, gs[j] * sg[j])
+        else:
+            g[j] = _fma(scale * g_next[j], decay[j], gs[j] * sg[j])
+        m = u_prev[j]
+        if kind == RECT:
+            u = m - thr
+            v = one if (lo < u) & (u < hi) else zero
+        else:
+            t = (m - thr) * c1
+            t = t * t
+            v = (one / (t + one)) * c2
+        sg[j] = v
+        if mode == _SUB:
+            decay[j] = v * nthr + beta
+        elif mode == _ZERO_DETACHED:
+            decay[j] = one if (ninf < m) & (m < th_up) else zero
+        elif mode == _ZERO:
+            decay[j] = _fma(-m, v, one if (ninf < m) & (m < th_up) else zero)
 
 
 @_jit
@@ -272,6 +304,7 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
     # dU[t]/dU[t-1] is applied as fma(scale * g, decay, .); with a detached subtractive reset it is beta itself,
     # applied as fma(g, beta, .) (add_(g, alpha=beta)) -- a different rounding, hence its own branches below
     plain = subtract and detach_reset
+    mode = _PLAIN if plain else _SUB if subtract else _ZERO_DETACHED if detach_reset else _ZERO
     scale = one if subtract else beta
     nthr = -thr
     for c in prange((n + chunk - 1) // chunk):
@@ -295,6 +328,14 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
                 if s == steps - 1:
                     _surrogate_row(hist[s + 1 - s0], thr, kind, lo, hi, c1, c2, sg)  # S'(U[T-1])
             g = grad_x[s, n0:n1]
+            u_prev = hist[s - s0]  # U[s-1]
+            if has_grad_spikes and s + 1 < steps and (s + 1) % block != 0:  # the usual step: one pass
+                _carry_row(grad_spikes[s, n0:n1], sg, decay, g_next, g, u_prev, beta, scale, thr, th_up, mode, kind,
+                           lo, hi, c1, c2)
+                if scaled:
+                    _scale_row(g_next, in_scale)
+                g_next = g
+                continue
             if has_grad_spikes:  # mul(grad_spikes, S'(U[s]))
                 gs = grad_spikes[s, n0:n1]
                 for j in range(width):
@@ -319,7 +360,6 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
             else:  # addcmul_(g[s+1], decay[s+1], value=scale)
                 for j in range(width):
                     g[j] = _fma(scale * g_next[j], decay[j], g[j])
-            u_prev = hist[s - s0]  # U[s-1]
             _surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
             if subtract and not plain:  # mul(S'(U[s-1]), -thr).add_(beta): two roundings
                 for j in range(width):
