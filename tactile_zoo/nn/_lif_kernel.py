@@ -385,25 +385,21 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
 
 
 @_jit
-def active_csr(spikes: np.ndarray, indptr: np.ndarray) -> np.ndarray:
-    """The nonzero columns of each row of ``spikes (R, F)``, in CSR form: fills ``indptr (R + 1,)`` (int64) and
-    returns ``indices (indptr[R],)`` (int32), the columns of row ``r`` in ``indices[indptr[r]:indptr[r + 1]]``,
-    ascending. Two passes: a count per row, then a branch-free fill (every column is written, the count advances
-    where the spike is nonzero)."""
+def active_csr(spikes: np.ndarray, indptr: np.ndarray, out: np.ndarray) -> int:
+    """The nonzero columns of each row of ``spikes (R, F)`` in CSR form, in one pass: fills ``indptr (R + 1,)``
+    (int64) and ``out`` (int32, room for ``R * F + 1``) so that the columns of row ``r`` are
+    ``out[indptr[r]:indptr[r + 1]]``, ascending; returns the count. The fill has no branch: every column is written
+    and the position advances where the spike is nonzero (hence the spare slot)."""
     rows, cols = spikes.shape
     indptr[0] = 0
+    k = 0
     for r in range(rows):
-        row, count = spikes[r], 0
-        for j in range(cols):
-            count += row[j] != 0
-        indptr[r + 1] = indptr[r] + count
-    out = np.empty(indptr[rows] + 1, dtype=np.int32)  # one spare slot for the fill's last unconditional write
-    for r in range(rows):
-        row, k = spikes[r], indptr[r]
+        row = spikes[r]
         for j in range(cols):
             out[k] = j
             k += row[j] != 0
-    return out[:indptr[rows]]
+        indptr[r + 1] = k
+    return k
 
 
 # Launching a parallel region wakes numba's worker threads, which costs tens of microseconds on a quiet machine and

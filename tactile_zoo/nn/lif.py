@@ -34,7 +34,11 @@ membranes and gradients bit-identical to the torch implementation (tests/nn/test
 float32 CPU tensors with the ``rect`` or ``atan`` surrogate on x86-64 (ATen's AVX2/AVX512 kernels), numba installed;
 everything else, the GPU included, runs the torch implementation. The environment variable
 ``TACTILE_ZOO_LIF_BACKEND`` (:data:`~tactile_zoo.nn.lif_compiled.KERNEL_ENV`) chooses per call: ``auto`` (default),
-``torch`` (never the kernel) or ``numba`` (the kernel, and an error where it is unavailable).
+``torch`` (never the kernel) or ``numba`` (the kernel, and an error where it is unavailable). The kernel multiplies
+the input by ``input_scale`` inside its loops (the same float32 multiplies as a separate pass), and in training both
+paths write their spikes and input gradient into reused storages (:func:`tactile_zoo.nn.memory.reusable`).
+``return_active=True`` adds the active neurons of every step (:mod:`tactile_zoo.nn.lif_active`) for event-driven
+layers.
 """
 
 from __future__ import annotations
@@ -91,7 +95,8 @@ class MultiStepLIF(nn.Module):
     Shapes:
         - input ``x``: ``(T, *)`` time-major, any trailing shape; ``mem``: ``(*)`` or ``None`` (zeros).
         - output: spikes ``(T, *)`` as 0/1 floats; with ``return_mem=True`` also the last membrane ``(*)``, which
-          continues the sequence when passed back as ``mem``.
+          continues the sequence when passed back as ``mem``; with ``return_active=True`` (last) the active neurons
+          as :class:`~tactile_zoo.nn.lif_active.ActiveSpikes`.
     """
 
     def __init__(self, beta: float = 0.2, threshold: float = 0.5, reset: str = "zero",

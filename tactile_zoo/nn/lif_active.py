@@ -2,8 +2,9 @@
 spikes that fired only (an event-driven linear layer gathers the weight rows of its active inputs).
 
 ``MultiStepLIF(...)(x, return_active=True)`` returns them with the spikes; :func:`active_spikes` computes them from
-any spike tensor. On CPU for float32 spikes one compiled pass does it (:func:`tactile_zoo.nn._lif_kernel.active_csr`),
-elsewhere torch's ``nonzero``; both give the same arrays.
+any spike tensor. On CPU for float32 spikes one compiled pass does it (:func:`tactile_zoo.nn._lif_kernel.active_csr`,
+into a reused storage with room for every neuron: :func:`tactile_zoo.nn.memory.reusable`), elsewhere torch's
+``nonzero``; both give the same arrays.
 """
 
 from __future__ import annotations
@@ -13,7 +14,11 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from . import memory
+
 __all__ = ["ActiveSpikes", "active_spikes"]
+
+_INT32 = torch.empty(0, dtype=torch.int32)
 
 
 @dataclass(frozen=True)
@@ -66,8 +71,11 @@ def active_spikes(spikes: Tensor) -> ActiveSpikes:
         if kernels is not None:
             flat = flat.contiguous()
             indptr = torch.empty(flat.shape[0] + 1, dtype=torch.int64)
-            indices = kernels.active_csr(flat.numpy(), indptr.numpy())
-            return ActiveSpikes(indptr, torch.from_numpy(indices), shape)
+            # room for every neuron firing, from the pool of reused storages (a fresh tensor this large would cost
+            # more in page faults than the pass itself); the indices are a view of it, which keeps it in use
+            room = memory.reusable((flat.numel() + 1,), _INT32)
+            count = kernels.active_csr(flat.numpy(), indptr.numpy(), room.numpy())
+            return ActiveSpikes(indptr, room[:count], shape)
     nonzero = flat != 0
     indptr = torch.zeros(flat.shape[0] + 1, dtype=torch.int64, device=flat.device)
     torch.cumsum(nonzero.sum(1), 0, out=indptr[1:])

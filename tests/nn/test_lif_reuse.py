@@ -217,6 +217,8 @@ def test_active_spikes(monkeypatch: pytest.MonkeyPatch, shape: tuple[int, ...]) 
         expect = rows[r].nonzero().flatten()
         assert act.indices[act.indptr[r]:act.indptr[r + 1]].long().tolist() == expect.tolist()
     assert torch.equal(act.to_dense(), spikes)
+    other = active_spikes(1.0 - spikes)  # another call while the first result is alive: its storage is kept
+    assert torch.equal(act.to_dense(), spikes) and torch.equal(other.to_dense(), 1.0 - spikes)
     monkeypatch.setattr(compiled, "_kernel_module", lambda: None)  # the torch fallback gives the same arrays
     other = active_spikes(spikes)
     assert torch.equal(other.indptr, act.indptr) and torch.equal(other.indices, act.indices)
