@@ -152,6 +152,7 @@ SGNET = dict(beta=0.2, threshold=0.5, reset="zero", surrogate="rect", detach_res
     ("sgnet", MultiStepLIF(**SGNET), (40, 2, 2496)), ("sgnet_hidden", MultiStepLIF(**SGNET), (40, 8, 128)),
     ("deeptactile", MultiStepLIF(**SGNET), (30, 2, 39, 64)),
     ("tacformer", LIFConfig().build(), (50, 2, 39, 32)),  # tau 2: input_scale 0.5, folded into the kernel
+    ("x_tacformer", LIFConfig().build(), (50, 2, 39, 64)),  # the same neuron (LIFConfig) on its block widths
     ("tacformer_tau3", LIFConfig(tau=3.0, detach_reset=False).build(), (50, 2, 39, 32)),  # 1/3 rounds
     ("tacformer_subtract", MultiStepLIF(0.5, 1.0, reset="subtract", surrogate="atan", input_scale=0.37),
      (37, 3, 200))])
