@@ -34,7 +34,11 @@ membranes and gradients bit-identical to the torch implementation (tests/nn/test
 float32 CPU tensors with the ``rect`` or ``atan`` surrogate on x86-64 (ATen's AVX2/AVX512 kernels), numba installed;
 everything else, the GPU included, runs the torch implementation. The environment variable
 ``TACTILE_ZOO_LIF_BACKEND`` (:data:`~tactile_zoo.nn.lif_compiled.KERNEL_ENV`) chooses per call: ``auto`` (default),
-``torch`` (never the kernel) or ``numba`` (the kernel, and an error where it is unavailable).
+``torch`` (never the kernel) or ``numba`` (the kernel, and an error where it is unavailable). The kernel multiplies
+the input by ``input_scale`` inside its loops (the same float32 multiplies as a separate pass), and in training both
+paths write their spikes and input gradient into reused storages (:func:`tactile_zoo.nn.memory.reusable`).
+``return_active=True`` adds the active neurons of every step (:mod:`tactile_zoo.nn.lif_active`) for event-driven
+layers.
 """
 
 from __future__ import annotations
@@ -47,12 +51,13 @@ import torch
 from torch import Tensor, nn
 
 from ..errors import ConfigError
+from .lif_active import ActiveSpikes, active_spikes
 from .lif_compiled import KERNEL_ENV, _CompiledLIF, _kernel_for, _kernel_forward
 from .lif_fused import _FusedLIF, _run
 from .surrogate import Surrogate, make_surrogate
 
 # the surrogates live in .surrogate, the fused and compiled paths in .lif_fused and .lif_compiled
-__all__ = ["MultiStepLIF", "LIFConfig", "Surrogate", "make_surrogate", "KERNEL_ENV"]
+__all__ = ["MultiStepLIF", "LIFConfig", "Surrogate", "make_surrogate", "KERNEL_ENV", "ActiveSpikes", "active_spikes"]
 
 _RESETS = ("zero", "subtract")
 _BACKENDS = ("fused", "snntorch")
@@ -90,7 +95,8 @@ class MultiStepLIF(nn.Module):
     Shapes:
         - input ``x``: ``(T, *)`` time-major, any trailing shape; ``mem``: ``(*)`` or ``None`` (zeros).
         - output: spikes ``(T, *)`` as 0/1 floats; with ``return_mem=True`` also the last membrane ``(*)``, which
-          continues the sequence when passed back as ``mem``.
+          continues the sequence when passed back as ``mem``; with ``return_active=True`` (last) the active neurons
+          as :class:`~tactile_zoo.nn.lif_active.ActiveSpikes`.
     """
 
     def __init__(self, beta: float = 0.2, threshold: float = 0.5, reset: str = "zero",
@@ -125,8 +131,11 @@ class MultiStepLIF(nn.Module):
                 f"detach_reset={self.detach_reset}, backend={self.backend}"
                 + (f", input_scale={self.input_scale:g}" if self.input_scale != 1.0 else ""))
 
-    def forward(self, x: Tensor, mem: Tensor | None = None, return_mem: bool = False
-                ) -> Tensor | tuple[Tensor, Tensor]:
+    def forward(self, x: Tensor, mem: Tensor | None = None, return_mem: bool = False, return_active: bool = False
+                ) -> Tensor | tuple:
+        """Spikes ``(T, *)``; with ``return_mem`` also the last membrane, with ``return_active`` also the active
+        neurons of every step as :class:`~tactile_zoo.nn.lif_active.ActiveSpikes` (rows ``(t, b)``, columns the
+        last dimension), in that order. ``return_active`` costs one pass over the spikes; without it, nothing."""
         if x.dim() < 1 or x.shape[0] < 1:
             raise ConfigError(f"MultiStepLIF expects a time-major input (T >= 1, ...), got shape {tuple(x.shape)}")
         if mem is None:
@@ -134,17 +143,18 @@ class MultiStepLIF(nn.Module):
         elif mem.shape != x.shape[1:]:
             raise ConfigError(f"MultiStepLIF: mem has shape {tuple(mem.shape)}, the input's step shape is "
                               f"{tuple(x.shape[1:])}")
-        if self.input_scale != 1.0:
-            x = x * self.input_scale
         subtract = self.reset == "subtract"
         kernels = _kernel_for(x, mem, self.surrogate) if self.backend == "fused" else None
+        scale = self.input_scale
+        if kernels is None and scale != 1.0:
+            x = x * scale  # the compiled kernel multiplies inside its loops instead, with the same rounding
         grad = torch.is_grad_enabled() and (x.requires_grad or mem.requires_grad)
         if kernels is not None and grad:
             spikes, last = _CompiledLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
-                                              self.surrogate, kernels)
+                                              self.surrogate, kernels, scale)
         elif kernels is not None:  # nothing to differentiate: the compiled loop without the autograd node
             spikes, last, _ = _kernel_forward(kernels, x.contiguous(), mem.contiguous(), self.beta, self.threshold,
-                                              subtract)
+                                              subtract, input_scale=scale)
         elif self.backend == "fused" and grad:
             spikes, last = _FusedLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
                                            self.surrogate)
@@ -152,7 +162,10 @@ class MultiStepLIF(nn.Module):
             spikes, last, _, _ = _run(x, mem, self.beta, self.threshold, subtract, False)
         else:
             spikes, last = self._snntorch_loop(x, mem)
-        return (spikes, last) if return_mem else spikes
+        out = (spikes, last) if return_mem else (spikes,)
+        if return_active:
+            out = (*out, active_spikes(spikes))
+        return out if len(out) > 1 else spikes
 
     def step(self, x_t: Tensor, mem: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """One time step: ``x_t (*)`` and the membrane ``(*)`` -> ``(spike (*), membrane (*))``; the arithmetic of

@@ -98,20 +98,31 @@ def _launch(kernels: ModuleType, name: str, *args: object) -> None:
         getattr(kernels, name)(*args)
 
 
+def _forward_chunk(kernels: ModuleType, n: int) -> int:
+    """Neurons per work item of the forward: whole rows up to ``FORWARD_CHUNK``, split evenly, and at least one item
+    per thread (rounded up to 16 neurons: whole 64-byte cache lines)."""
+    items = max(-(-n // kernels.FORWARD_CHUNK), torch.get_num_threads() if n > kernels.CHUNK else 1)
+    per_item = -(-n // items)  # ceil
+    return max(16, -(-per_item // 16) * 16)
+
+
 def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
-                    subtract: bool, checkpoints: bool = False) -> tuple[Tensor, Tensor, Tensor | None]:
+                    subtract: bool, checkpoints: bool = False, input_scale: float = 1.0, reuse: bool = False
+                    ) -> tuple[Tensor, Tensor, Tensor | None]:
     """Spikes ``[T, ...]``, the last membrane and, with ``checkpoints``, the membrane checkpoints the compiled backward
-    recomputes from (``(rows, N)``), from the compiled forward loop (contiguous float32 CPU inputs)."""
+    recomputes from (``(rows, N)``), from the compiled forward loop (contiguous float32 CPU inputs); the input current
+    is ``x * input_scale``. With ``reuse`` the spikes come from :func:`tactile_zoo.nn.memory.reusable`."""
     import numpy as np
 
     steps = x.shape[0]
-    spikes = memory.empty(x.shape, x)
+    spikes = memory.reusable(x.shape, x) if reuse else memory.empty(x.shape, x)
     last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
     ckpt = torch.empty(kernels.checkpoint_rows(steps), mem0.numel(), dtype=torch.float32) if checkpoints else None
     _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
             spikes.view(steps, -1).numpy(), last.view(-1).numpy(),
             np.zeros((1, 1), np.float32) if ckpt is None else ckpt.numpy(), checkpoints, *_f32(beta, threshold),
-            _f32(_next_up(threshold, torch.float32))[0], subtract, kernels.CHUNK)
+            _f32(_next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, mem0.numel()),
+            *_f32(input_scale), input_scale != 1.0)
     return spikes, last, ckpt
 
 
@@ -126,16 +137,22 @@ class _CompiledLIF(torch.autograd.Function):
     """:class:`_FusedLIF` as two compiled calls per sequence (:mod:`tactile_zoo.nn._lif_kernel`): the forward loop,
     which also keeps a membrane checkpoint every few steps, and a backward that recomputes the membranes between
     checkpoints instead of saving them all (the fused path's history would be as large as the input). The same
-    inputs, outputs and bit-identical values."""
+    inputs, outputs and bit-identical values; with ``input_scale`` the input current is ``x * input_scale``, folded
+    into both loops (the same float32 multiplies as the separate ``x * input_scale`` and its backward, so the same
+    bits, without the two extra passes over tensors as large as ``x``).
+
+    Spikes and input gradient come from :func:`tactile_zoo.nn.memory.reusable`: storages of earlier calls that
+    nothing refers to any more, so that training does not page-fault on fresh outputs every batch."""
 
     @staticmethod
     def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
-                surrogate: Surrogate, kernels: ModuleType) -> tuple[Tensor, Tensor]:
+                surrogate: Surrogate, kernels: ModuleType, input_scale: float = 1.0) -> tuple[Tensor, Tensor]:
         x, mem0 = x.contiguous(), mem0.contiguous()
-        spikes, last, ckpt = _kernel_forward(kernels, x, mem0, beta, threshold, subtract, checkpoints=True)
+        spikes, last, ckpt = _kernel_forward(kernels, x, mem0, beta, threshold, subtract, checkpoints=True,
+                                             input_scale=input_scale, reuse=True)
         ctx.save_for_backward(x, ckpt)
         ctx.mem_shape = mem0.shape
-        ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, kernels)
+        ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, kernels, input_scale)
         ctx.set_materialize_grads(False)
         return spikes, last
 
@@ -145,11 +162,11 @@ class _CompiledLIF(torch.autograd.Function):
         import numpy as np
 
         x, ckpt = ctx.saved_tensors
-        beta, th, subtract, detach_reset, surrogate, kernels = ctx.cfg
+        beta, th, subtract, detach_reset, surrogate, kernels, input_scale = ctx.cfg
         steps, n = x.shape[0], ckpt.shape[1]
         # the fused path's block of steps: its gradient crosses block boundaries with a different rounding
         block = max(1, min(steps, lif_fused.BLOCK_BYTES // max(1, n * x.element_size())))
-        grad_x = memory.empty(x.shape, x)
+        grad_x = memory.reusable(x.shape, x)
         grad_mem0 = x.new_empty(ctx.mem_shape)
         no_rows, no_row = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)  # stand-ins for absent gradients
         gs = no_rows if grad_spikes is None else grad_spikes.contiguous().view(steps, -1).numpy()
@@ -162,7 +179,7 @@ class _CompiledLIF(torch.autograd.Function):
         _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), ckpt.numpy(), gs,
                 grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
                 grad_mem0.view(-1).numpy(), *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset,
-                kind, lo, hi, c1, c2, block, kernels.CHUNK)
-        return grad_x, (grad_mem0 if ctx.needs_input_grad[1] else None), None, None, None, None, None, None
+                kind, lo, hi, c1, c2, block, kernels.CHUNK, *_f32(input_scale), input_scale != 1.0)
+        return grad_x, (grad_mem0 if ctx.needs_input_grad[1] else None), None, None, None, None, None, None, None
 
 

@@ -50,7 +50,9 @@ def _run(x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool,
     steps, step_bytes = x.shape[0], max(1, mem0.numel() * x.element_size())
     block = max(1, min(steps, BLOCK_BYTES // step_bytes))
     keep_all = for_backward and (steps + 1) * step_bytes <= SAVE_LIMIT_BYTES
-    spikes = memory.empty(x.shape, x)  # huge pages when large: its first write would page-fault
+    # huge pages when large (its first write would page-fault), and for training a storage of an earlier call that
+    # nothing refers to any more (memory.reusable), whose pages are already mapped
+    spikes = memory.reusable(x.shape, x) if for_backward else memory.empty(x.shape, x)
     flag, ones = torch.empty_like(mem0), mem0.new_ones(()).expand_as(mem0)
     th_up = _next_up(threshold, x.dtype)
     hist = x.new_empty((steps + 1 if keep_all else block + 1, *mem0.shape))  # row 0: the membrane entering
@@ -87,6 +89,8 @@ class _FusedLIF(torch.autograd.Function):
     transparent huge pages (:func:`tactile_zoo.nn.memory.empty`): at SGnet's shapes (78 MB each) that took the fused
     forward + backward from 2.1-2.2x to 3.3-3.9x the speed of stepping ``snntorch.Leaky`` (detached reset;
     benchmarks/lif.py on 1 thread, side by side, on a loaded 2-core machine where huge pages come on request).
+    On CPU they also come from a pool of storages reused once nothing refers to them any more
+    (:func:`tactile_zoo.nn.memory.reusable`), whose pages are already mapped.
     """
 
     @staticmethod
@@ -104,7 +108,7 @@ class _FusedLIF(torch.autograd.Function):
         saved, x = ctx.saved_tensors
         beta, th, subtract, detach_reset, surrogate, block, keep_all, starts = ctx.cfg
         steps, shape = x.shape[0], saved.shape[1:]
-        grad = memory.empty((steps, *shape), saved)
+        grad = memory.reusable((steps, *shape), saved)
         # per-block workspaces, reused (fresh temporaries this size would page-fault on every block)
         u_buf, sg_buf = saved.new_empty((block + 1, *shape)), saved.new_empty((block + 1, *shape))
         decay_buf = saved.new_empty((block, *shape))

@@ -26,9 +26,11 @@ pytestmark = pytest.mark.skipif(compiled._kernel_module() is None,
 
 @pytest.fixture(autouse=True)
 def small_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Chunks of 256 neurons instead of the kernel's 8192, so that small shapes span several chunks and reach the
-    parallel builds (the chunk is an argument of each call; the checkpoint interval is compiled in)."""
+    """Chunks of 256 neurons instead of the kernel's 8192 (and forward rows of at most 400 instead of whole rows), so
+    that small shapes span several chunks, cut differently forward and backward, and reach the parallel builds (the
+    chunk is an argument of each call; the checkpoint interval is compiled in)."""
     monkeypatch.setattr(compiled._kernel_module(), "CHUNK", 256)
+    monkeypatch.setattr(compiled._kernel_module(), "FORWARD_CHUNK", 400)
 
 
 @pytest.fixture
@@ -253,7 +255,7 @@ def test_read_only_install_compiles_in_memory(tmp_path: Path) -> None:
     script = ("import numpy as np, _lif_kernel as k\n"
               "x = np.full((3, 2), 0.7, np.float32); s = np.empty_like(x); m = np.empty(2, np.float32)\n"
               "k.lif_forward(x, np.zeros(2, np.float32), s, m, np.zeros((1, 1), np.float32), False,\n"
-              "              *map(np.float32, (0.2, 0.5, 0.50000006)), False, 256)\n"
+              "              *map(np.float32, (0.2, 0.5, 0.50000006)), False, 256, np.float32(1), False)\n"
               "print(k.lif_forward._cache.__class__.__name__, s[:, 0].tolist())")
     env = {"PATH": "/usr/bin:/bin", "PYTHONPATH": str(pkg), "HOME": str(blocker / "home"),
            "XDG_CACHE_HOME": str(blocker / "cache"), "PYTHONDONTWRITEBYTECODE": "1"}
