@@ -55,6 +55,13 @@ def test_each_built_in_reads_its_own_file(model: str) -> None:
     assert "recipes=" not in source and "full_recipe" not in source  # the model file holds architecture only
 
 
+def test_the_documented_recipe_file_is_x_tacformers(tmp_path: Path) -> None:
+    """docs/models.md shows X-Tacformer's recipe file without its comments: it must read as the real one does."""
+    [block] = re.findall(r"```yaml\n(.*?)```", (REPO / "docs" / "models.md").read_text(), flags=re.S)
+    shown = read_recipe_file(write(tmp_path, block))
+    assert canonical(shown) == canonical(read_recipe_file(recipe_file_path("tactile_zoo", "x_tacformer")))
+
+
 def test_no_recipe_file_without_a_model() -> None:
     assert sorted(p.stem for p in (REPO / "tactile_zoo" / "recipes").glob("*")) == sorted(BUILT_IN)
 
