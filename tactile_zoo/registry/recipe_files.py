@@ -83,10 +83,13 @@ def read_recipe_file(path: str | PathLike[str] | Traversable) -> dict[str, Any]:
         text = source.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{where}: cannot read the recipe file ({exc.strerror or exc})") from None
+    loader = _Loader(text)  # what yaml.safe_load does, with the exponent resolver: a SafeLoader builds plain data only
     try:
-        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass: plain data only
+        data = loader.get_single_data()
     except yaml.YAMLError as exc:
         raise ConfigError(f"{where}: not a valid YAML recipe file: {exc}") from None
+    finally:
+        loader.dispose()
     if not isinstance(data, Mapping):
         raise ConfigError(f"{where}: a recipe file is a mapping with the keys {', '.join(FILE_KEYS)}; got "
                           f"{type(data).__name__}")
