@@ -1,4 +1,4 @@
-"""Recipe files: a model's named training recipes as data, one YAML file per model, beside no code.
+"""Recipe files: a model's named training recipes as data, one YAML file per model.
 
 A model's recipes live in ``<package>/recipes/<model>.yaml``: the built-ins' in ``tactile_zoo/recipes/``, a plugin's
 in its own package's ``recipes/`` folder, shipped as package data. The model's module reads its file at import and
