@@ -5,7 +5,8 @@ A block says how it is exercised by its language and, where that is not enough, 
 before its fence, ``<!-- snippet: DIRECTIVE; DIRECTIVE ... -->`` (invisible on the site and on the index page):
 
 - ``python`` blocks run as written, ``bash`` blocks line by line (see :func:`shell_commands`); ``toml`` and
-  ``bibtex`` blocks are checked against the package (entry-point groups, version);
+  ``bibtex`` blocks are checked against the package (entry-point groups, version), ``yaml`` blocks are recipe files
+  (read with ``tactile_zoo.registry.read_recipe_file``, which validates them);
 - ``output``: a transcript: its ``$ `` lines are commands, run like a bash block's; the rest is not checked;
 - ``diagram``: an architecture sketch, nothing to run;
 - ``installed ./plugins/NAME``: the block needs that distribution installed, as the page says in prose;
@@ -35,7 +36,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DIRECTIVES = {"output", "diagram", "files", "installed", "resolve", "not-run", "compile", "xfail"}
 #: languages run or checked without a directive
-KNOWN_LANGS = {"python", "bash", "toml", "bibtex"}
+KNOWN_LANGS = {"python", "bash", "toml", "bibtex", "yaml"}
 #: placeholders for the data home (quick start: ``--root DATA``; Datasets: ``DIR``; Table I: ``../shared/data``)
 DATA_PLACEHOLDERS = ("DATA", "DIR", "../shared/data")
 #: the two ``make`` commands CI's fresh clone runs (issue 38: exempt)

@@ -259,6 +259,12 @@ def check_block(block: Block, session: Session) -> None:
         assert set(project["entry-points"]) <= set(ENTRY_POINT_GROUPS.values()) | {"tactile_zoo.weights"}
         requirement = next(r for r in project["dependencies"] if r.startswith("tactile-zoo"))
         assert __version__ in SpecifierSet(requirement.removeprefix("tactile-zoo")), requirement
+    elif block.lang == "yaml":  # a recipe file (the only YAML the docs show): it must read and validate as one
+        from tactile_zoo.registry import read_recipe_file
+
+        path = session.cwd / "snippet_recipes.yaml"
+        path.write_text(block.body)
+        assert read_recipe_file(path)["recipes"], block.id
     elif block.lang == "bibtex":
         from tactile_zoo import __version__
 

@@ -22,12 +22,23 @@ from tactile_zoo import registry
 from tactile_zoo.cli import main
 from tactile_zoo.data import DatasetSpec
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.registry import create_model, get_model_entry, get_sensor, list_datasets, list_models, load_dataset
+from tactile_zoo.registry import (
+    create_model,
+    get_model_entry,
+    get_sensor,
+    list_datasets,
+    list_models,
+    load_dataset,
+    read_recipe_file,
+)
 
 pytestmark = pytest.mark.xdist_group("plugin_tcn")  # one worker installs it once
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "tactile-zoo-tcn"
 DIST, VERSION = "tactile-zoo-tcn", "0.2.0"
+#: the TCN's registered recipes as its ``zoo_meta`` dict declared them before they moved into its recipe file
+RECIPE_SNAPSHOT = json.loads((Path(__file__).parent / "models" / "fixtures" / "registered_recipes.json").read_text()
+                             )["plugins"]["tcn"]
 
 # (sensor, channels, globals) of the four sensor families
 FAMILIES = [("neutouch", 2, 0), ("biotac_sp", 1, 0), ("optoforce3", 4, 3), ("uskin_allegro", 3, 8)]
@@ -76,6 +87,10 @@ def test_tcn_is_discovered_with_its_metadata(installed):
     assert meta["tags"] == ["convolutional", "temporal"] and meta["inputs"] == ["globals"]
     assert {"loss", "optimizer", "lr", "max_epochs", "patience", "batch_size"} <= set(meta["recipe"])
     assert meta["recipe"]["loss"] == "ce" and meta["recipe"]["optimizer"] == "adam"
+    # the recipe came from the installed package's recipe file, and is the one the plugin declared as a dict before
+    assert (installed / "tactile_zoo_tcn" / "recipes" / "tcn.yaml").is_file()
+    assert read_recipe_file(installed / "tactile_zoo_tcn" / "recipes" / "tcn.yaml")["recipes"] == meta["recipes"]
+    assert {"default_recipe": meta["default_recipe"], "recipes": meta["recipes"]} == RECIPE_SNAPSHOT
     [info] = [i for i in registry.plugins() if i.dist == DIST]
     assert (info.version, info.group, info.name, info.value, info.status) == \
         (VERSION, "tactile_zoo.models", "tcn", "tactile_zoo_tcn:TCN", "ok")

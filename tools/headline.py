@@ -16,7 +16,7 @@ from typing import Any
 
 from tactile_zoo import registry
 from tactile_zoo.bench.intervals import records_interval
-from tools.fidelity import cells, replace_block
+from tools.fidelity import REPO, cells, replace_block
 from tools.table1_common import EV, MODELS, NAMES, PAPER, RESULTS, _figure, _group, _where
 
 README = RESULTS.parents[1] / "README.md"
@@ -40,6 +40,14 @@ def registered_default(model: str) -> str:
     """``model``'s registered default recipe (``default_recipe`` in its registry entry): the one the harness trains
     when no ``--recipe`` is given, and the one the headline reads."""
     return registry.get_model_entry(model).meta["default_recipe"]
+
+
+def default_declared_in(model: str) -> str:
+    """Where built-in ``model``'s default recipe is declared, for a message that asks to change it: the ``default:``
+    key of its recipe file (``tactile_zoo/recipes/<model>.yaml``)."""
+    path = Path(str(registry.recipe_file_path("tactile_zoo", model)))
+    shown = path.relative_to(REPO) if path.is_relative_to(REPO) else path
+    return f"`default:` in {shown.as_posix()}"
 
 
 def recipe_cells(folder: Path, recipe: str) -> list[dict[str, Any]]:
@@ -129,7 +137,7 @@ def problems(text: str, folder: Path) -> list[str]:
             continue
         if row[RECIPE_COLUMN] != f"`{default}`":
             out.append(f"headline: {NAMES[model]} on {title} reads {row[RECIPE_COLUMN]}, not the registered default "
-                       f"`{default}` (default_recipe in tactile_zoo/models/{model}.py): no recipe is chosen on test")
+                       f"`{default}` ({default_declared_in(model)}): no recipe is chosen on test")
             continue
         if default not in loaded:
             loaded[default] = recipe_cells(folder, default)

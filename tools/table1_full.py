@@ -35,7 +35,7 @@ from typing import Any
 
 from tactile_zoo.bench.paired import holm, records_paired
 from tools.fidelity import cells, replace_block, update_page
-from tools.headline import registered_default
+from tools.headline import default_declared_in, registered_default
 from tools.paper_table1 import ZOO_SPLITS, ensemble_table
 from tools.table1_common import EV, MODELS, NAMES, PAPER, RESULTS, _figure, _group, paper_column
 
@@ -295,7 +295,7 @@ def unregistered(decided: Mapping[str, str]) -> list[str]:
         registered = registered_default(model)
         if recipe != "pending" and registered != recipe:
             out.append(f"{model}: the plan's rule makes {recipe!r} the default, the registry says {registered!r} "
-                       f"(default_recipe in tactile_zoo/models/{model}.py)")
+                       f"({default_declared_in(model)})")
     return out
 
 

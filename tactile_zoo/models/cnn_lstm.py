@@ -24,8 +24,7 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
-from ..recipe import full_recipe
-from ..registry import register_model
+from ..registry import recipe_file, register_model
 from ._binned import BinnedStreamer, bins_for
 from ._inputs import sensor_grid
 
@@ -59,21 +58,6 @@ class FrameEncoder(nn.Module):
         return torch.relu(self.proj(z.flatten(1)))  # (F, out_features)
 
 
-# ours, from seed-0 validation runs on Ev-Objects (docs/models.md): with 50 bins the best epoch came at 80-106
-_SOURCE = {"loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
-           "max_epochs": 150, "patience": 30, "batch_size": 32, "grad_clip": 1.0}
-# chosen on validation, seed 0 (benchmarks/results/tuning/zoo-ev/PLAN.md, zoo-biotac/PLAN.md): on Ev, early stopping
-# after 15 epochs selects the same epoch as after 30 on both seed-0 runs (E1); label smoothing (E2) and, on
-# BioTac-DoS, scaling each reading by its own range (trial 1: +0.022, 2 of 4 folds) were not adopted
-_ZOO = {**_SOURCE, "datasets": {"ev_objects": {"patience": 15}, "ev_containers": {"patience": 15},
-                                "biotac_dos": {"dataset_kwargs": {"window": 10}}}}
-
-# every training recording for a fixed epoch count, declared before any `full` cell ran from validation evidence
-# only: the median epoch that validation selected over the committed `zoo` cells (benchmarks/results/
-# paper-table1-full/PLAN.md; tests/benchmarks/test_full_plan.py recomputes it)
-_FULL = full_recipe(_ZOO, {"ev_objects": 82, "ev_containers": 71, "biotac_dos": 24})
-
-
 @register_model(
     "cnn_lstm",
     paper="CNN-LSTM baseline (per-frame CNN features in sequence to an LSTM), as cited in X-Tacformer's related work",
@@ -84,8 +68,7 @@ _FULL = full_recipe(_ZOO, {"ev_objects": 82, "ev_containers": 71, "biotac_dos": 
                 "at most 50 bins, LSTM 64 over the frame codes, linear classifier on the last hidden state.",
     tags=["recurrent", "convolutional"],
     inputs=["grid", "globals"],
-    recipes={"source": _SOURCE, "zoo": _ZOO, "full": _FULL},
-    default_recipe="full",
+    **recipe_file("tactile_zoo", "cnn_lstm"),
     causal=True,
     streaming=True,
     revision=1,

@@ -25,8 +25,7 @@ from torch import Tensor, nn
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
 from ..nn.convlstm import ConvLSTM, ConvLSTMConfig
-from ..recipe import full_recipe
-from ..registry import register_model
+from ..registry import recipe_file, register_model
 from ._binned import BinnedStreamer, bins_for
 from ._inputs import sensor_grid
 
@@ -34,32 +33,6 @@ __all__ = ["ConvLSTMNet", "FRAME_NORMS", "READOUTS"]
 
 FRAME_NORMS = (None, "minmax")
 READOUTS = ("gap", "taxels")
-
-
-# the source gives Adam 1e-3, batch 32, cross-entropy; epochs and patience are ours (docs/models.md). On its own data,
-# BioTac-DoS, the source's whole setup: windows of 5 raw readings, every image min-max scaled, PyTorch initialisation,
-# 30 epochs without clipping or early stopping (benchmarks/results/convlstm-biotac/EXPERIMENTS.md)
-_SOURCE = {
-    "loss": "ce", "optimizer": "adam", "lr": 1e-3, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
-    "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0,
-    "datasets": {
-        # the taxel read-out, and on Ev-Containers no early stopping (all 100 epochs, the best validation epoch
-        # kept), chosen on validation (benchmarks/results/tuning/convlstm-ev/PLAN.md)
-        "ev_objects": {"hparams": {"readout": "taxels"}},
-        "ev_containers": {"patience": None, "hparams": {"readout": "taxels"}},
-        "biotac_dos": {"max_epochs": 30, "patience": None, "grad_clip": None,
-                       "hparams": {"frame_norm": "minmax", "init": "torch"},
-                       "dataset_kwargs": {"window": 5, "stride": 5, "normalize": "none"}},
-    }}
-# chosen on validation, seed 0 (benchmarks/results/tuning/zoo-ev/PLAN.md): on Ev-Objects early stopping after 15
-# epochs selects the seed-0 run's epoch, as after 20 (E1); elsewhere the source recipe
-_ZOO = {**_SOURCE, "datasets": {**_SOURCE["datasets"],
-                                "ev_objects": {"patience": 15, "hparams": {"readout": "taxels"}}}}
-
-# every training recording for a fixed epoch count, declared before any `full` cell ran from validation evidence
-# only: the median epoch that validation selected over the committed `zoo` cells (benchmarks/results/
-# paper-table1-full/PLAN.md; tests/benchmarks/test_full_plan.py recomputes it)
-_FULL = full_recipe(_ZOO, {"ev_objects": 39, "ev_containers": 74, "biotac_dos": 19})
 
 
 @register_model(
@@ -72,8 +45,7 @@ _FULL = full_recipe(_ZOO, {"ev_objects": 39, "ev_containers": 74, "biotac_dos": 
                 "peepholes), global average pooling of the last hidden state, FC 16 + ReLU, FC classes.",
     tags=["recurrent", "convolutional"],
     inputs=["grid", "globals"],
-    recipes={"source": _SOURCE, "zoo": _ZOO, "full": _FULL},
-    default_recipe="full",
+    **recipe_file("tactile_zoo", "convlstm"),
     causal=True,
     streaming=True,
     revision=1,

@@ -35,8 +35,7 @@ from ..data.spec import DatasetSpec
 from ..errors import ConfigError
 from ..nn import memory
 from ..nn.classifier import ClassifierMixin
-from ..recipe import full_recipe
-from ..registry import register_model
+from ..registry import recipe_file, register_model
 from ._inputs import check_inputs
 
 __all__ = ["DCNN", "from_keras"]
@@ -142,20 +141,6 @@ class _ConvBlock(nn.Sequential):
                          _BatchNorm2d(cout, eps=BN_EPS, momentum=bn_momentum), _SamePool())
 
 
-_SOURCE = {"loss": "ce", "optimizer": "adam", "lr": 1e-2, "weight_decay": 0.0, "amsgrad": False, "schedule": None,
-           "max_epochs": 300, "patience": 30, "batch_size": 128}
-# chosen on validation, seed 0 (benchmarks/results/tuning/zoo-ev/PLAN.md, zoo-biotac/PLAN.md): on Ev, early stopping
-# after 10 epochs selects the same epoch as after 30 on both seed-0 runs (E1) at about 60 % of the epochs; on
-# BioTac-DoS each reading scaled by its own range (trial 1: +0.120 validation, 4 of 4 held-out objects up)
-_ZOO = {**_SOURCE, "datasets": {"ev_objects": {"patience": 10}, "ev_containers": {"patience": 10},
-                                "biotac_dos": {"dataset_kwargs": {"window": 10, "normalize": "minmax"}}}}
-
-# every training recording for a fixed epoch count, declared before any `full` cell ran from validation evidence
-# only: the median epoch that validation selected over the committed `zoo` cells (benchmarks/results/
-# paper-table1-full/PLAN.md; tests/benchmarks/test_full_plan.py recomputes it)
-_FULL = full_recipe(_ZOO, {"ev_objects": 14, "ev_containers": 31, "biotac_dos": 8})
-
-
 @register_model(
     "dcnn",
     paper="Tactile Object Classification (D-CNN on the Augment8000 OptoForce grasp data)",
@@ -166,8 +151,7 @@ _FULL = full_recipe(_ZOO, {"ev_objects": 14, "ev_containers": 31, "biotac_dos": 
                 "filters), dense 103 and 138 with BN, linear classifier.",
     tags=["convolutional"],
     inputs=["globals"],
-    recipes={"source": _SOURCE, "zoo": _ZOO, "full": _FULL},
-    default_recipe="full",
+    **recipe_file("tactile_zoo", "dcnn"),
     causal=False,
     streaming=False,
     revision=1,

@@ -32,7 +32,7 @@ from ..errors import ConfigError
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import MultiStepLIF
 from ..nn.tdbn import TdBatchNorm
-from ..registry import register_model
+from ..registry import recipe_file, register_model
 from ._binned import BinnedStreamer
 
 __all__ = ["DeepTactile"]
@@ -42,18 +42,6 @@ Spike = Callable[[MultiStepLIF, Tensor], Tensor]
 #: initialisations of the linear layers (see ``init`` in :class:`DeepTactile`)
 _INITS = ("lecun", "he", "default")
 
-# The source as released (main.py, model.py): MSE between output spike rates and one-hot targets, Adam (no amsgrad,
-# no weight decay) at 1e-3 without a schedule, batch 16, 100 epochs on the whole training folder, the model saved
-# after the last epoch and evaluated once (a fixed epoch count, nothing selected, the test split read at the end);
-# PyTorch's and PyG's initialisation.
-_SOURCE = {"loss": "mse_rate", "optimizer": "adam", "amsgrad": False, "lr": 1e-3, "weight_decay": 0.0,
-           "schedule": None, "max_epochs": 100, "patience": None, "batch_size": 16, "evaluation": "final",
-           "hparams": {"init": "default"}}
-# The zoo's protocol on the source's training (ours, not tuned: no trial has run): the epoch is selected on the
-# validation split and the test split read once; training stops after 20 epochs without a better validation accuracy
-# (a 100-epoch Ev-Objects cell costs CPU-hours); LeCun-normal linear weights (the model's default), which keep the
-# spiking MLP firing at the start (see the model card). No `full` recipe: its epoch counts need `zoo` cells first.
-_ZOO = {k: v for k, v in _SOURCE.items() if k not in ("evaluation", "hparams")} | {"patience": 20}
 
 
 class _DenseLayer(nn.Module):
@@ -102,8 +90,7 @@ class _Transition(nn.Module):
                 "128-256-classes; scores are output spike rates (MSE to one-hot).",
     tags=["spiking", "graph"],
     inputs=["graph", "globals"],
-    recipes={"source": _SOURCE, "zoo": _ZOO},
-    default_recipe="zoo",
+    **recipe_file("tactile_zoo", "deeptactile"),
     causal=True,
     streaming=True,
 )

@@ -34,7 +34,7 @@ from ..errors import ConfigError
 from ..nn.alif import AdaptiveLIF
 from ..nn.classifier import ClassifierMixin
 from ..nn.routing import NeighbourTopKRouter, nearest_neighbours
-from ..registry import register_model
+from ..registry import recipe_file, register_model
 from ._inputs import check_inputs
 
 __all__ = ["MultiBarrel", "CONNECTIONS", "OUTPUTS", "convert_released"]
@@ -47,16 +47,6 @@ CONNECTIONS = ((1, 1, 0, 0, 1, 0, 0, 0), (1, 1, 1, 1, 0, 1, 0, 0), (1, 1, 1, 1, 
 OUTPUTS = (4, 5, 6, 7)
 OUTPUT_KINDS = ("logits", "softmax")
 
-# the source's training (SharedMultiBarrel4EvTask.py, train()): AdamW 8e-4, weight decay 0.1, x0.8 every 10 epochs,
-# 200 epochs, batch 600 (every Ev training set in one batch), softmax scores into cross-entropy, BatchNorm frozen after
-# the first epoch, noise and a random start at test time. Its figure is the best of the 200 test epochs; here the
-# test split is read once, after the last epoch (--evaluation reference gives the source's protocol, labelled).
-_SOURCE = {"loss": "ce", "optimizer": "adamw", "lr": 8e-4, "weight_decay": 0.1,
-           "schedule": {"type": "step", "step_size": 10, "gamma": 0.8}, "max_epochs": 200, "patience": None,
-           "batch_size": 600, "eval_batch_size": 64, "evaluation": "final",
-           "hparams": {"output": "softmax", "bn_train_steps": 1, "eval_noise": True}}
-# the quirks fixed, the schedule kept; the epoch chosen on validation (no tuning trial has run for this model)
-_ZOO = {k: v for k, v in _SOURCE.items() if k not in ("evaluation", "hparams")}
 
 
 @register_model(
@@ -72,8 +62,7 @@ _ZOO = {k: v for k, v in _SOURCE.items() if k not in ("evaluation", "hparams")}
                 "a Conv2d read-out over time x taxels, an MLP classifier.",
     tags=["spiking", "graph", "convolutional"],
     inputs=["graph"],
-    recipes={"source": _SOURCE, "zoo": _ZOO},
-    default_recipe="zoo",
+    **recipe_file("tactile_zoo", "multibarrel"),
     causal=False,
     streaming=False,
     revision=1,

@@ -26,8 +26,7 @@ from ..nn.event_graph_conv import event_graph_conv
 from ..nn.event_linear import event_linear
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import MultiStepLIF
-from ..recipe import full_recipe
-from ..registry import register_model
+from ..registry import recipe_file, register_model
 from ._inputs import check_inputs
 
 __all__ = ["SGNet", "SGNetState"]
@@ -46,23 +45,6 @@ class SGNetState:
     steps: int = 0
 
 
-# the reference's recipe (MSE on rates, Adam amsgrad 1e-3, x0.1 after epochs 41 and 81, 100 epochs) at batch 8
-# instead of 1 (see the model card), no early stopping: the reference trains the whole schedule
-_SOURCE = {"loss": "mse_rate", "optimizer": "adam", "amsgrad": True, "lr": 1e-3, "weight_decay": 0.0,
-           "schedule": {"type": "multistep", "milestones": [41, 81], "gamma": 0.1}, "max_epochs": 100,
-           "patience": None, "batch_size": 8}
-# chosen on validation, seed 0 (benchmarks/results/tuning/zoo-ev/PLAN.md, zoo-biotac/PLAN.md): the Ev runs end at
-# epoch 80, before the second learning-rate drop, where both seed-0 runs had already selected their epoch (E1); on
-# BioTac-DoS the 5-sample window of Table I, its own range scaling not adopted (trial 1: -0.004)
-_ZOO = {**_SOURCE, "datasets": {"ev_objects": {"max_epochs": 80}, "ev_containers": {"max_epochs": 80},
-                                "biotac_dos": {"dataset_kwargs": {"window": 5}}}}
-
-# every training recording for a fixed epoch count, declared before any `full` cell ran from validation evidence
-# only: the median epoch that validation selected over the committed `zoo` cells (benchmarks/results/
-# paper-table1-full/PLAN.md; tests/benchmarks/test_full_plan.py recomputes it)
-_FULL = full_recipe(_ZOO, {"ev_objects": 40, "ev_containers": 56, "biotac_dos": 34})
-
-
 @register_model(
     "sgnet",
     paper="TactileSGNet: A Spiking Graph Neural Network for Event-based Tactile Object Recognition",
@@ -75,8 +57,7 @@ _FULL = full_recipe(_ZOO, {"ev_objects": 40, "ev_containers": 56, "biotac_dos": 
                 "spiking MLP 128-256-classes; scores are output spike rates (MSE to one-hot).",
     tags=["spiking", "graph"],
     inputs=["graph", "globals"],
-    recipes={"source": _SOURCE, "zoo": _ZOO, "full": _FULL},
-    default_recipe="full",
+    **recipe_file("tactile_zoo", "sgnet"),
     causal=True,
     streaming=True,
     revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list

@@ -30,8 +30,7 @@ from ..errors import ConfigError
 from ..nn.attention import SpikingSelfAttention
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import LIFConfig
-from ..recipe import full_recipe
-from ..registry import register_model
+from ..registry import recipe_file, register_model
 from ._binned import BinnedStreamer
 
 __all__ = ["Tacformer", "SpatialGraphAttention", "SpikingMLP"]
@@ -97,22 +96,6 @@ class SpatialGraphAttention(nn.Module):
         return self.norm(pooled), new_state
 
 
-# ours (the paper gives none): the 30-epoch cosine run that reached 0.926 val accuracy on Ev-Objects (seed 0);
-# ~15-20 CPU-s per Ev-Objects epoch on one thread
-_SOURCE = {"loss": "ce", "optimizer": "adamw", "lr": 2e-3, "weight_decay": 1e-2, "amsgrad": False,
-           "schedule": {"type": "cosine"}, "max_epochs": 30, "patience": 10, "batch_size": 16, "eval_batch_size": 64,
-           "grad_clip": 1.0}
-# chosen on validation, seed 0 (benchmarks/results/tuning/zoo-biotac/PLAN.md, zoo-ev/PLAN.md): on BioTac-DoS each
-# reading scaled by its own range (trial 1: +0.125, 4 of 4 held-out objects up); on Ev the source recipe (label
-# smoothing gained nothing, E2)
-_ZOO = {**_SOURCE, "datasets": {"biotac_dos": {"dataset_kwargs": {"window": 10, "normalize": "minmax"}}}}
-
-# every training recording for a fixed epoch count, declared before any `full` cell ran from validation evidence
-# only: the median epoch that validation selected over the committed `zoo` cells (benchmarks/results/
-# paper-table1-full/PLAN.md; tests/benchmarks/test_full_plan.py recomputes it)
-_FULL = full_recipe(_ZOO, {"ev_objects": 15, "ev_containers": 25, "biotac_dos": 10})
-
-
 @register_model(
     "tacformer",
     paper=PAPER,
@@ -121,8 +104,7 @@ _FULL = full_recipe(_ZOO, {"ev_objects": 15, "ev_containers": 25, "biotac_dos": 
                 "self-attention (MSA-SNN) over the taxels of each frame, LIF over time, spike-rate read-out.",
     tags=["spiking", "graph", "attention"],
     inputs=["graph", "globals"],
-    recipes={"source": _SOURCE, "zoo": _ZOO, "full": _FULL},
-    default_recipe="full",
+    **recipe_file("tactile_zoo", "tacformer"),
     causal=True,
     streaming=True,
     revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list

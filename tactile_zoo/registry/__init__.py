@@ -13,8 +13,8 @@ Name resolution, in order:
 
 Lookups are normalised (case, ``-``, ``_`` and spaces ignored): ``X-Tacformer``, ``x_tacformer`` and
 ``XTacformer`` are one name. The registry imports nothing else from tactile-zoo but its errors and the recipe
-schema. Its parts: :mod:`.entries` (tables, metadata, decorators), :mod:`.discovery` (entry points, plugin modules)
-and :mod:`.lookup` (names to objects).
+schema. Its parts: :mod:`.entries` (tables, metadata, decorators), :mod:`.discovery` (entry points, plugin modules),
+:mod:`.lookup` (names to objects) and :mod:`.recipe_files` (a model's recipes, read from its YAML file).
 """
 
 from __future__ import annotations
@@ -62,6 +62,7 @@ from .lookup import (
     load_dataset,
     revision_of,
 )
+from .recipe_files import read_recipe_file, recipe_file, recipe_file_path
 
 __all__ = [
     "Entry", "PluginInfo", "PluginWarning", "register_model", "register_dataset", "register_sensor",
@@ -70,5 +71,5 @@ __all__ = [
     "set_plugin_policy",
     "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
     "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError", "model_recipe",
-    "resolve_model_recipe", "ModelRecipe",
+    "resolve_model_recipe", "ModelRecipe", "recipe_file", "read_recipe_file", "recipe_file_path",
 ]

@@ -179,10 +179,10 @@ def test_the_headline_check_names_a_row_that_reads_another_recipe(tmp_path: Path
     picked = honest.replace("| `full` | 0.5000 [", "| `source` | 0.9500 [", 1).replace("| `full` | 0.9000 [",
                                                                                      "| `zoo` | 0.9500 [", 1)
     assert picked != honest and hl.problems(picked, source) == [
-        "headline: SGnet on Ev-Objects reads `zoo`, not the registered default `full` (default_recipe in "
-        "tactile_zoo/models/sgnet.py): no recipe is chosen on test",
-        "headline: X-Tacformer on Ev-Objects reads `source`, not the registered default `full` (default_recipe in "
-        "tactile_zoo/models/x_tacformer.py): no recipe is chosen on test"]
+        "headline: SGnet on Ev-Objects reads `zoo`, not the registered default `full` (`default:` in "
+        "tactile_zoo/recipes/sgnet.yaml): no recipe is chosen on test",
+        "headline: X-Tacformer on Ev-Objects reads `source`, not the registered default `full` (`default:` in "
+        "tactile_zoo/recipes/x_tacformer.yaml): no recipe is chosen on test"]
     # the right label on another recipe's figure, and a row left out
     relabelled = honest.replace("| `full` | 0.5000 [", "| `full` | 0.9500 [", 1)
     wrong = hl.problems("\n".join(line for line in relabelled.splitlines()

@@ -145,7 +145,7 @@ def test_a_registered_default_that_the_rule_did_not_pick_is_named() -> None:
     flipped = {"full": "zoo", "zoo": "full"}
     decided = {"sgnet": registered["sgnet"], "dcnn": flipped[registered["dcnn"]], "convlstm": "pending"}
     assert unregistered(decided) == [f"dcnn: the plan's rule makes {decided['dcnn']!r} the default, the registry says "
-                                     f"{registered['dcnn']!r} (default_recipe in tactile_zoo/models/dcnn.py)"]
+                                     f"{registered['dcnn']!r} (`default:` in tactile_zoo/recipes/dcnn.yaml)"]
 
 
 def test_the_gap_reading_splits_the_paper_lead() -> None:

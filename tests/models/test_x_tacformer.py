@@ -1,6 +1,9 @@
-"""X-Tacformer: shapes, gradients through both branches, streaming equals the forward on every prefix, metadata."""
+"""X-Tacformer: shapes, gradients through both branches, streaming equals the forward on every prefix, metadata, and
+its constructor (Tacformer's signature shared) builds what the written-out one built, bit for bit."""
 
 from __future__ import annotations
+
+import inspect
 
 import pytest
 import torch
@@ -8,7 +11,9 @@ import torch
 from tactile_zoo.data.sensors import BIOTAC_SP, NEUTOUCH
 from tactile_zoo.data.spec import DatasetSpec
 from tactile_zoo.errors import ConfigError
+from tactile_zoo.models.tacformer import Tacformer
 from tactile_zoo.models.x_tacformer import XTacformer
+from tactile_zoo.nn.tgcn import TemporalGraphAttention
 from tactile_zoo.registry import create_model, get_model_entry
 
 SMALL = dict(dim=16, heads=2, hidden=8, attn_dim=8, v_th=0.5)
@@ -72,3 +77,70 @@ def test_registered_with_recipe_and_streaming_meta() -> None:
     assert {"spiking", "graph", "attention", "recurrent"} <= set(meta["tags"])
     assert {"loss", "optimizer", "lr", "max_epochs", "patience", "batch_size"} <= set(meta["recipe"])
     assert isinstance(create_model("X-Tacformer", spec(), dim=8, heads=2, hidden=4), XTacformer)
+
+
+# --------------------------------------------------------------- one constructor signature, shared with Tacformer
+#: XTacformer's constructor as it was written out in full (all of Tacformer's keywords re-declared), kept as the
+#: oracle of the shared signature: names, order, kinds, defaults and annotations
+SIGNATURE = [
+    ("spec", inspect.Parameter.empty, "DatasetSpec"), ("dim", 64, "int"), ("heads", 4, "int"), ("depth", 1, "int"),
+    ("mlp_ratio", 0.0, "float"), ("hops", 3, "int"), ("tau", 2.0, "float"), ("v_th", 1.0, "float"),
+    ("surrogate", "atan", "str"), ("detach_reset", True, "bool"), ("bin_size", 5, "int"),
+    ("taxel_embedding", True, "bool"), ("pool", "flatten", "str"), ("readout_norm", True, "bool"),
+    ("hidden", 16, "int"), ("temporal_pool", "mean", "str"), ("attn_dim", 32, "int"),
+    ("temporal_backend", "native", "str"), ("dropout", 0.1, "float"), ("attn_dropout", 0.0, "float"),
+    ("graph", "default", "str"), ("graph_backend", "dense", "str"), ("lif_backend", "fused", "str")]
+
+
+class _WrittenOut(Tacformer):
+    """The constructor before it shared Tacformer's signature, verbatim in what it builds and in which order."""
+
+    def __init__(self, spec: DatasetSpec, dim: int = 64, heads: int = 4, depth: int = 1, mlp_ratio: float = 0.0,
+                 hops: int = 3, tau: float = 2.0, v_th: float = 1.0, surrogate: str = "atan",
+                 detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, pool: str = "flatten",
+                 readout_norm: bool = True, hidden: int = 16, temporal_pool: str = "mean", attn_dim: int = 32,
+                 temporal_backend: str = "native", dropout: float = 0.1, attn_dropout: float = 0.0,
+                 graph: str = "default", graph_backend: str = "dense", lif_backend: str = "fused") -> None:
+        super().__init__(spec, dim=dim, heads=heads, depth=depth, mlp_ratio=mlp_ratio, hops=hops, tau=tau, v_th=v_th,
+                         surrogate=surrogate, detach_reset=detach_reset, bin_size=bin_size,
+                         taxel_embedding=taxel_embedding, pool=pool, readout_norm=readout_norm, dropout=dropout,
+                         attn_dropout=attn_dropout, graph=graph, graph_backend=graph_backend,
+                         lif_backend=lif_backend)
+        self.name = "x_tacformer"
+        self.temporal = TemporalGraphAttention(spec.num_channels, hidden, spec.sensor.edge_index(graph),
+                                               spec.num_nodes, pool=temporal_pool, attn_dim=attn_dim,
+                                               temporal_backend=temporal_backend, graph_backend=graph_backend)
+        self.temporal_norm = torch.nn.LayerNorm(self.temporal.out_features)
+        self.head = torch.nn.Linear(self.rate_width + self.temporal.out_features, spec.num_classes)
+
+    _features = XTacformer._features
+
+
+def test_the_signature_is_the_written_out_one() -> None:
+    params = list(inspect.signature(XTacformer).parameters.values())
+    assert [(p.name, p.default, p.annotation) for p in params] == SIGNATURE
+    assert {p.kind for p in params} == {inspect.Parameter.POSITIONAL_OR_KEYWORD}
+    assert inspect.signature(XTacformer) == inspect.signature(_WrittenOut)
+    with pytest.raises(TypeError, match="hiddn"):
+        XTacformer(spec(), hiddn=8)
+
+
+@pytest.mark.parametrize(("args", "kwargs", "globals_"), [
+    ((), {}, 0), ((), {**SMALL, "bin_size": 3}, 3), ((32, 2, 2, 1.0), {"temporal_pool": "flatten", "pool": "mean"}, 0),
+    ((), {"hidden": 4, "taxel_embedding": False, "readout_norm": False, "mlp_ratio": 2.0, "dropout": 0.0}, 3)])
+def test_the_same_model_bit_for_bit(args: tuple, kwargs: dict, globals_: int) -> None:
+    """Same seed, same keywords (positional ones too): the same state_dict (keys, order, values), the same random
+    numbers drawn, and the same outputs as the written-out constructor."""
+    built = []
+    for cls in (XTacformer, _WrittenOut):
+        torch.manual_seed(7)
+        model = cls(spec(globals_), *args, **kwargs).eval()
+        built.append((model, torch.rand(3)))  # what the generator gives next: as many numbers drawn
+    (new, new_next), (old, old_next) = built
+    assert list(new.state_dict()) == list(old.state_dict()) and torch.equal(new_next, old_next)
+    for key, value in old.state_dict().items():
+        assert torch.equal(new.state_dict()[key], value), key
+    x = events(2, 9, 39, 2, seed=4)
+    g = torch.randn(2, 9, globals_) if globals_ else None
+    with torch.no_grad():
+        assert torch.equal(new(x, g), old(x, g))

@@ -28,6 +28,7 @@ import torch
 from torch import nn
 
 from tactile_zoo.errors import ConfigError
+from tactile_zoo.registry import recipe_file
 
 from .temporal_block import TemporalBlock
 
@@ -72,9 +73,8 @@ class TCN(nn.Module):
         "causal": True,
         "streaming": True,
         "revision": 1,  # computational revision (part of every cell hash): bump when what the model computes changes
-        # our choice for the zoo's tasks, not from the paper (which tunes per task)
-        "recipe": {"loss": "ce", "optimizer": "adam", "lr": 2e-3, "weight_decay": 0.0, "schedule": None,
-                   "max_epochs": 100, "patience": 20, "batch_size": 32, "grad_clip": 1.0},
+        # the training recipe is data: tactile_zoo_tcn/recipes/tcn.yaml, shipped as package data
+        **recipe_file("tactile_zoo_tcn", "tcn"),
     }
 
     def __init__(self, spec: Any, hidden: int = 64, levels: int | None = None, kernel_size: int = 3,
