@@ -121,7 +121,7 @@ def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, t
     _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
             spikes.view(steps, -1).numpy(), last.view(-1).numpy(),
             np.zeros((1, 1), np.float32) if ckpt is None else ckpt.numpy(), checkpoints, *_f32(beta, threshold),
-            _f32(_next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, mem0.numel()),
+            _f32(_next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, int(mem0.numel())),
             *_f32(input_scale), input_scale != 1.0)
     return spikes, last, ckpt
 
