@@ -4,15 +4,16 @@ Every rule but ``metadata`` and ``recipes`` runs once per spec. The rules, in th
 
 - ``metadata``: the metadata passes ``register_model``'s checks and is complete (paper, description, tags, and
   ``causal`` and ``streaming`` declared; streaming needs a causal model).
-- ``recipes``: every named recipe resolves (for each registered dataset's section too) and names only constructor
+- ``recipes``: every named recipe resolves (each of its per-dataset sections too) and sets only constructor
   keywords the model takes.
 - ``builds``: ``Model(spec)`` with its defaults gives a ``torch.nn.Module`` with trainable parameters (a
   :class:`~tactile_zoo.errors.ModelCannotConsume` skips the spec's other rules, as the harness skips its cells).
 - ``forward``: ``(B, num_classes)`` finite scores of the input's dtype, in training and in eval mode; without global
   features ``g=None`` and the ``(B, T, 0)`` tensor a batch carries give the same scores.
-- ``inputs``: a model whose ``inputs`` name ``globals`` reads them: other global features change its scores.
-- ``batch_independence``: in eval mode a sample's scores do not depend on its batch-mates.
 - ``determinism``: two builds after the same seed are equal, and a second forward in eval mode repeats the first.
+- ``inputs``: a model whose ``inputs`` name ``globals`` reads them: other global features change its scores (or, for
+  a spiking model silent before training, a gradient reaches them).
+- ``batch_independence``: in eval mode a sample's scores do not depend on its batch-mates.
 - ``gradients``: the recipe's loss reaches every trainable parameter with a finite, non-zero gradient.
 - ``causal``: a ``causal=True`` model reads every prefix ``x[:, :t]`` (the harness's early classification just stops
   reading it there).
@@ -42,7 +43,7 @@ from ._contract import Broken, ContractReport, Runner, Skipped, expect, random_b
 
 __all__ = ["MODEL_RULES", "check_model"]
 
-MODEL_RULES = ("metadata", "recipes", "builds", "forward", "inputs", "batch_independence", "determinism", "gradients",
+MODEL_RULES = ("metadata", "recipes", "builds", "forward", "determinism", "inputs", "batch_independence", "gradients",
                "causal", "streaming", "state_dict")
 #: scores that should be equal may differ by float rounding (a batched matmul sums in another order)
 ATOL, RTOL = 1e-5, 1e-4
@@ -62,6 +63,8 @@ class _Subject:
             self.name = getattr(model, "__name__", type(model).__name__)
             self.factory = model
             self.meta = getattr(model, "zoo_meta", None) if meta is None else meta
+            if isinstance(self.meta, Mapping):  # as registration stores it: a lone recipe is the one named "default"
+                self.meta = _normalise_recipes("model", dict(self.meta))
 
     def build(self, spec: DatasetSpec, hparams: Mapping[str, Any], seed: int = 0) -> torch.nn.Module:
         seed_everything(seed)  # as the harness builds a model: its initial weights depend on the seed only
@@ -116,8 +119,8 @@ def _recipes(subject: _Subject) -> None:
     if not recipes:
         raise Skipped("it registers no recipe (it trains with the harness's default)")
     accepted = _constructor_keywords(subject.factory)
-    for name in recipes:
-        for dataset in [None, *registry.list_datasets()]:
+    for name, recipe in recipes.items():
+        for dataset in [None, *sorted((recipe or {}).get("datasets") or {})]:  # the recipe, then each section
             resolved = registry.resolve_model_recipe(meta, name, dataset, owner=f"model {subject.name!r}")
             unknown = sorted(set(resolved.hparams) - accepted) if accepted is not None else []
             on = f" on {dataset}" if dataset else ""
@@ -191,9 +194,9 @@ def _determinism(subject: _Subject, spec: DatasetSpec, hparams: Mapping[str, Any
                         f"reach: an unseeded generator, numpy's default_rng(), ...)")
     with torch.no_grad():
         first = a(x, g)
-        expect(torch.equal(first, b(x, g)), "two builds after the same seed give different scores")
         expect(torch.equal(first, a(x, g)), "a second forward in eval mode differs from the first (randomness at "
                                             "evaluation, or state kept between calls)")
+        expect(torch.equal(first, b(x, g)), "two builds after the same seed give different scores")
 
 
 def _gradients(model: torch.nn.Module, recipe: Any, x: torch.Tensor, g: torch.Tensor, y: torch.Tensor) -> None:
@@ -275,10 +278,11 @@ def _check_spec(run: Runner, subject: _Subject, spec: DatasetSpec, hparams: Mapp
     meta = subject.meta or {}
     x, g, y = random_batch(spec, BATCH, seed=1)
     run.run("forward", _forward, model, spec, x, g, where=where)
-    run.run("inputs", _inputs, model, meta, spec, x, g, where=where)
-    run.run("gradients", _gradients, model, subject.recipe(), x, g, y, where=where)
-    run.run("batch_independence", _batch_independence, model, x, g, where=where)
+    # randomness first: it would pass for a global-feature input or fail batch independence, and mislead both
     run.run("determinism", _determinism, subject, spec, hparams, x[:3], g[:3], seed + 7, where=where)
+    run.run("inputs", _inputs, model, meta, spec, x, g, where=where)
+    run.run("batch_independence", _batch_independence, model, x, g, where=where)
+    run.run("gradients", _gradients, model, subject.recipe(), x, g, y, where=where)
     run.run("causal", _causal, model, meta, spec, x, g, where=where)
     run.run("streaming", _streaming, model, meta, spec, x, g, where=where)
     run.run("state_dict", _state_dict, subject, spec, hparams, x, g, seed, where=where)
