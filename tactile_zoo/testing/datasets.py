@@ -31,6 +31,7 @@ from ._contract import ContractReport, Runner, Skipped, expect
 
 __all__ = ["DATASET_RULES", "check_dataset"]
 
+#: The dataset rules, in the order :func:`check_dataset` runs them (the module docstring says what each checks).
 DATASET_RULES = ("metadata", "loads", "spec", "samples", "labels", "disjoint", "deterministic")
 REQUIRED_META = ("sensor", "num_classes", "num_steps", "num_nodes", "num_channels", "num_globals", "folds", "splits",
                  "protocol")

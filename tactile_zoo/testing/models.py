@@ -43,6 +43,7 @@ from ._contract import Broken, ContractReport, Runner, Skipped, expect, random_b
 
 __all__ = ["MODEL_RULES", "check_model"]
 
+#: The model rules, in the order :func:`check_model` runs them (the module docstring says what each checks).
 MODEL_RULES = ("metadata", "recipes", "builds", "forward", "determinism", "inputs", "batch_independence", "gradients",
                "causal", "streaming", "state_dict")
 #: scores that should be equal may differ by float rounding (a batched matmul sums in another order)
