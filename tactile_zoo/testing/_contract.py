@@ -58,7 +58,9 @@ class ContractReport:
         subject: the model's or dataset's name.
         kind: ``"model"`` or ``"dataset"``.
         passed: ``(rule, where)`` for every rule that held.
-        skipped: ``(rule, where, why)`` for every rule that did not apply.
+        skipped: ``(rule, where, why)`` for every rule that did not apply (``"*"``: a whole spec the model cannot
+            consume).
+        order: every rule of the suite, in the order it runs them.
     """
 
     subject: str
@@ -66,10 +68,13 @@ class ContractReport:
     passed: list[tuple[str, str]] = field(default_factory=list)
     skipped: list[tuple[str, str, str]] = field(default_factory=list)
 
+    order: tuple[str, ...] = ()
+
     @property
     def rules(self) -> list[str]:
-        """The rules that held at least once, in the order they ran."""
-        return list(dict.fromkeys(rule for rule, _ in self.passed))
+        """The rules that held at least once, in the suite's order."""
+        held = {rule for rule, _ in self.passed}
+        return [rule for rule in self.order if rule in held]
 
     def __str__(self) -> str:
         lines = [f"{self.kind} {self.subject!r}: {len(self.passed)} checks passed, {len(self.skipped)} skipped"]
@@ -89,7 +94,7 @@ class Runner:
         if unknown:
             raise ConfigError(f"unknown {kind} rule(s) {unknown}; known: {', '.join(known)}")
         self.selected = [r for r in known if r in wanted and r not in skip]
-        self.report = ContractReport(subject, kind)
+        self.report = ContractReport(subject, kind, order=tuple(known))
         self.kind, self.passthrough = kind, passthrough
 
     def wants(self, rule: str) -> bool:

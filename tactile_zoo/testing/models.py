@@ -64,8 +64,8 @@ class _Subject:
             self.name = getattr(model, "__name__", type(model).__name__)
             self.factory = model
             self.meta = getattr(model, "zoo_meta", None) if meta is None else meta
-            if isinstance(self.meta, Mapping):  # as registration stores it: a lone recipe is the one named "default"
-                self.meta = _normalise_recipes("model", dict(self.meta))
+        if isinstance(self.meta, Mapping):  # as registration stores it: a lone recipe is the one named "default"
+            self.meta = _normalise_recipes("model", dict(self.meta))
 
     def build(self, spec: DatasetSpec, hparams: Mapping[str, Any], seed: int = 0) -> torch.nn.Module:
         seed_everything(seed)  # as the harness builds a model: its initial weights depend on the seed only
