@@ -68,7 +68,7 @@ def test_the_site_builds_strictly_with_every_nav_page_and_the_api_reference(site
     pages = _nav_pages(config["nav"])
     assert {"quickstart.md", "datasets.md", "models.md", "harness.md", "pretrained.md", "plugins.md",
             "performance.md", "table1.md", "fidelity.md", "published-results.md", "cli.md",
-            "changelog.md"} <= set(pages)
+            "changelog.md", "contribute.md"} <= set(pages)
     for page in pages:
         assert _page_html(site, page).is_file(), page
     # the API reference is generated from the docstrings, not left as ":::" lines
@@ -79,7 +79,9 @@ def test_the_site_builds_strictly_with_every_nav_page_and_the_api_reference(site
                             ("api/engine.md", "tactile_zoo.engine.fit"),
                             ("api/bench.md", "tactile_zoo.bench.run_bench"),
                             ("api/weights.md", "tactile_zoo.weights.create_model"),
-                            ("api/nn.md", "tactile_zoo.nn.lif.MultiStepLIF")]:
+                            ("api/nn.md", "tactile_zoo.nn.lif.MultiStepLIF"),
+                            ("api/testing.md", "tactile_zoo.testing.check_model"),
+                            ("api/testing.md", "tactile_zoo.testing.ContractError")]:
         assert qualified in api[page], (page, qualified)
     assert "<summary>Shapes</summary>" in _page_html(site, "api/nn.md").read_text()
     for page in pages:

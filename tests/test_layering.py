@@ -34,6 +34,10 @@ def test_contracts_hold_on_the_package() -> None:
     # the weights layer sits on the engine: the engine never imports it, and it reaches models through the registry
     ("engine/evaluate.py", "from tactile_zoo.weights import entry as _entry  # noqa", "Layers: cli -> bench"),
     ("weights/heads.py", "from tactile_zoo.models import sgnet as _sgnet  # noqa", "No layer imports a model"),
+    # the contract suite checks models through the registry, never a model module; the engine never imports it
+    ("testing/models.py", "from tactile_zoo.models import sgnet as _sgnet  # noqa", "No layer imports a model"),
+    ("engine/build.py", "from tactile_zoo.testing import check_model as _check  # noqa", "Layers: cli -> bench"),
+    ("models/sgnet.py", "from tactile_zoo.testing import tiny_spec as _t  # noqa", "Models never import the harness"),
     # the scripts on top: the package never reaches up to them, and the suite never imports the tools
     ("bench/report.py", "import benchmarks.common as _common  # noqa", "never imports the performance suite"),
     ("../benchmarks/lif.py", "import tools.fidelity as _fidelity  # noqa", "never imports the tools"),
