@@ -32,7 +32,14 @@ from typing import Any
 
 from .. import registry
 from ..errors import ConfigError, ModelCannotConsume
-from ..recipe import Recipe, cap_epochs, declared_evaluation, named_recipe_for, recipe_name_of, resolve_recipe
+from ..recipe import (
+    Recipe,
+    cap_epochs,
+    declared_evaluation,
+    named_recipe_for,
+    recipe_name_of,
+    recipe_values,
+)
 from .evaluate import DEFAULT_PREFIXES
 
 __all__ = ["CellConfig", "NamedRecipe", "EVALUATIONS", "MERGED_EVALUATIONS", "UNHASHED_KEYS", "HASH_FORMAT",
@@ -148,12 +155,17 @@ def resolve_model_recipe(meta: Mapping[str, Any], name: str | None = None, datas
         raise ConfigError(f"{owner}: {exc}") from None
     training, hparams, kwargs = named_recipe_for(base, dataset, where=f"recipe {name!r} of {owner}")
     forced = epochs if epochs is not None else (QUICK_EPOCHS if quick else None)
+    where = f"recipe of {owner}"
     if isinstance(overrides, Recipe):
-        name, recipe = "custom", resolve_recipe(overrides, None, forced)
+        name, values = "custom", recipe_values(overrides, None, forced, where)
     else:
-        recipe = resolve_recipe(training, overrides, forced, where=f"recipe of {owner}")
+        values = recipe_values(training, overrides, forced, where)
         if forced is None and budget is not None:
-            recipe = cap_epochs(recipe, int(budget))
+            values = cap_epochs(values, int(budget))
+    try:  # the layers' keys merged first, then the Recipe built once, here, from all of them
+        recipe = Recipe(**values)
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("recipe:", f"{where}:", 1)) from None
     return NamedRecipe(name, recipe, hparams, kwargs, declared_evaluation(base, dataset))
 
 
