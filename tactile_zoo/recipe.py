@@ -261,7 +261,7 @@ def recipe_values(base: Recipe | Mapping[str, Any] | None = None, overrides: Map
                   epochs: int | None = None, where: str = "recipe") -> dict[str, Any]:
     """The keys :func:`resolve_recipe` builds its recipe from: the defaults, ``base``, ``overrides``, ``epochs``,
     each key checked and coerced (``"1e-3"`` -> 0.001); building the :class:`Recipe` checks their values together."""
-    values: dict[str, Any] = DEFAULT_RECIPE.to_dict()
+    values: dict[str, Any] = {**_DEFAULT_VALUES, "rate_targets": list(_DEFAULT_VALUES["rate_targets"])}
     layers: list[tuple[str, Mapping[str, Any]]] = []
     if isinstance(base, Recipe):
         values = base.to_dict()
@@ -295,6 +295,7 @@ RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 #: so that adding a capability never moves an existing cell's hash
 HASH_NEUTRAL_KEYS: dict[str, Any] = {"ema_decay": None}
 DEFAULT_RECIPE = Recipe()
+_DEFAULT_VALUES = DEFAULT_RECIPE.to_dict()  # the first layer of every resolution (a frozen recipe: read once)
 #: the non-training sections a named recipe may carry (see the module docstring)
 RECIPE_SECTIONS = ("hparams", "dataset_kwargs", "datasets", "evaluation")
 #: the evaluations a named recipe may declare (the engine knows more: ``reference`` and ``tuning`` are chosen by the
