@@ -37,7 +37,9 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
       sim_evtouch: {n_train_per_class: 40}
       "*": {}                       # every dataset
 
-Unknown keys anywhere in the file are a :class:`ConfigError` that names them.
+Unknown keys anywhere in the file are a :class:`ConfigError` that names them. :func:`plan_cells` turns the settings
+into every cell's :class:`~tactile_zoo.engine.config.CellConfig` (resolved once, in :mod:`tactile_zoo.engine.config`);
+nothing after it reads the settings for a cell again.
 """
 
 from __future__ import annotations

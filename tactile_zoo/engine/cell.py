@@ -11,7 +11,7 @@ come from :mod:`.build`.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
@@ -92,8 +92,8 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         model = build_model(config.model, train.spec, config.hparams, seed)
         if config.evaluation == "reference":
             result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback)
-        elif config.evaluation == "final":
-            result = train_model(model, concat(train, val), recipe=rec.replace(patience=None), seed=seed, device=dev,
+        elif config.evaluation == "final":  # the resolved recipe copied without early stopping, not resolved again
+            result = train_model(model, concat(train, val), recipe=replace(rec, patience=None), seed=seed, device=dev,
                                  progress=progress, callback=callback)
         else:
             result = train_model(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev,
@@ -147,7 +147,7 @@ def _fit_reference(model: torch.nn.Module, train: Any, val: Any, test: Any, reci
         if callback is not None:
             callback(row)
 
-    result = train_model(model, concat(train, val), recipe=recipe.replace(patience=None), seed=seed, device=device,
+    result = train_model(model, concat(train, val), recipe=replace(recipe, patience=None), seed=seed, device=device,
                          progress=progress, callback=after_epoch)
     # final_epoch_accuracy is filled in by train_cell from its one evaluation of the test split
     return result, {"best_test_epoch_accuracy": best["accuracy"],
