@@ -291,7 +291,8 @@ def pair_row(case: str, fast: str, naive: str, t_fast: Timing, t_naive: Timing, 
 
 def model_recipe(name: str) -> Any:
     """The registered training recipe of model ``name`` as a :class:`~tactile_zoo.engine.Recipe`."""
-    from tactile_zoo.registry import get_model_entry, resolve_model_recipe
+    from tactile_zoo.engine.config import resolve_model_recipe
+    from tactile_zoo.registry import get_model_entry
 
     return resolve_model_recipe(get_model_entry(name).meta, owner=f"model {name!r}").recipe
 

@@ -50,12 +50,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from .errors import ConfigError
 
-__all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "RECIPE_SECTIONS", "resolve_recipe", "named_recipe_for",
+__all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "RECIPE_SECTIONS", "resolve_recipe", "recipe_values",
+           "named_recipe_for",
            "check_named_recipe", "lr_factor", "cap_epochs", "full_recipe", "recipe_name_of"]
 
 LOSSES = ("ce", "mse_rate")
@@ -249,9 +250,18 @@ def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Ma
                    epochs: int | None = None, where: str = "recipe") -> Recipe:
     """The recipe ``base`` (a Recipe, a model's metadata dict, or ``None`` = the default) with ``overrides`` applied.
 
-    ``epochs`` (the CLI's ``--epochs``) replaces ``max_epochs`` last. Unknown keys raise :class:`ConfigError`.
+    ``epochs`` (the CLI's ``--epochs``) replaces ``max_epochs`` last. Unknown keys raise :class:`ConfigError`. A
+    cell's recipe is resolved by :func:`tactile_zoo.engine.config.resolve_model_recipe` (every layer, in order); this
+    is the schema's merge of one base and its overrides.
     """
-    values: dict[str, Any] = DEFAULT_RECIPE.to_dict()
+    return _build(recipe_values(base, overrides, epochs, where), where)
+
+
+def recipe_values(base: Recipe | Mapping[str, Any] | None = None, overrides: Mapping[str, Any] | None = None,
+                  epochs: int | None = None, where: str = "recipe") -> dict[str, Any]:
+    """The keys :func:`resolve_recipe` builds its recipe from: the defaults, ``base``, ``overrides``, ``epochs``,
+    each key checked and coerced (``"1e-3"`` -> 0.001); building the :class:`Recipe` checks their values together."""
+    values: dict[str, Any] = {**_DEFAULT_VALUES, "rate_targets": list(_DEFAULT_VALUES["rate_targets"])}
     layers: list[tuple[str, Mapping[str, Any]]] = []
     if isinstance(base, Recipe):
         values = base.to_dict()
@@ -269,8 +279,13 @@ def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Ma
             values[key] = _coerce(label, key, value)
     if epochs is not None:
         values["max_epochs"] = _as_int(where, "epochs", epochs)
+    return values
+
+
+def _build(values: Mapping[str, Any], where: str) -> Recipe:
+    """The :class:`Recipe` of :func:`recipe_values`' keys; a bad value is a :class:`ConfigError` naming ``where``."""
     try:
-        return replace(DEFAULT_RECIPE, **values)
+        return Recipe(**values)
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("recipe:", f"{where}:", 1)) from None
 
@@ -280,6 +295,7 @@ RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 #: so that adding a capability never moves an existing cell's hash
 HASH_NEUTRAL_KEYS: dict[str, Any] = {"ema_decay": None}
 DEFAULT_RECIPE = Recipe()
+_DEFAULT_VALUES = DEFAULT_RECIPE.to_dict()  # the first layer of every resolution (a frozen recipe: read once)
 #: the non-training sections a named recipe may carry (see the module docstring)
 RECIPE_SECTIONS = ("hparams", "dataset_kwargs", "datasets", "evaluation")
 #: the evaluations a named recipe may declare (the engine knows more: ``reference`` and ``tuning`` are chosen by the
@@ -299,7 +315,7 @@ def check_named_recipe(recipe: Mapping[str, Any], where: str = "recipe") -> None
         if value is not None and value not in RECIPE_EVALUATIONS:
             raise ConfigError(f"{where}: {key} must be one of {', '.join(RECIPE_EVALUATIONS)}, got {value!r}")
 
-    named_recipe_for(recipe, None, where)
+    resolve_recipe(named_recipe_for(recipe, None, where)[0], where=where)  # the schema's check of the values
     check_evaluation("evaluation", recipe.get("evaluation"))
     for dataset, section in _mapping(where, "datasets", recipe.get("datasets") or {}).items():
         if not isinstance(section, Mapping):
@@ -307,7 +323,7 @@ def check_named_recipe(recipe: Mapping[str, Any], where: str = "recipe") -> None
         if "datasets" in section:
             raise ConfigError(f"{where}: datasets.{dataset} cannot nest another 'datasets' section")
         check_evaluation(f"datasets.{dataset}.evaluation", section.get("evaluation"))
-        named_recipe_for(recipe, dataset, where)
+        resolve_recipe(named_recipe_for(recipe, dataset, where)[0], where=f"{where} on {dataset}")
 
 
 def declared_evaluation(recipe: Mapping[str, Any] | None, dataset: str | None) -> str | None:
@@ -335,7 +351,6 @@ def named_recipe_for(recipe: Mapping[str, Any] | None, dataset: str | None, wher
         training.update({k: v for k, v in section.items() if k not in RECIPE_SECTIONS})
         hparams.update(_mapping(f"{where}: datasets.{dataset}", "hparams", section.get("hparams") or {}))
         kwargs.update(_mapping(f"{where}: datasets.{dataset}", "dataset_kwargs", section.get("dataset_kwargs") or {}))
-    resolve_recipe(training, where=where if not section else f"{where} on {dataset}")  # the schema's check
     return training, hparams, kwargs
 
 
@@ -372,23 +387,25 @@ def _fixed_period(schedule: Any, period: int) -> Any:
     return schedule
 
 
-def cap_epochs(recipe: Recipe, budget: int | None) -> Recipe:
-    """``recipe`` limited to ``budget`` epochs, its schedule compressed to fit (a dataset's epoch budget).
+def cap_epochs(values: Mapping[str, Any], budget: int | None) -> dict[str, Any]:
+    """Recipe keys (:func:`recipe_values`) limited to ``budget`` epochs, the schedule compressed to fit (a dataset's
+    epoch budget).
 
     Multistep milestones and step sizes scale by ``budget / max_epochs`` (at least 1), so a schedule keeps its shape;
-    a cosine schedule follows ``max_epochs`` by itself. A recipe already within the budget is returned unchanged.
+    a cosine schedule follows ``max_epochs`` by itself. Keys already within the budget are returned unchanged.
     """
-    if budget is None or recipe.max_epochs <= budget:
-        return recipe
-    scale = budget / recipe.max_epochs
-    sched = dict(recipe.schedule) if recipe.schedule else None
+    values = dict(values)
+    if budget is None or values["max_epochs"] <= budget:
+        return values
+    scale = budget / values["max_epochs"]
+    sched = dict(values["schedule"]) if values.get("schedule") else None
     if sched and sched["type"] == "multistep":
         sched["milestones"] = sorted({max(1, round(m * scale)) for m in sched["milestones"]})
     elif sched and sched["type"] == "step":
         sched["step_size"] = max(1, round(sched["step_size"] * scale))
     elif sched and sched["type"] == "cosine" and sched.get("t_max"):
         sched["t_max"] = max(1, round(sched["t_max"] * scale))
-    return recipe.replace(max_epochs=budget, schedule=sched)
+    return {**values, "max_epochs": budget, "schedule": sched}
 
 
 def lr_factor(recipe: Recipe, epoch: int) -> float:

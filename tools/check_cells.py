@@ -60,7 +60,7 @@ def _rebuilt(record: dict[str, Any], root: str | None) -> dict[str, Any]:
     cells = [c for c in build_grid(bench).cells if c.fold == record["fold"]]
     if len(cells) != 1:
         raise LookupError(f"the grid has {len(cells)} cells for fold {record['fold']}")
-    return cells[0].config
+    return cells[0].config.to_dict()
 
 
 def check(record: dict[str, Any], root: str | None) -> tuple[str, str, dict[str, Any]]:

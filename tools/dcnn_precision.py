@@ -24,9 +24,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "gpu"))
 from parity import _dropout_off, sim_split, tf32_off  # noqa: E402
 
 from tactile_zoo.engine.build import build_model  # noqa: E402
+from tactile_zoo.engine.config import resolve_model_recipe  # noqa: E402
 from tactile_zoo.engine.runtime import flush_denormals  # noqa: E402
 from tactile_zoo.engine.train import compute_loss  # noqa: E402
-from tactile_zoo.registry import get_model_entry, resolve_model_recipe  # noqa: E402
+from tactile_zoo.registry import get_model_entry  # noqa: E402
 
 #: label -> (device, dtype, channels-last convolution blocks)
 RUNS = {"cpu32": ("cpu", torch.float32, True), "cpu32-nchw": ("cpu", torch.float32, False),

@@ -42,7 +42,7 @@ class CellTask:
     seed: int
     config_hash: str
     cell_id: str
-    config: dict[str, Any]
+    config: CellConfig  # resolved once by the grid, shipped as it is (picklable), never resolved again
     protocol: str = "fixed"
     extra_splits: tuple[str, ...] = ()
     root: str | None = None
@@ -97,8 +97,8 @@ def _error_text(exc: BaseException) -> str:
 def _base_record(task: CellTask) -> dict[str, Any]:
     return {"format": RECORD_FORMAT, "cell_id": task.cell_id, "model": task.model, "dataset": task.dataset,
             "fold": task.fold, "seed": task.seed, "config_hash": task.config_hash, "protocol": task.protocol,
-            "status": "failed", "error": None, "config": task.config, "host": socket.gethostname(), "cpu": cpu_model(),
-            "cpu_isa": cpu_isa(), "versions": versions(), "commit": task.commit,
+            "status": "failed", "error": None, "config": task.config.to_dict(), "host": socket.gethostname(),
+            "cpu": cpu_model(), "cpu_isa": cpu_isa(), "versions": versions(), "commit": task.commit,
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
 
 
@@ -193,7 +193,7 @@ def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
         setup_worker(task.plugin_modules, task.threads, task.sys_path)
         record["device"] = str(resolve_device(task.device))
         record["threads"] = torch.get_num_threads()
-        config = CellConfig.from_dict(task.config)
+        config = task.config
         # the writer only reads each finished epoch's curve row: no RNG, no model state, so numbers are unchanged
         callback = ProgressWriter(task.progress_dir, record, config.recipe.max_epochs) if task.progress_dir else None
         try:

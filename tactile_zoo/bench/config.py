@@ -37,42 +37,39 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
       sim_evtouch: {n_train_per_class: 40}
       "*": {}                       # every dataset
 
-Unknown keys anywhere in the file are a :class:`ConfigError` that names them.
+Unknown keys anywhere in the file are a :class:`ConfigError` that names them. :func:`plan_cells` turns the settings
+into every cell's :class:`~tactile_zoo.engine.config.CellConfig` (resolved once, in :mod:`tactile_zoo.engine.config`);
+nothing after it reads the settings for a cell again.
 """
 
 from __future__ import annotations
 
 import math
 import os
-import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from .. import registry
 from .._env import check_environment
+from ..engine.config import QUICK_EPOCHS, QUICK_SUBSET, CellConfig, check_hparams, resolve_cell
 from ..engine.evaluate import DEFAULT_PREFIXES
 from ..engine.runtime import cpu_count, resolve_device
-from ..errors import ConfigError
+from ..errors import ConfigError, TactileZooError
+from .parsing import MAX_CELLS, parse_folds, parse_positive_int, parse_prefixes, parse_seeds
 
 __all__ = ["BenchConfig", "load_yaml_config", "merge_config", "parse_seeds", "parse_folds", "parse_assignment",
            "parse_value", "parse_prefixes", "parse_positive_int", "parse_threads", "QUICK_SUBSET", "QUICK_EPOCHS",
-           "EXECUTORS", "OVERSUBSCRIPTION", "MAX_REMOTE_THREADS", "MAX_CELLS"]
+           "EXECUTORS", "OVERSUBSCRIPTION", "MAX_REMOTE_THREADS", "MAX_CELLS", "CellPlan", "plan_cells"]
 
 EXECUTORS = ("local", "process", "dask")
-#: ``--quick``: at most this many samples per split (class-balanced), and this many epochs unless --epochs says so.
-QUICK_SUBSET = {"train": 64, "val": 32, "test": 64}
-QUICK_EPOCHS = 2
 #: ``--threads``, and worker processes x threads, may reach this many times the cores of the machine the cells run
 #: on: beyond the cores they only compete for them, and each thread and process costs memory (100000 threads
 #: exhausted it before the first cell ran)
 OVERSUBSCRIPTION = 4
 #: ``--threads`` for cells on a Dask scheduler's workers, whose cores are not known here
 MAX_REMOTE_THREADS = 256
-#: The most cells (and so seeds) one bench command takes: weeks of computing at a second per cell, far above any grid
-#: the zoo's tables need (the largest is a few hundred), and small enough that the grid is listed in about a second.
-#: A larger study is several commands sharing one ``--out`` (its cells are reused across them).
-MAX_CELLS = 10_000
 
 
 @dataclass
@@ -236,14 +233,6 @@ def _names(key: str, value: Any, allow_empty: bool = False) -> list[str]:
     return out
 
 
-def parse_positive_int(flag: str, value: Any, minimum: int = 1) -> int:
-    if isinstance(value, str) and re.fullmatch(r"\s*\d+\s*", value):
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(f"{flag} must be an integer >= {minimum}, got {value!r}")
-    return value
-
-
 def parse_threads(value: Any, remote: bool = False, flag: str = "--threads") -> int:
     """Torch threads per cell: a positive integer up to :data:`OVERSUBSCRIPTION` times this machine's cores (or
     :data:`MAX_REMOTE_THREADS` for cells on a Dask scheduler's workers, whose cores are unknown here)."""
@@ -255,83 +244,6 @@ def parse_threads(value: Any, remote: bool = False, flag: str = "--threads") -> 
             f"{OVERSUBSCRIPTION} x the {cores} core(s) of this machine; more only slow every cell down"
         raise ConfigError(f"{flag} {threads}: at most {cap} ({where})")
     return threads
-
-
-def parse_seeds(value: Any) -> list[int]:
-    """``"0,1,2"``, ``"0-4"``, ``3``, ``[0, 1]`` -> sorted distinct non-negative seeds."""
-    if isinstance(value, int) and not isinstance(value, bool):
-        value = [value]
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, Sequence) or not value:
-        raise ConfigError(f"--seeds must be a comma-separated list of non-negative integers such as 0,1,2 (or a "
-                          f"range 0-4), got {value!r}")
-    spans: list[tuple[int, int]] = []  # inclusive ranges, counted before any is expanded
-    for item in value:
-        tokens = [item] if isinstance(item, int) and not isinstance(item, bool) else str(item).split(",")
-        for token in tokens:
-            text = str(token).strip()
-            if isinstance(token, int) and not isinstance(token, bool) and token >= 0:
-                spans.append((token, token))
-            elif re.fullmatch(r"\d+", text):
-                spans.append((int(text), int(text)))
-            elif (m := re.fullmatch(r"(\d+)\s*-\s*(\d+)", text)) and int(m.group(1)) <= int(m.group(2)):
-                spans.append((int(m.group(1)), int(m.group(2))))
-            else:
-                raise ConfigError(f"--seeds: {text!r} is not a non-negative integer or a range like 0-4 (got "
-                                  f"{value!r})")
-    if any(high >= 2**63 for _, high in spans):
-        raise ConfigError("--seeds: a seed must be below 2**63")
-    count = _count_distinct(spans)
-    if count > MAX_CELLS:
-        raise ConfigError(f"--seeds {_shown(value)}: {count:,} seeds; a bench command runs at most {MAX_CELLS:,} cells "
-                          f"(split the study into several commands sharing one --out)")
-    return sorted({seed for low, high in spans for seed in range(low, high + 1)})
-
-
-def _count_distinct(spans: list[tuple[int, int]]) -> int:
-    """How many integers the inclusive ranges ``spans`` hold together (overlaps counted once)."""
-    count, reached = 0, -1
-    for low, high in sorted(spans):
-        if high > reached:
-            count += high - max(low, reached + 1) + 1
-            reached = high
-    return count
-
-
-def _shown(value: Any) -> str:
-    return ",".join(str(v) for v in value) if isinstance(value, list | tuple) else str(value)
-
-
-def parse_folds(value: Any) -> int | None:
-    """``--folds K``: run at most the first K folds of each dataset (``None``: every fold it defines)."""
-    if value is None or (isinstance(value, str) and value.strip().lower() in {"all", ""}):
-        return None
-    try:
-        return parse_positive_int("--folds", value)
-    except ConfigError:
-        raise ConfigError(f"--folds must be a positive integer (run the first K folds of each dataset) or 'all', got "
-                          f"{value!r}") from None
-
-
-def parse_prefixes(value: Any) -> list[float]:
-    """Prefix fractions in (0, 1] for early classification; 1.0 is always included."""
-    if isinstance(value, str):
-        value = [v for v in value.split(",") if v.strip()]
-    if not isinstance(value, Sequence) or not value:
-        raise ConfigError(f"--prefixes must be a comma-separated list of fractions in (0, 1], got {value!r}")
-    out = set()
-    for item in value:
-        try:
-            frac = float(item)
-        except (TypeError, ValueError):
-            raise ConfigError(f"--prefixes: {item!r} is not a number") from None
-        if frac > 1 and frac <= 100:  # percentages
-            frac /= 100
-        if not 0 < frac <= 1:
-            raise ConfigError(f"--prefixes: {item!r} is not a fraction in (0, 1] (or a percentage)")
-        out.add(round(frac, 6))
-    return sorted(out | {1.0})
 
 
 def _refuse_non_finite(where: str, value: Any) -> None:
@@ -433,3 +345,48 @@ def merge_config(yaml_data: Mapping[str, Any] | None, flags: Mapping[str, Any], 
         target = data["dataset_kwargs"].setdefault(scope or "*", {})
         target[key] = value
     return BenchConfig(**data)
+
+
+@dataclass(frozen=True)
+class CellPlan:
+    """What a bench or train command's settings make of its cells: every (model, dataset) pair's resolved
+    :class:`~tactile_zoo.engine.config.CellConfig`, and the few settings the grid reads beside them."""
+
+    configs: dict[tuple[str, str], CellConfig]
+    given: dict[str, dict[str, Any]]  # the constructor keywords the user gave each model (blamed for a failed build)
+    dataset_kwargs: dict[str, dict[str, Any]]  # the user's keyword arguments of each dataset (to probe it)
+    settings: dict[str, Any]  # every setting of the command, as run.json records them
+    quick: bool = False
+
+
+def plan_cells(config: BenchConfig, models: Sequence[str], datasets: Sequence[str]) -> CellPlan:
+    """The one place a command's settings become cells: each pair resolved once (:func:`resolve_cell`, the recipe's
+    layers in order), its constructor keywords checked. ``tactile-zoo bench`` and ``tactile-zoo train`` both call it;
+    every setting is read here first, so nothing downstream reads ``config`` for a cell again."""
+    settings = config.to_dict()
+    per_model = {m: config.overrides_for(m, _aliases(registry.get_model_entry(m))) for m in models}
+    kwargs = {d: config.kwargs_for(d) for d in datasets}
+    common = {"recipe_name": config.recipe_name, "epochs": config.epochs, "quick": config.quick,
+              "refit": config.refit, "prefixes": config.prefixes, "evaluation": config.evaluation}
+    configs: dict[tuple[str, str], CellConfig] = {}
+    for dataset in datasets:
+        for model in models:
+            recipe, hparams = per_model[model]
+            configs[model, dataset] = resolve_cell(model, dataset, recipe=recipe, hparams=hparams,
+                                                   dataset_kwargs=kwargs[dataset], **common)
+            check_hparams(configs[model, dataset])  # an unknown constructor keyword stops the command here
+    return CellPlan(configs, {m: hparams for m, (_, hparams) in per_model.items()}, kwargs, settings,
+                    bool(settings["quick"]))
+
+
+def _aliases(entry: registry.Entry) -> list[str]:
+    """The names of a model entry that resolve to it: a ``MODEL:KEY=VALUE`` override scoped by one of them applies to
+    it. A shadowed plugin's bare name is the built-in's, so ``sgnet:dim=64`` never reaches ``tz-clash:sgnet``."""
+    out = []
+    for name in (entry.name, entry.qualified_name):
+        try:
+            if registry.get_model_entry(name) is entry:
+                out.append(name)
+        except TactileZooError:  # a bare name two plugins share names neither of them
+            pass
+    return out

@@ -14,40 +14,37 @@ any changed setting or revision gives new hashes, so nothing stale is ever reuse
 from __future__ import annotations
 
 import hashlib
-import inspect
 import json
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from .. import registry
 from ..engine.build import load_splits
-from ..engine.cell import UNHASHED_KEYS, CellConfig, resolve_cell
-from ..errors import ConfigError, DatasetError, ModelCannotConsume, TactileZooError, UnknownNameError
-from .config import MAX_CELLS, BenchConfig
+from ..engine.config import HASH_FORMAT, CellConfig, check_model_builds, config_hash
+from ..errors import ConfigError, DatasetError, UnknownNameError
+from .config import MAX_CELLS, BenchConfig, plan_cells
 
-__all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "cell_config", "resolve_models", "resolve_datasets",
+__all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "resolve_models", "resolve_datasets",
            "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message",
-           "check_model_builds", "user_hparams"]
+           "check_model_builds"]
 
-#: 2: the configuration gained the model's and the dataset's computational revisions (``model_revision``,
-#: ``dataset_revision``); everything else hashes as in format 1.
-HASH_FORMAT = 2
 _WILDCARD = re.compile(r"[*?\[]")
 
 
 @dataclass(frozen=True)
 class Cell:
-    """One unit of work. ``config`` is the resolved configuration the hash covers."""
+    """One unit of work. ``config`` is the resolved configuration the hash covers, the object itself (a worker
+    receives it as it is; ``config.to_dict()`` is its record form)."""
 
     model: str
     dataset: str
     fold: int
     seed: int
     config_hash: str
-    config: dict[str, Any] = field(compare=False, hash=False)
+    config: CellConfig = field(compare=False, hash=False)
     protocol: str = field(default="fixed", compare=False)
     extra_splits: tuple[str, ...] = field(default=(), compare=False)
 
@@ -97,6 +94,8 @@ class Grid:
     dataset_notes: dict[str, str]  # dataset -> why it is skipped / failed (one line each)
     requested_models: list[str]
     requested_datasets: list[str]
+    settings: dict[str, Any] = field(default_factory=dict)  # every setting of the command, as run.json records them
+    quick: bool = False
 
     def describe(self) -> list[str]:
         """Human-readable lines: the plan, then the skipped datasets with the command that obtains them."""
@@ -133,13 +132,6 @@ def cell_id(model: str, dataset: str, fold: int, seed: int, config_hash: str) ->
 
 def _canonical(value: Any) -> str:
     return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
-
-
-def config_hash(config: dict[str, Any] | CellConfig, hash_format: int = HASH_FORMAT) -> str:
-    """16 hex digits of the SHA-256 of the canonical JSON of a cell's configuration (its labels aside)."""
-    values = config.hashed() if isinstance(config, CellConfig) else \
-        {k: v for k, v in config.items() if k not in UNHASHED_KEYS}
-    return hashlib.sha256(_canonical({"hash_format": hash_format, **values}).encode()).hexdigest()[:16]
 
 
 def _listed_name(kind: str, entry: registry.Entry) -> str:
@@ -193,12 +185,12 @@ def _obtain_hint(entry: registry.Entry, name: str, root: str | None) -> str:
     return str(entry.meta.get("obtain") or getattr(entry.obj, "obtain", "") or "").strip()
 
 
-def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, str, str]:
-    """Whether ``name`` can run here: a DatasetInfo, or ``(status, reason, obtain)`` for a skipped/failed one."""
+def _probe_dataset(name: str, config: BenchConfig, kwargs: dict[str, Any]) -> DatasetInfo | tuple[str, str, str]:
+    """Whether ``name`` can run here (with the user's keyword arguments ``kwargs``): a DatasetInfo, or
+    ``(status, reason, obtain)`` for a skipped/failed one."""
     from ..data.base import TactileDataset
 
     entry = registry.get_dataset_entry(name)
-    kwargs = config.kwargs_for(name)
     obj = entry.obj
     obtain = _obtain_hint(entry, name, config.root)
     present = False
@@ -234,101 +226,6 @@ def _probe_dataset(name: str, config: BenchConfig) -> DatasetInfo | tuple[str, s
                        entry.meta.get("max_epochs"), ds.spec)
 
 
-def _constructor_keywords(model: str) -> tuple[str, ...] | None:
-    """The keywords model ``model``'s constructor takes besides the spec; ``None`` when it takes any (``**kwargs``)
-    or its signature cannot be read (a C callable): then only building the model can tell."""
-    obj = registry.get_model_entry(model).obj
-    try:
-        params = list(inspect.signature(obj).parameters.values())
-    except (TypeError, ValueError):
-        return None
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params):
-        return None
-    named = [p for p in params if p.kind in (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)]
-    if named and named[0].kind is inspect.Parameter.POSITIONAL_OR_KEYWORD:
-        named = named[1:]  # the spec, passed positionally
-    return tuple(p.name for p in named)
-
-
-def _check_hparams(cell_config: CellConfig) -> None:
-    """An unknown constructor keyword (``--hparam``, a config file's ``hparams``, a named recipe's) is bad input:
-    it stops the command before anything runs, instead of failing every cell of the model."""
-    accepted = _constructor_keywords(cell_config.model)
-    unknown = sorted(set(cell_config.hparams) - set(accepted)) if accepted is not None else []
-    if unknown:
-        raise ConfigError(f"--hparam: model {cell_config.model!r} takes no keyword argument(s) "
-                          f"{', '.join(map(repr, unknown))}; it takes {', '.join(accepted) or 'none'}")
-
-
-def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]) -> bool:
-    """Build ``resolved``'s model once on ``spec`` (no data, no training), so that a bad hyper-parameter value stops
-    the command before any cell runs instead of failing (or, worse, skipping) every cell of the model.
-
-    Args:
-        resolved: the cell configuration (its model and every constructor keyword, the named recipe's included).
-        spec: the dataset's spec.
-        given: the constructor keywords the user gave (``--hparam``, a config file's ``hparams``): an error while
-            any is given is blamed on them.
-
-    Returns:
-        False when the model declares it cannot consume this dataset (:class:`ModelCannotConsume`: its cells are
-        skipped), else True. A model that fails without any keyword from the user is not bad input: its cells run
-        and record the failure, as a broken dataset's do.
-
-    Raises:
-        ConfigError: the model cannot be built with the user's keywords; one line naming them, the model, the dataset
-            and the model's own message.
-    """
-    import torch
-
-    try:
-        with torch.random.fork_rng(devices=[]):  # the check leaves the caller's random state as it found it
-            registry.create_model(resolved.model, spec, **dict(resolved.hparams))
-    except ModelCannotConsume:
-        return False
-    except Exception as exc:  # noqa: BLE001 - whatever a constructor raises for a value it cannot use
-        if not given:
-            return True
-        values = ", ".join(f"{key}={value!r}" for key, value in given.items())
-        why = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line, whatever the model's message holds
-        raise ConfigError(f"--hparam {values}: model {resolved.model!r} cannot be built with it for dataset "
-                          f"{resolved.dataset!r}: {why}") from None
-    return True
-
-
-def user_hparams(model: str, config: BenchConfig) -> dict[str, Any]:
-    """The constructor keywords the user gave ``model`` (``--hparam``, a config file's ``hparams`` and
-    ``model_overrides``), without those its named recipe carries."""
-    return config.overrides_for(model, _aliases(registry.get_model_entry(model)))[1]
-
-
-def _aliases(entry: registry.Entry) -> list[str]:
-    """The names of a model entry that resolve to it: a ``MODEL:KEY=VALUE`` override scoped by one of them applies to
-    it. A shadowed plugin's bare name is the built-in's, so ``sgnet:dim=64`` never reaches ``tz-clash:sgnet``."""
-    out = []
-    for name in (entry.name, entry.qualified_name):
-        try:
-            if registry.get_model_entry(name) is entry:
-                out.append(name)
-        except TactileZooError:  # a bare name two plugins share names neither of them
-            pass
-    return out
-
-
-def cell_config(model: str, dataset: str, config: BenchConfig) -> CellConfig:
-    """The resolved configuration of ``model`` on ``dataset`` under ``config``: the one place the command line's
-    settings become a cell (``tactile-zoo bench`` and ``tactile-zoo train`` both call it). An unknown constructor
-    keyword stops it here, before anything runs."""
-    entry = registry.get_model_entry(model)
-    recipe_over, hparams = config.overrides_for(model, _aliases(entry))
-    resolved = resolve_cell(model, dataset, recipe=recipe_over, recipe_name=config.recipe_name, hparams=hparams,
-                            epochs=config.effective_epochs(),
-                            dataset_kwargs=config.kwargs_for(dataset), refit=config.refit, subset=config.subset,
-                            prefixes=config.prefixes, evaluation=config.evaluation)
-    _check_hparams(resolved)
-    return resolved
-
-
 def _check_size(models: int, folds: int, seeds: int, bound: str) -> None:
     """Refuse a grid of more than :data:`~.config.MAX_CELLS` cells, with its count, before listing a single one."""
     count = models * folds * seeds
@@ -343,14 +240,14 @@ def build_grid(config: BenchConfig) -> Grid:
     models = resolve_models(config.models)
     dataset_names = resolve_datasets(config.datasets)
     _check_size(len(models), 1, len(config.seeds), "at least")  # before any dataset is loaded
-    # every pair's configuration first: a bad recipe override fails here, before any dataset is loaded
-    cell_configs = {(m, d): cell_config(m, d, config) for d in dataset_names for m in models}
+    # every pair's configuration first, resolved once: a bad recipe override fails here, before any dataset is loaded
+    plan = plan_cells(config, models, dataset_names)
     infos: list[DatasetInfo] = []
     skipped: list[SkipRow] = []
     notes: dict[str, str] = {}
     named = _named_datasets(config.datasets)
     for name in dataset_names:
-        probe = _probe_dataset(name, config)
+        probe = _probe_dataset(name, config, plan.dataset_kwargs[name])
         if isinstance(probe, DatasetInfo):
             infos.append(probe)
             continue
@@ -363,20 +260,21 @@ def build_grid(config: BenchConfig) -> Grid:
         raise ConfigError(f"--datasets {', '.join(config.datasets)}: none of the selected datasets has its data here "
                           f"({'; '.join(f'{n}: {why}' for n, why in notes.items())})")
     _check_size(len(models), sum(len(info.folds) for info in infos), len(config.seeds), "")
-    given = {m: user_hparams(m, config) for m in models}
     for info in infos:  # every model once on every dataset's spec: a bad --hparam value stops the command here
         for model in models:
-            check_model_builds(cell_configs[model, info.name], info.spec, given[model])
+            check_model_builds(plan.configs[model, info.name], info.spec, plan.given[model])
     cells: list[Cell] = []
     for info in infos:
         for model in models:
-            resolved = cell_configs[model, info.name]
-            digest, cfg = config_hash(resolved), resolved.to_dict()
+            resolved = plan.configs[model, info.name]
+            digest = config_hash(resolved)
             for fold in info.folds:
                 for seed in config.seeds:
-                    cells.append(Cell(model, info.name, fold, seed, digest, cfg, info.protocol, info.extra_splits))
+                    cells.append(Cell(model, info.name, fold, seed, digest, resolved, info.protocol,
+                                      info.extra_splits))
     cells.sort(key=lambda c: (dataset_names.index(c.dataset), c.fold, c.seed, models.index(c.model)))
-    return Grid(models, infos, cells, skipped, notes, list(config.models), list(config.datasets))
+    return Grid(models, infos, cells, skipped, notes, list(config.models), list(config.datasets), plan.settings,
+                plan.quick)
 
 
 def _tag(requested: list[str], resolved: list[str], word: str) -> str:
@@ -395,5 +293,5 @@ def default_out_dir(config: BenchConfig, grid: Grid, base: str | Path = "tactile
     digest = hashlib.sha256(_canonical({"cells": cells, "skipped": skipped}).encode()).hexdigest()[:10]
     dataset_names = [d.name for d in grid.datasets] + list(grid.dataset_notes)
     name = f"{_tag(grid.requested_models, grid.models, 'models')}_" \
-           f"{_tag(grid.requested_datasets, dataset_names, 'datasets')}_{'quick_' if config.quick else ''}{digest}"
+           f"{_tag(grid.requested_datasets, dataset_names, 'datasets')}_{'quick_' if grid.quick else ''}{digest}"
     return Path(base) / name

@@ -238,10 +238,11 @@ def describe_running(out: str | os.PathLike, now: float | None = None) -> list[s
 
 
 # ----------------------------------------------------------------------------------------------- cost and ETA
-def _max_epochs(config: Mapping[str, Any]) -> int:
+def _max_epochs(config: Any) -> int:
+    """The recipe's epoch budget of a cell: its resolved configuration (a grid's cell) or a record's ``config``."""
     try:
-        return max(1, int(config["recipe"]["max_epochs"]))
-    except (KeyError, TypeError, ValueError):
+        return max(1, int(config["recipe"]["max_epochs"] if isinstance(config, Mapping) else config.recipe.max_epochs))
+    except (AttributeError, KeyError, TypeError, ValueError):
         return 1
 
 
@@ -270,12 +271,12 @@ class CostModel:
                 return sum(values) / len(values)
         return DEFAULT_EPOCH_SECONDS
 
-    def expected_epochs(self, model: str, dataset: str, config: Mapping[str, Any]) -> float:
+    def expected_epochs(self, model: str, dataset: str, config: Any) -> float:
         """The recipe's epochs, times the share of them finished cells of this pair ran (early stopping)."""
         shares = self._share.get((model, dataset))
         return _max_epochs(config) * (sum(shares) / len(shares) if shares else 1.0)
 
-    def remaining(self, model: str, dataset: str, config: Mapping[str, Any],
+    def remaining(self, model: str, dataset: str, config: Any,
                   state: Mapping[str, Any] | None = None) -> float:
         """Seconds left of a cell; ``state`` (its progress) replaces the estimate by its own pace so far."""
         expected = self.expected_epochs(model, dataset, config)

@@ -130,7 +130,7 @@ def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Pat
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
     argv0 = os.path.basename(sys.argv[0]) if sys.argv else ""
     command = ["tactile-zoo", *sys.argv[1:]] if argv0 in ("tactile-zoo", "cli.py", "__main__.py") else list(sys.argv)
-    payload = {"format": BENCH_FORMAT, "status": status, "command": command, "config": config.to_dict(),
+    payload = {"format": BENCH_FORMAT, "status": status, "command": command, "config": grid.settings,
                "out": str(run.path), "environment": environment(),
                "grid": {"models": grid.models, "datasets": [d.name for d in grid.datasets],
                         "cells": [c.cell_id for c in grid.cells], "skipped": [s.to_dict() for s in grid.skipped],
@@ -437,4 +437,4 @@ def _worker_failure(cell: Cell, exc: BaseException, text: str | None = None) -> 
         text = f"the worker process running this cell died (out of memory or killed): {text}"
     return {"format": RECORD_FORMAT, "cell_id": cell.cell_id, "model": cell.model, "dataset": cell.dataset,
             "fold": cell.fold, "seed": cell.seed, "config_hash": cell.config_hash, "protocol": cell.protocol,
-            "status": "failed", "error": text[:2000], "config": cell.config}
+            "status": "failed", "error": text[:2000], "config": cell.config.to_dict()}

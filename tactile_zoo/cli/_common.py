@@ -8,7 +8,7 @@ from typing import Any
 from .. import registry
 from ..errors import ConfigError
 
-__all__ = ["echo", "add_quiet_flag", "progress_on", "add_recipe_flags", "add_tracker_flags", "with_tracker",
+__all__ = ["echo", "add_quiet_flag", "progress_on", "add_recipe_flags", "add_tracker_flags",
            "fold_arg", "checkpoint_dataset"]
 
 
@@ -61,14 +61,6 @@ def add_tracker_flags(p: argparse.ArgumentParser, where: str) -> None:
                         "\"tactile-zoo[tensorboard]\" or \"tactile-zoo[mlflow]\"")
     p.add_argument("--tracker-dir", default=None, metavar="DIR",
                    help=f"where the tracker writes DIR/tensorboard/<cell id>/ or DIR/mlruns (default {where})")
-
-
-def with_tracker(config: Any, args: argparse.Namespace) -> Any:
-    """A bench config with ``--tracker`` / ``--tracker-dir`` applied (the flags win over a YAML file), checked."""
-    for key in ("tracker", "tracker_dir"):
-        if getattr(args, key, None) is not None:
-            setattr(config, key, getattr(args, key))
-    return config.validate()
 
 
 def fold_arg(value: Any) -> int:

@@ -6,7 +6,7 @@ import argparse
 import logging
 from typing import Any
 
-from ._common import add_recipe_flags, add_tracker_flags, echo, with_tracker
+from ._common import add_recipe_flags, add_tracker_flags, echo
 
 __all__ = ["add_bench", "add_report"]
 
@@ -78,7 +78,7 @@ def _bench_config(args: argparse.Namespace) -> Any:
     flags = {key: getattr(args, key) for key in (
         "models", "datasets", "root", "download", "seeds", "folds", "epochs", "refit", "quick", "device", "out",
         "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes", "recipe_name",
-        "evaluation", "retries", "dashboard", "save_weights")}
+        "evaluation", "retries", "dashboard", "save_weights", "tracker", "tracker_dir")}
     return merge_config(load_yaml_config(args.config) if args.config else None, flags, args.sets, args.hparams,
                         args.dataset_args)
 
@@ -86,7 +86,7 @@ def _bench_config(args: argparse.Namespace) -> Any:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from ..bench import run_bench
 
-    outcome = run_bench(with_tracker(_bench_config(args), args), dry_run=args.dry_run, quiet=args.quiet,
+    outcome = run_bench(_bench_config(args), dry_run=args.dry_run, quiet=args.quiet,
                         plots=not args.no_plots, skip_invalid=args.skip_invalid)
     return outcome.exit_code
 

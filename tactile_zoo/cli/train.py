@@ -47,12 +47,13 @@ def _single_config(args: argparse.Namespace) -> Any:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from ..bench.config import parse_seeds, parse_threads
-    from ..bench.grid import cell_config, check_model_builds, resolve_datasets, resolve_models, user_hparams
+    from ..bench.config import parse_seeds, parse_threads, plan_cells
+    from ..bench.grid import resolve_datasets, resolve_models
     from ..bench.trackers import check_tracker
     from ..engine import save_checkpoint
     from ..engine.build import load_splits
     from ..engine.cell import train_cell
+    from ..engine.config import check_model_builds
     from ..engine.runtime import set_threads, versions
     from ..errors import ConfigError
 
@@ -70,11 +71,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
     model = resolve_models([args.model])[0]
     dataset = resolve_datasets([args.dataset])[0]
     # the harness's own cell configuration, through its one function: same resolution, same numbers
-    cell = cell_config(model, dataset, config)
+    plan = plan_cells(config, [model], [dataset])
+    cell = plan.configs[model, dataset]
     # the model built once on the dataset's spec (its train split is loaded, and cached, for the cell anyway): a bad
     # --hparam value is one line and exit 2, as in bench, not a traceback from the constructor
     spec = load_splits(dataset, config.root, fold, config.download, cell.dataset_kwargs, ("train",))["train"].spec
-    check_model_builds(cell, spec, user_hparams(model, config))
+    check_model_builds(cell, spec, plan.given[model])
     outcome = train_cell(cell, fold=fold, seed=seed, root=config.root, download=config.download,
                          device=config.device, progress=progress_on(args))
     result, prefix = outcome.fit, outcome.prefix or {"fractions": [], "accuracy": []}

@@ -1,10 +1,11 @@
 """``fit``, the engine's public entry point: train a model on a dataset with its recipe, select the epoch on
 validation, evaluate on test.
 
-It only dispatches. A registered model name with a registered dataset name runs exactly the harness's cell
-(:mod:`.cell`), so its numbers equal the leaderboard's; anything else (a module, or explicit splits) goes to the
-training loop (:func:`.train.train_model`). Keeping the dispatch here, above both, is what lets the cell use the loop
-without the loop importing the cell.
+It is the one public signature. A registered model name with a registered dataset name runs exactly the harness's
+cell (:mod:`.cell`), so its numbers equal the leaderboard's; anything else (a module, or explicit splits) is resolved
+here (the recipe through :func:`.config.resolve_model_recipe`, the one recipe resolution) and handed to the training
+loop (:func:`.train.train_model`), which takes the resolved recipe as it is. Keeping the dispatch here, above both,
+is what lets the cell use the loop without the loop importing the cell.
 """
 
 from __future__ import annotations
@@ -14,8 +15,13 @@ from typing import Any
 
 import torch
 
+from .. import registry
+from ..errors import ConfigError
 from ..recipe import Recipe
-from .cell import resolve_cell, train_cell
+from .build import build_model, load_splits
+from .cell import train_cell
+from .config import resolve_cell, resolve_model_recipe
+from .tensors import as_split
 from .train import FitResult, train_model
 
 __all__ = ["fit"]
@@ -54,6 +60,28 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
                               dataset_kwargs=dataset_kwargs, refit=refit)
         return train_cell(config, fold=fold, seed=seed, root=root, device=device, measure=False, progress=progress,
                           callback=callback).fit
-    return train_model(model, dataset, recipe, seed, val_dataset, device, epochs, test_dataset=test_dataset,
-                       refit=refit, hparams=hparams, root=root, fold=fold, dataset_kwargs=dataset_kwargs,
+    if isinstance(dataset, str):
+        named = load_splits(dataset, root, fold, False, dataset_kwargs)
+        dataset, val_dataset = named["train"], val_dataset if val_dataset is not None else named["val"]
+        test_dataset = test_dataset if test_dataset is not None else named["test"]
+    train = as_split(dataset)
+    module, meta = _named_model(model, train.spec, hparams, seed)
+    # a model built by the caller: the recipe's model and dataset settings cannot apply any more, only its training
+    # keys (the by-name cell above applies all three)
+    rec = resolve_model_recipe(meta, recipe if isinstance(recipe, str) else None, getattr(train.spec, "name", None),
+                               None if isinstance(recipe, str) else recipe, epochs,
+                               owner=f"model {meta.get('name', type(module).__name__)!r}").recipe
+    return train_model(module, train, rec, seed, val_dataset, device, test_dataset=test_dataset, refit=refit,
                        progress=progress, callback=callback)
+
+
+def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: int
+                 ) -> tuple[torch.nn.Module, Any]:
+    """A module (built from its registry name after seeding) and its registry metadata (its named recipes)."""
+    if isinstance(model, str):
+        return build_model(model, spec, hparams, seed), registry.get_model_entry(model).meta
+    if not isinstance(model, torch.nn.Module):
+        raise ConfigError(f"fit() needs a torch.nn.Module or a registered model name, got {type(model).__name__}")
+    if hparams:
+        raise ConfigError("hparams only apply when fit() builds the model from its name")
+    return model, getattr(model, "zoo_meta", None) or {}

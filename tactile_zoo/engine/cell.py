@@ -1,158 +1,32 @@
 """One cell: one model trained on one fold of one dataset with one seed, selected on validation, tested once.
 
-This is the only place a cell is assembled. The harness (``tactile-zoo bench``, one call per cell, under any
-executor), ``tactile-zoo train`` and the by-name ``tactile_zoo.fit("sgnet", "sim_evtouch")`` all go through
-:func:`resolve_cell` (what to run) and :func:`train_cell` (running it), so the three cannot drift apart: the same
-command-line settings give the same numbers whichever of them ran the cell.
-
-- :class:`CellConfig` is the resolved configuration: the model with its constructor keywords, the fully resolved
-  recipe (the dataset's epoch budget applied), the dataset with its keyword arguments, and the computational
-  revisions of both, which the harness's cell hash covers.
-- Its ingredients, the splits and the model built by name, come from :mod:`.build`.
+This is the only place a cell is run. The harness (``tactile-zoo bench``, one call per cell, under any executor),
+``tactile-zoo train`` and the by-name ``tactile_zoo.fit("sgnet", "sim_evtouch")`` all go through
+:func:`~.config.resolve_cell` (what to run: a :class:`~.config.CellConfig`, resolved once in :mod:`.config`) and
+:func:`train_cell` (running it, with the resolved recipe as it is), so the three cannot drift apart: the same
+command-line settings give the same numbers whichever of them ran the cell. The splits and the model built by name
+come from :mod:`.build`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
 
-from .. import registry
 from ..data.guard import tuning
-from ..errors import ConfigError
-from ..recipe import Recipe, cap_epochs, recipe_name_of, resolve_recipe
+from ..recipe import Recipe
 from .build import SPLITS, build_model, load_splits
-from .evaluate import DEFAULT_PREFIXES, EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
+from .config import EVALUATIONS, MERGED_EVALUATIONS, UNHASHED_KEYS, CellConfig, resolve_cell
+from .evaluate import EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
 from .runtime import PeakMemory, flush_denormals, resolve_device
 from .tensors import concat, take
 from .train import FitResult, train_model
 
 __all__ = ["CellConfig", "CellResult", "EVALUATIONS", "MERGED_EVALUATIONS", "UNHASHED_KEYS", "resolve_cell",
            "train_cell"]
-
-#: Keys of a stored cell configuration that are labels, not settings: the cell hash leaves them out.
-UNHASHED_KEYS = ("causal", "recipe_name")
-#: How a cell reaches its test figure.
-#: ``validation`` (the zoo's honest protocol): the epoch is selected on the validation split, then the test split is
-#: read once. ``reference`` (the protocol of the sources that publish their best test epoch): train on train + val
-#: for the recipe's fixed epoch budget (no early stopping, nothing selected), evaluate the test split after every
-#: epoch and keep only two numbers: the final epoch's accuracy (honest: nothing was chosen) and the best epoch's
-#: (optimistic: chosen on the test set itself, reported only as the sources' figure). No per-epoch test curve is
-#: stored, so it can never steer a later choice. ``tuning`` (for choosing a recipe): train and select on validation
-#: exactly as ``validation`` does, but never read a test split: the cell runs in tuning mode
-#: (:mod:`tactile_zoo.data.guard`), where loading one raises, and records the validation score only. ``final``
-#: (honest, for a recipe whose epoch count was declared beforehand from validation evidence, such as ``full``):
-#: train on train + val for the recipe's fixed epochs, nothing selected, and read the test split once, at the end.
-EVALUATIONS = ("validation", "reference", "tuning", "final")
-#: the evaluations that train on every training recording (train + val) and select nothing
-MERGED_EVALUATIONS = ("reference", "final")
-
-
-@dataclass(frozen=True)
-class CellConfig:
-    """What one cell runs, fold and seed aside: everything that can change its numbers.
-
-    ``to_dict()`` is the plain form stored in a cell record; every key but ``causal`` (a property of the model, not
-    a setting) and ``recipe_name`` (a label: the resolved recipe itself is hashed) enters the harness's cell hash.
-    """
-
-    model: str  # the listed registry name (``dist:name`` for a shadowed or clashing plugin)
-    dataset: str
-    recipe: Recipe
-    recipe_name: str = "source"  # which of the model's named recipes ``recipe`` started from (overrides on top)
-    model_source: str = "builtin"  # the plugin distribution, or "builtin"
-    hparams: Mapping[str, Any] = field(default_factory=dict)
-    dataset_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    refit: bool = False
-    subset: Mapping[str, int] | None = None  # at most this many samples per split (``--quick``)
-    prefixes: tuple[float, ...] = DEFAULT_PREFIXES
-    causal: bool = False
-    model_revision: int = registry.DEFAULT_REVISION
-    dataset_revision: int = registry.DEFAULT_REVISION
-    evaluation: str = "validation"  # or "reference", "tuning": see EVALUATIONS
-
-    def hashed(self) -> dict[str, Any]:
-        """The part of :meth:`to_dict` a cell hash covers."""
-        return {"model": self.model, "model_source": self.model_source, "hparams": dict(self.hparams),
-                "recipe": self.recipe.to_dict(), "dataset": self.dataset, "dataset_kwargs": dict(self.dataset_kwargs),
-                "refit": self.refit, "subset": None if self.subset is None else dict(self.subset),
-                "prefixes": list(self.prefixes), "model_revision": self.model_revision,
-                "dataset_revision": self.dataset_revision,
-                # the default is left out, so that the hashes of cells from before the setting existed still hold
-                **({"evaluation": self.evaluation} if self.evaluation != "validation" else {})}
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**self.hashed(), "causal": self.causal, "recipe_name": self.recipe_name}
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any]) -> CellConfig:
-        """The inverse of :meth:`to_dict` (a record's ``config``; revisions absent from older records mean 1)."""
-        return cls(model=values["model"], dataset=values["dataset"],
-                   recipe=Recipe.from_dict(values["recipe"], where=f"recipe of {values['model']}"),
-                   recipe_name=recipe_name_of(values),
-                   model_source=values.get("model_source", "builtin"), hparams=dict(values.get("hparams") or {}),
-                   dataset_kwargs=dict(values.get("dataset_kwargs") or {}), refit=bool(values.get("refit")),
-                   subset=values.get("subset") or None, prefixes=tuple(values.get("prefixes") or (1.0,)),
-                   causal=bool(values.get("causal")),
-                   model_revision=int(values.get("model_revision", registry.DEFAULT_REVISION)),
-                   dataset_revision=int(values.get("dataset_revision", registry.DEFAULT_REVISION)),
-                   evaluation=str(values.get("evaluation", "validation")))
-
-
-def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any] | str | None = None,
-                 recipe_name: str | None = None,
-                 hparams: Mapping[str, Any] | None = None, epochs: int | None = None,
-                 dataset_kwargs: Mapping[str, Any] | None = None, refit: bool = False,
-                 subset: Mapping[str, int] | None = None, prefixes: Sequence[float] = DEFAULT_PREFIXES,
-                 evaluation: str | None = None) -> CellConfig:
-    """The configuration of ``model`` on ``dataset``.
-
-    Args:
-        model: a registered model name, as listed (``list_models()``).
-        dataset: a registered dataset name, as listed.
-        recipe: overrides of single keys on top of the model's named recipe, a :class:`Recipe` used as is, or a
-            recipe name (the same as ``recipe_name``).
-        recipe_name: which of the model's registered recipes to start from (``"source"``...); default: the model's
-            default recipe.
-        hparams: the model's constructor keywords.
-        epochs: replaces ``max_epochs`` (the CLI's ``--epochs``); without it the dataset's epoch budget (registry
-            metadata ``max_epochs``) caps an overriding-dict or registered recipe, its schedule compressed to fit.
-        dataset_kwargs: keyword arguments of the dataset.
-        refit: retrain on train + val for the selected epoch count.
-        subset: at most this many (class-balanced) samples per split, keyed ``train``/``val``/``test``.
-        prefixes: early-classification prefix fractions evaluated on the test split.
-        evaluation: one of :data:`EVALUATIONS`; default: the one the named recipe declares, else ``"validation"``.
-    """
-    if evaluation is not None and evaluation not in EVALUATIONS:
-        raise ConfigError(f"--evaluation must be one of {', '.join(EVALUATIONS)}, got {evaluation!r}")
-    entry = registry.get_model_entry(model)
-    data_entry = registry.get_dataset_entry(dataset)
-    if isinstance(recipe, str):
-        recipe, recipe_name = None, recipe
-    custom = isinstance(recipe, Recipe)
-    named = registry.resolve_model_recipe(entry.meta, recipe_name, dataset, None if custom else recipe, epochs,
-                                          owner=f"model {model!r}")
-    # a named recipe may carry the model's and the dataset's settings; the user's own (hparams, dataset_kwargs) win
-    evaluation = evaluation or named.evaluation or "validation"
-    if evaluation in MERGED_EVALUATIONS and refit:
-        raise ConfigError(f"--evaluation {evaluation} already trains on train + val; it does not combine with --refit")
-    hparams = {**named.hparams, **dict(hparams or {})}
-    dataset_kwargs = {**named.dataset_kwargs, **dict(dataset_kwargs or {})}
-    if custom:
-        name, resolved = "custom", resolve_recipe(recipe, None, epochs)
-    else:
-        name, resolved = named.name, named.recipe
-        budget = data_entry.meta.get("max_epochs")
-        if epochs is None and budget is not None:
-            resolved = cap_epochs(resolved, int(budget))
-    return CellConfig(model=model, dataset=dataset, recipe=resolved, recipe_name=name,
-                      model_source=entry.dist or "builtin", hparams=dict(hparams or {}),
-                      dataset_kwargs=dict(dataset_kwargs or {}), refit=bool(refit),
-                      subset=dict(subset) if subset else None, prefixes=tuple(prefixes),
-                      causal=bool(entry.meta.get("causal", False)), model_revision=registry.revision_of(entry),
-                      dataset_revision=registry.revision_of(data_entry), evaluation=evaluation)
 
 
 # ----------------------------------------------------------------------------------------------- the cell
@@ -218,8 +92,8 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         model = build_model(config.model, train.spec, config.hparams, seed)
         if config.evaluation == "reference":
             result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback)
-        elif config.evaluation == "final":
-            result = train_model(model, concat(train, val), recipe=rec.replace(patience=None), seed=seed, device=dev,
+        elif config.evaluation == "final":  # the resolved recipe copied without early stopping, not resolved again
+            result = train_model(model, concat(train, val), recipe=replace(rec, patience=None), seed=seed, device=dev,
                                  progress=progress, callback=callback)
         else:
             result = train_model(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev,
@@ -273,7 +147,7 @@ def _fit_reference(model: torch.nn.Module, train: Any, val: Any, test: Any, reci
         if callback is not None:
             callback(row)
 
-    result = train_model(model, concat(train, val), recipe=recipe.replace(patience=None), seed=seed, device=device,
+    result = train_model(model, concat(train, val), recipe=replace(recipe, patience=None), seed=seed, device=device,
                          progress=progress, callback=after_epoch)
     # final_epoch_accuracy is filled in by train_cell from its one evaluation of the test split
     return result, {"best_test_epoch_accuracy": best["accuracy"],

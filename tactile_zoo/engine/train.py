@@ -30,10 +30,8 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from .. import registry
 from ..errors import ConfigError, TactileZooError
-from ..recipe import Recipe, lr_factor, resolve_recipe
-from .build import build_model, load_splits
+from ..recipe import Recipe, lr_factor
 from .evaluate import EvalResult, evaluate, predict_scores
 from .progress import Progress
 from .runtime import count_parameters, flush_denormals, resolve_device, seed_everything
@@ -191,47 +189,24 @@ def _clone_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().clone() for k, v in model.state_dict().items()}
 
 
-def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: int
-                 ) -> tuple[torch.nn.Module, Any]:
-    """A module (built from its registry name after seeding) and its registry metadata (its named recipes)."""
-    if isinstance(model, str):
-        return build_model(model, spec, hparams, seed), registry.get_model_entry(model).meta
-    if not isinstance(model, torch.nn.Module):
-        raise ConfigError(f"fit() needs a torch.nn.Module or a registered model name, got {type(model).__name__}")
-    if hparams:
-        raise ConfigError("hparams only apply when fit() builds the model from its name")
-    return model, getattr(model, "zoo_meta", None) or {}
-
-
 @flush_denormals()
-def train_model(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, Any] | str | None = None,
-                seed: int = 0, val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None,
-                *, test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None,
-                root: Any = None, fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = True,
-                callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
-    """The training loop behind :func:`tactile_zoo.engine.fit` (see there for the arguments), without its by-name
-    shortcut: a model name with a dataset name trains here on the dataset's splits, not as the harness's cell."""
-    if isinstance(dataset, str):
-        named = load_splits(dataset, root, fold, False, dataset_kwargs)
-        dataset, val_dataset = named["train"], val_dataset if val_dataset is not None else named["val"]
-        test_dataset = test_dataset if test_dataset is not None else named["test"]
+def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int = 0, val_dataset: Any = None,
+                device: str | torch.device = "auto", *, test_dataset: Any = None, refit: bool = False,
+                progress: bool = True, callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
+    """The training loop behind :func:`tactile_zoo.engine.fit` and :func:`tactile_zoo.engine.cell.train_cell`: a
+    built ``model`` trained on the ``dataset`` split with the resolved ``recipe``, used as it is (resolving names,
+    overrides and epoch counts is :mod:`.config`'s, before this is called). The other arguments are ``fit``'s."""
     train = as_split(dataset)
     val = as_split(val_dataset) if val_dataset is not None else None
     if refit and val is None:
         raise ConfigError("refit=True needs a validation split: it retrains for the epoch count chosen on it")
     if len(train) == 0:
         raise ConfigError("the training split is empty")
+    if not isinstance(recipe, Recipe):
+        raise ConfigError(f"train_model() takes a resolved Recipe, got {type(recipe).__name__}; tactile_zoo.fit "
+                          f"resolves names and overrides")
     dev = resolve_device(device)
-    module, meta = _named_model(model, train.spec, hparams, seed)
-    if isinstance(recipe, Recipe):
-        rec = resolve_recipe(recipe, None, epochs)
-    else:
-        # a model built by the caller: the recipe's model and dataset settings cannot apply any more, only its
-        # training keys (the by-name fit, :func:`tactile_zoo.engine.fit`, applies all three)
-        rec = registry.resolve_model_recipe(meta, recipe if isinstance(recipe, str) else None,
-                                            getattr(train.spec, "name", None),
-                                            None if isinstance(recipe, str) else recipe, epochs,
-                                            owner=f"model {meta.get('name', type(module).__name__)!r}").recipe
+    module, rec = model, recipe
     seed_everything(seed)  # dropout and any other randomness during training
     module.to(dev)
     module.zoo_loss = rec.loss  # so evaluate(model, ...) later knows how scores become probabilities

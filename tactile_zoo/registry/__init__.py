@@ -41,14 +41,12 @@ from .entries import (  # noqa: F401
     MODEL_INPUTS,
     MODEL_META_KEYS,
     Entry,
-    ModelRecipe,
     _unregister,
     model_recipe,
     normalize_name,
     register_dataset,
     register_model,
     register_sensor,
-    resolve_model_recipe,
 )
 from .lookup import (
     create_model,
@@ -71,5 +69,5 @@ __all__ = [
     "set_plugin_policy",
     "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
     "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError", "model_recipe",
-    "resolve_model_recipe", "ModelRecipe", "recipe_file", "read_recipe_file", "recipe_file_path",
+    "recipe_file", "read_recipe_file", "recipe_file_path",
 ]

@@ -15,7 +15,7 @@ from types import MappingProxyType
 from typing import Any, TypeVar
 
 from ..errors import ConfigError, PluginError, TactileZooError
-from ..recipe import Recipe, check_named_recipe, declared_evaluation, named_recipe_for, resolve_recipe
+from ..recipe import check_named_recipe
 
 T = TypeVar("T")
 
@@ -202,8 +202,9 @@ def _normalise_recipes(kind: str, meta: dict[str, Any]) -> dict[str, Any]:
 
 
 def model_recipe(meta: Mapping[str, Any], name: str | None = None) -> tuple[str, Mapping[str, Any] | None]:
-    """(name, recipe) of a model's recipe ``name`` (``None``: its default); ``(name, None)`` means the harness's
-    default recipe for a model that registers none."""
+    """(name, recipe) of a model's recipe ``name`` (``None``: its default), as registered; ``(name, None)`` means
+    the harness's default recipe for a model that registers none. Resolving it (its dataset section, the epoch budget,
+    overrides) is :func:`tactile_zoo.engine.config.resolve_model_recipe`'s alone."""
     recipes = meta.get("recipes") or {}
     if name is None:
         name = meta.get("default_recipe", "default")
@@ -214,32 +215,6 @@ def model_recipe(meta: Mapping[str, Any], name: str | None = None) -> tuple[str,
         return name, None
     known = ", ".join(sorted(recipes)) or "none (it trains with the harness's default recipe, called 'default')"
     raise ConfigError(f"model has no recipe named {name!r}; its recipes: {known}")
-
-
-@dataclass(frozen=True)
-class ModelRecipe:
-    """A model's named recipe resolved for one dataset: its name, the training recipe, and the constructor keywords
-    and dataset keywords it carries (the user's own, applied later by the caller, win over these)."""
-
-    name: str
-    recipe: Recipe
-    hparams: dict[str, Any]
-    dataset_kwargs: dict[str, Any]
-    evaluation: str | None = None  # the evaluation the recipe declares (``None``: the caller's choice)
-
-
-def resolve_model_recipe(meta: Mapping[str, Any], name: str | None = None, dataset: str | None = None,
-                         overrides: Mapping[str, Any] | None = None, epochs: int | None = None,
-                         owner: str = "the model") -> ModelRecipe:
-    """The one recipe lookup: the named recipe (:func:`model_recipe`), then its section for ``dataset``, then the
-    caller's ``overrides`` and ``epochs`` (the CLI's ``--epochs``). ``owner`` names the model in error messages."""
-    try:
-        name, base = model_recipe(meta, name)
-    except ConfigError as exc:
-        raise ConfigError(f"{owner}: {exc}") from None
-    training, hparams, kwargs = named_recipe_for(base, dataset, where=f"recipe {name!r} of {owner}")
-    return ModelRecipe(name, resolve_recipe(training, overrides, epochs, where=f"recipe of {owner}"), hparams, kwargs,
-                       declared_evaluation(base, dataset))
 
 
 def _register(kind: str, obj: Any, name: str | None, meta: Mapping[str, Any]) -> Entry:

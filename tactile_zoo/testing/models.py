@@ -34,6 +34,7 @@ import torch
 
 from .. import registry
 from ..data.spec import DatasetSpec
+from ..engine.config import resolve_model_recipe
 from ..engine.runtime import seed_everything
 from ..engine.train import compute_loss
 from ..errors import ModelCannotConsume
@@ -76,7 +77,7 @@ class _Subject:
     def recipe(self) -> Any:
         if not self.meta or not (self.meta.get("recipes") or self.meta.get("recipe")):
             return DEFAULT_RECIPE
-        return registry.resolve_model_recipe(self.meta, owner=f"model {self.name!r}").recipe
+        return resolve_model_recipe(self.meta, owner=f"model {self.name!r}").recipe
 
 
 def _close(a: torch.Tensor, b: torch.Tensor) -> bool:
@@ -122,7 +123,7 @@ def _recipes(subject: _Subject) -> None:
     accepted = _constructor_keywords(subject.factory)
     for name, recipe in recipes.items():
         for dataset in [None, *sorted((recipe or {}).get("datasets") or {})]:  # the recipe, then each section
-            resolved = registry.resolve_model_recipe(meta, name, dataset, owner=f"model {subject.name!r}")
+            resolved = resolve_model_recipe(meta, name, dataset, owner=f"model {subject.name!r}")
             unknown = sorted(set(resolved.hparams) - accepted) if accepted is not None else []
             on = f" on {dataset}" if dataset else ""
             expect(not unknown, f"recipe {name!r}{on} sets hyper-parameter(s) {unknown} the constructor does not take")

@@ -117,7 +117,7 @@ def test_report_of_a_folder_that_is_not_a_run(tmp_path: Path, capsys: pytest.Cap
 
 
 def test_train_resolves_its_cell_with_the_harness_function(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """``train`` builds its cell configuration through bench's one function (``bench.grid.cell_config``): a plugin
+    """``train`` builds its cell configuration through bench's one function (``bench.config.plan_cells``): a plugin
     model's override scoped by its qualified name (``dist:name``) reaches ``train`` as it reaches ``bench``, and the
     saved configuration hashes as the harness's cell does. The copy ``train`` once kept knew only the bare name."""
     import torch

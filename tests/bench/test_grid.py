@@ -108,11 +108,11 @@ def test_a_dataset_epoch_budget_caps_recipes_unless_epochs_are_given(tmp_path: P
     from tactile_zoo.data.datasets._simulator import SIM_EPOCH_BUDGET
 
     grid = _grid(tmp_path, models=["sgnet", "tiny_mlp"], datasets=["sim_biotac_slip", "tiny_blobs"])
-    recipes = {(c.model, c.dataset): c.config["recipe"] for c in grid.cells}
+    recipes = {(c.model, c.dataset): c.config.recipe.to_dict() for c in grid.cells}
     sgnet_sim = recipes[("sgnet", "sim_biotac_slip")]
     assert sgnet_sim["max_epochs"] == SIM_EPOCH_BUDGET < 100
     budget = SIM_EPOCH_BUDGET
     assert sgnet_sim["schedule"]["milestones"] == [round(40 * budget / 100), round(80 * budget / 100)]
     assert recipes[("tiny_mlp", "tiny_blobs")]["max_epochs"] == 8  # a dataset without a budget keeps the recipe's
     explicit = _grid(tmp_path, models=["sgnet"], datasets=["sim_biotac_slip"], epochs=40)
-    assert explicit.cells[0].config["recipe"]["max_epochs"] == 40  # --epochs wins over the budget
+    assert explicit.cells[0].config.recipe.max_epochs == 40  # --epochs wins over the budget

@@ -37,8 +37,8 @@ def test_a_qualified_plugin_name_stays_qualified_through_the_grid(clash: str) ->
     assert resolve_models(["tiny_mlp", PLUGIN]) == ["tiny_mlp", PLUGIN]
     grid = build_grid(BenchConfig(models=["tiny_mlp", PLUGIN], datasets=["tiny_blobs"]))
     cells = {c.model: c for c in grid.cells}
-    assert cells[PLUGIN].config["model_source"] == "zt-clash"
-    assert cells["tiny_mlp"].config["model_source"] == "builtin"
+    assert cells[PLUGIN].config.model_source == "zt-clash"
+    assert cells["tiny_mlp"].config.model_source == "builtin"
     assert cells[PLUGIN].config_hash != cells["tiny_mlp"].config_hash
 
 
@@ -58,5 +58,5 @@ def test_a_bare_scoped_override_does_not_reach_the_shadowed_plugin(clash: str) -
                          model_overrides={"tiny_mlp": {"hparams": {"hidden": 8}},
                                           PLUGIN: {"hparams": {"width": 3}}})
     cells = {c.model: c for c in build_grid(config).cells}
-    assert cells["tiny_mlp"].config["hparams"] == {"hidden": 8}
-    assert cells[PLUGIN].config["hparams"] == {"width": 3}
+    assert cells["tiny_mlp"].config.hparams == {"hidden": 8}
+    assert cells[PLUGIN].config.hparams == {"width": 3}

@@ -1,4 +1,8 @@
-"""Committed Table I cells describe what the current code runs: the same resolved configuration and hash.
+"""Committed cells describe what the current code runs: the same resolved configuration and hash.
+
+Every committed record's stored ``config`` hashes to its ``config_hash`` with today's configuration code, and the
+Table I cells of the ``full`` and ``zoo`` recipes resolve from their command-line settings alone (model, dataset,
+recipe name, the declared evaluation) to the committed hashes (no data needed for either).
 
 The cells under ``benchmarks/results/paper-table1`` were computed before cell hashes covered the code's revisions
 (hash format 1) and re-keyed by ``python -m tools.check_cells --migrate`` after the check below passed; each
@@ -17,19 +21,60 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
+from tactile_zoo.bench.config import BenchConfig, plan_cells  # noqa: E402
 from tactile_zoo.bench.grid import config_hash  # noqa: E402
+from tactile_zoo.bench.records import cell_files, recipe_name_of  # noqa: E402
 from tools import check_cells  # noqa: E402
 
 CELLS = sorted((REPO / "benchmarks" / "results" / "paper-table1" / "cells").glob("*.json")) + sorted(
     (REPO / "benchmarks" / "results" / "paper-table1-revision1" / "cells").glob("*.json"))  # stale: older code
+RESULTS = REPO / "benchmarks" / "results"
+#: every committed record, in every bench folder under benchmarks/results
+EVERY = cell_files(RESULTS, recursive=True)
+#: the Table I folders whose every cell is resolved from its command-line settings below
+TABLE1 = ("paper-table1-full", "paper-table1-zoo")
 
-pytestmark = pytest.mark.real_data
+
+def test_every_committed_record_hashes_to_its_config_hash() -> None:
+    assert len(EVERY) >= 480, "committed cell records went missing"
+    wrong = []
+    for path in EVERY:
+        record = json.loads(path.read_text())
+        stored = record["config"]
+        # hash format 1 predates the revisions in the configuration (records not migrated keep it)
+        form = 2 if all(k in stored for k in check_cells.REVISION_KEYS) else 1
+        if config_hash(stored, hash_format=form) != record["config_hash"]:
+            wrong.append(path.relative_to(RESULTS).as_posix())
+    assert wrong == []
+    changed = {**stored, "recipe": {**stored["recipe"], "lr": stored["recipe"]["lr"] * 2}}
+    assert config_hash(changed, hash_format=form) != record["config_hash"]  # a changed setting is a new hash
+
+
+def _from_cli_settings(record: dict, recipe: str | None = None) -> str:
+    """The hash ``tactile-zoo bench --models M --datasets D --recipe R`` gives the record's cell today (BioTac-DoS
+    with its ``--dataset-arg validation=...``, as the Table I commands ran it)."""
+    stored, model, dataset = record["config"], record["model"], record["dataset"]
+    kwargs = {k: v for k, v in stored["dataset_kwargs"].items() if k == "validation"}
+    config = BenchConfig(models=[model], datasets=[dataset], recipe_name=recipe or recipe_name_of(stored),
+                         dataset_kwargs={dataset: kwargs} if kwargs else {})
+    return config_hash(plan_cells(config, [model], [dataset]).configs[model, dataset])
+
+
+@pytest.mark.parametrize("folder", TABLE1)
+def test_table1_cells_resolve_from_their_command_line_settings(folder: str) -> None:
+    records = [json.loads(p.read_text()) for p in cell_files(RESULTS / folder)]
+    assert len(records) >= 80
+    assert [r["cell_id"] for r in records if _from_cli_settings(r) != r["config_hash"]] == []
+    full = next(r for r in records if recipe_name_of(r["config"]) == "full") if folder.endswith("full") else None
+    if full is not None:  # another recipe's settings give another hash: the check can fail
+        assert _from_cli_settings(full, recipe="zoo") != full["config_hash"]
 
 
 def test_there_are_committed_cells() -> None:
     assert len(CELLS) >= 24, "the Table I folder lost cells"
 
 
+@pytest.mark.real_data
 @pytest.mark.parametrize("path", CELLS, ids=lambda p: p.stem.rsplit("__", 1)[0])
 def test_a_committed_cell_maps_to_its_configuration(path: Path, shared_data: Path) -> None:
     record = json.loads(path.read_text())
@@ -46,6 +91,7 @@ def test_a_committed_cell_maps_to_its_configuration(path: Path, shared_data: Pat
     assert path.stem == record["cell_id"] and record["cell_id"].endswith(config_hash(current))
 
 
+@pytest.mark.real_data
 def test_a_newer_revision_makes_a_cell_stale_another_setting_a_mismatch(shared_data: Path,
                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     from tactile_zoo import registry

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tactile_zoo.registry import get_model_entry, list_models, resolve_model_recipe
+from tactile_zoo.engine.config import resolve_model_recipe
+from tactile_zoo.registry import get_model_entry, list_models
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 DATASETS = ("ev_objects", "ev_containers", "biotac_dos")

@@ -237,7 +237,8 @@ def compare_model(name: str, split: Any, device: torch.device, reference: torch.
     ``pass`` or ``FAIL`` and ``note`` saying why. The train-mode ``backward`` comes last: a batch-norm layer updates
     its running statistics there."""
     from tactile_zoo.engine.build import build_model
-    from tactile_zoo.registry import get_model_entry, resolve_model_recipe
+    from tactile_zoo.engine.config import resolve_model_recipe
+    from tactile_zoo.registry import get_model_entry
 
     reference = reference or torch.device("cpu")
     spec = split.spec

@@ -15,12 +15,13 @@ from test_zoo import make_batch
 import tactile_zoo as tz
 from tactile_zoo.data.sensors import NEUTOUCH_HAND_EDGES
 from tactile_zoo.data.spec import DatasetSpec
+from tactile_zoo.engine.config import resolve_model_recipe
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.models._binned import bin_frames
 from tactile_zoo.models.deeptactile import DeepTactile, _DenseLayer, _Transition
 from tactile_zoo.nn.lif import MultiStepLIF
 from tactile_zoo.nn.tdbn import TdBatchNorm
-from tactile_zoo.registry import get_model_entry, resolve_model_recipe
+from tactile_zoo.registry import get_model_entry
 
 THRESH, DECAY, LENS = 0.5, 0.2, 0.5  # tdlayer.py's constants
 

@@ -9,8 +9,9 @@ import torch
 from test_zoo import make_batch, make_spec
 
 import tactile_zoo as tz
+from tactile_zoo.engine.config import resolve_model_recipe
 from tactile_zoo.errors import ConfigError
-from tactile_zoo.registry import get_model_entry, resolve_model_recipe
+from tactile_zoo.registry import get_model_entry
 
 SMALL = {"channels": 8, "kernel_size": 3, "dilation": 1, "readout_channels": 6, "readout_kernel": 2, "hidden": 5,
          "gate_hidden": 7}

@@ -32,7 +32,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Trained:
         return real(model, path, metadata)
 
     cell = resolve_cell(MODEL, DATASET, hparams=HPARAMS, epochs=2, dataset_kwargs=DATA_ARGS, prefixes=(1.0,))
-    task = bench_cell.CellTask(MODEL, DATASET, 0, 0, CONFIG_HASH, CELL_ID, cell.to_dict(), device="cpu", threads=1,
+    task = bench_cell.CellTask(MODEL, DATASET, 0, 0, CONFIG_HASH, CELL_ID, cell, device="cpu", threads=1,
                                weights_dir=str(run / "weights"), commit="0123abc")
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(bench_cell, "save_weights", keep)
