@@ -339,9 +339,9 @@ def inputs_sha256(x: torch.Tensor, g: torch.Tensor) -> str:
 
 def model_logits(entry: WeightEntry, x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     """The pretrained model's scores on ``x, g`` through the path :func:`tactile_zoo.evaluate` takes."""
+    from tactile_zoo import create_model
     from tactile_zoo.engine.evaluate import predict_scores
     from tactile_zoo.engine.runtime import flush_denormals
-    from tactile_zoo.weights import create_model
 
     model = create_model(entry.model, pretrained=entry)
     with flush_denormals():

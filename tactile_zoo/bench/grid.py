@@ -147,7 +147,7 @@ def _listed_name(kind: str, entry: registry.Entry) -> str:
 
 
 def _resolve(kind: str, tokens: Iterable[str]) -> list[str]:
-    lister = registry.list_models if kind == "model" else registry.list_datasets
+    lister = registry.model_names if kind == "model" else registry.list_datasets
     lookup = registry.get_model_entry if kind == "model" else registry.get_dataset_entry
     out: list[str] = []
     for token in (t.strip() for item in tokens for t in item.split(",") if t.strip()):
@@ -283,7 +283,7 @@ def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]
 
     try:
         with torch.random.fork_rng(devices=[]):  # the check leaves the caller's random state as it found it
-            registry.create_model(resolved.model, spec, **dict(resolved.hparams))
+            registry.instantiate_model(resolved.model, spec, **dict(resolved.hparams))
     except ModelCannotConsume:
         return False
     except Exception as exc:  # noqa: BLE001 - whatever a constructor raises for a value it cannot use

@@ -56,6 +56,6 @@ def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, 
             a :class:`~tactile_zoo.errors.ConfigError` for a bad hyper-parameter value stays what it is, an error).
     """
     seed_everything(seed)
-    return registry.create_model(name, spec, **dict(hparams or {}))
+    return registry.instantiate_model(name, spec, **dict(hparams or {}))
 
 

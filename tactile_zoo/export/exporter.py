@@ -128,7 +128,7 @@ def spec_for_dataset(name: str, root: str | os.PathLike | None = None) -> Any:
 
 
 def _registered_name(model: nn.Module) -> str:
-    for name in registry.list_models():
+    for name in registry.model_names():
         if registry.get_model_entry(name).obj is type(model):
             return name.rpartition(":")[2]
     return type(model).__name__

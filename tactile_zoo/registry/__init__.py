@@ -51,21 +51,21 @@ from .entries import (  # noqa: F401
     resolve_model_recipe,
 )
 from .lookup import (
-    create_model,
     get_dataset_entry,
     get_model_entry,
     get_sensor,
+    instantiate_model,
     list_datasets,
-    list_models,
     list_sensors,
     listed_name,
     load_dataset,
+    model_names,
     revision_of,
 )
 
 __all__ = [
     "Entry", "PluginInfo", "PluginWarning", "register_model", "register_dataset", "register_sensor",
-    "list_models", "list_datasets", "list_sensors", "create_model", "load_dataset", "get_sensor",
+    "model_names", "list_datasets", "list_sensors", "instantiate_model", "load_dataset", "get_sensor",
     "get_model_entry", "get_dataset_entry", "listed_name", "plugins", "normalize_name", "reset_plugins",
     "set_plugin_policy",
     "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
