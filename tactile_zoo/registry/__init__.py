@@ -25,11 +25,14 @@ from ..recipe import RECIPE_KEYS
 # the private names are re-exported for the test suite and the CLI's policy line (``registry._enabled()``)
 from .discovery import (  # noqa: F401
     ENTRY_POINT_GROUPS,
+    FoundEntryPoint,
     PluginInfo,
     PluginWarning,
     _enabled,
     _strict,
+    find_entry_points,
     import_plugin_modules,
+    load_failure,
     plugins,
     reset_plugins,
     set_plugin_policy,
@@ -69,6 +72,7 @@ __all__ = [
     "get_model_entry", "get_dataset_entry", "listed_name", "plugins", "normalize_name", "reset_plugins",
     "set_plugin_policy",
     "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
-    "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError", "model_recipe",
+    "RECIPE_KEYS", "import_plugin_modules", "find_entry_points", "FoundEntryPoint", "load_failure",
+    "UnknownNameError", "model_recipe",
     "resolve_model_recipe", "ModelRecipe",
 ]
