@@ -33,10 +33,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from .._files import atomic_write_text
 from ..errors import ResultsError
 from .plots import write_plots
 from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, refuse_newer, revision_gaps
-from .results import RunDir, atomic_write_text
+from .results import RunDir
 from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
 
 __all__ = ["write_outputs", "load_run"]

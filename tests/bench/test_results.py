@@ -11,15 +11,8 @@ from pathlib import Path
 import pytest
 
 from tactile_zoo.bench import results
-from tactile_zoo.bench.results import (
-    LEADERBOARD_COLUMNS,
-    SUMMARY_COLUMNS,
-    RunDir,
-    atomic_write_json,
-    leaderboard_rows,
-    rows_to_csv,
-    summary_rows,
-)
+from tactile_zoo.bench.results import RunDir, atomic_write_json
+from tactile_zoo.bench.tables import LEADERBOARD_COLUMNS, SUMMARY_COLUMNS, leaderboard_rows, rows_to_csv, summary_rows
 from tactile_zoo.errors import ConfigError
 
 

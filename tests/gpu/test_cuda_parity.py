@@ -17,8 +17,8 @@ import pytest
 import torch
 from parity import BATCH, compare_model, sim_split, simulated_datasets, tf32_off
 
-from tactile_zoo.engine.build import ModelCannotConsume
 from tactile_zoo.engine.runtime import flush_denormals
+from tactile_zoo.errors import ModelCannotConsume
 from tactile_zoo.registry import model_names
 
 #: the device compared against the CPU (``cuda``, ``cuda:N``; ``cpu`` for the self-test)
