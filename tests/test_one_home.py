@@ -36,6 +36,21 @@ def test_no_two_public_functions_share_a_name_with_different_signatures() -> Non
     assert not clashes, clashes
 
 
+def test_no_module_lists_another_modules_function_or_class_in_its_all() -> None:
+    """A module's ``__all__`` holds what it defines; only a package's ``__init__`` gathers names from its modules."""
+    reexported = []
+    for module in _modules():
+        if hasattr(module, "__path__"):  # a package: its __init__ is its public surface
+            continue
+        for name in getattr(module, "__all__", ()):
+            obj = getattr(module, name, None)
+            home = getattr(obj, "__module__", "") or ""
+            if (inspect.isfunction(obj) or inspect.isclass(obj)) and home.startswith("tactile_zoo") \
+                    and home != module.__name__:
+                reexported.append(f"{module.__name__}.{name} (defined in {home})")
+    assert not reexported, reexported
+
+
 def test_create_model_and_list_models_have_one_home() -> None:
     assert "create_model" not in vars(registry) and "list_models" not in vars(registry)
     assert "create_model" not in tactile_zoo.weights.__all__ and "list_models" not in tactile_zoo.weights.__all__

@@ -61,10 +61,11 @@ import numpy as np
 import torch
 
 from tactile_zoo import registry
-from tactile_zoo.bench.records import recipe_name_of, revision_gaps, run_records
+from tactile_zoo.bench.records import revision_gaps, run_records
 from tactile_zoo.bench.tables import leaderboard_rows
 from tactile_zoo.data.base import file_sha256
 from tactile_zoo.errors import ConfigError
+from tactile_zoo.recipe import recipe_name_of
 from tactile_zoo.weights import WeightEntry, entry_from_record, make_tag, read_manifest, write_manifest
 
 REPO = Path(__file__).resolve().parents[1]

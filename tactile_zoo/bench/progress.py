@@ -40,7 +40,7 @@ from .._files import atomic_write_text
 from ..engine.progress import format_seconds, interactive, make_bar
 
 __all__ = ["ProgressWriter", "add_listener", "remove_listener", "listening", "read_progress", "running_cells",
-           "remove_progress", "CostModel", "ProgressDisplay", "format_seconds", "describe_running", "PROGRESS_DIR",
+           "remove_progress", "CostModel", "ProgressDisplay", "describe_running", "PROGRESS_DIR",
            "DEFAULT_EPOCH_SECONDS", "process_start", "process_alive", "RunConsole"]
 
 logger = logging.getLogger(__name__)

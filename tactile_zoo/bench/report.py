@@ -35,8 +35,9 @@ from typing import Any
 
 from .._files import atomic_write_text
 from ..errors import ResultsError
+from ..recipe import recipe_name_of
 from .plots import write_plots
-from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, refuse_newer, revision_gaps
+from .records import CellScan, InvalidCell, InvalidCellsError, refuse_newer, revision_gaps
 from .results import RunDir
 from .tables import leaderboard_rows, prefix_label, reference_rows, rows_to_csv, summary_rows
 

@@ -22,7 +22,7 @@ from .._version import __version__
 from ..engine.progress import Progress
 from ..errors import ConfigError, ExportError
 from .folder import _SUFFIX, ExportFolder, export_targets
-from .graphs import ForwardGraph, StateTensor, StepGraph, _dtype_name, _for_export, _registry_key
+from .graphs import ForwardGraph, StepGraph, _dtype_name, _for_export, _registry_key
 from .onnx_io import (
     ONNX_INSTALL,
     check_opset,
@@ -35,8 +35,8 @@ from .onnx_io import (
     to_onnx,
 )
 
-__all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "MAX_STEPS", "MAX_INPUT_BYTES", "ExportError", "StateTensor",
-           "ForwardGraph", "StepGraph", "ExportResult", "export_model", "check_shape",
+__all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "MAX_STEPS", "MAX_INPUT_BYTES", "ExportResult", "export_model",
+           "check_shape",
            "check_steps", "initial_state", "spec_for_dataset"]
 
 #: The formats :func:`export_model` writes.
