@@ -68,14 +68,14 @@ def measure(variant: str, root: Path | None, samples: int | None) -> dict[str, A
 
     from tactile_zoo.engine import PeakMemory, fit, predict_scores, seed_everything, take
     from tactile_zoo.engine.runtime import flush_denormals
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     train, test, source = _splits(root)
     if samples is not None and samples < len(train):
         train = take(train, samples, seed=0)
     recipe = model_recipe("dcnn")
     seed_everything(0)
-    model = create_model("dcnn", train.spec)
+    model = instantiate_model("dcnn", train.spec)
     if variant == "maxpool2d":
         for block in model.features:
             block[-1] = nn.MaxPool2d(2, ceil_mode=True)

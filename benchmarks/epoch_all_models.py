@@ -37,7 +37,7 @@ __all__ = ["run", "measure", "NAME", "TITLE"]
 def measure(ctx: Context, name: str, samples: int | None = None) -> dict[str, Any]:
     """Time ``ctx.reps`` training epochs of model ``name`` in this process; one CSV row."""
     from tactile_zoo.engine import PeakMemory, count_parameters, fit, seed_everything, take
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     data = ev_objects(ctx)
     split = data.train
@@ -46,7 +46,7 @@ def measure(ctx: Context, name: str, samples: int | None = None) -> dict[str, An
     scale = EV_TRAIN_SAMPLES / n
     recipe = model_recipe(name)
     seed_everything(0)
-    model = create_model(name, split.spec).to(ctx.device)
+    model = instantiate_model(name, split.spec).to(ctx.device)
     fit(model, take(split, recipe.batch_size, seed=1), recipe=recipe, device=ctx.device, epochs=1)  # warm-up
     with PeakMemory(ctx.device) as peak:
         t = time_interleaved({name: lambda: fit(model, timed, recipe=recipe, device=ctx.device, epochs=1)},
@@ -67,12 +67,12 @@ def _process_peak_mb() -> float | None:
 
 
 def run(ctx: Context, models: list[str] | None = None, samples: int | None = None) -> Path:
-    from tactile_zoo.registry import list_models
+    from tactile_zoo.registry import model_names
 
     ev_objects(ctx)  # log the data source once, here
     root = data_root(ctx)
     rows = []
-    for name in models or list_models():
+    for name in models or model_names():
         job = {"model": name, "samples": samples, "device": str(ctx.device), "threads": ctx.threads,
                "quick": ctx.quick, "repeats": ctx.repeats, "root": None if root is None else str(root)}
         proc = subprocess.run([sys.executable, "-m", "benchmarks.epoch_all_models", json.dumps(job)], cwd=REPO,

@@ -126,7 +126,7 @@ def _streamers(model: torch.nn.Module, result: Any, with_onnx: bool) -> dict[str
 def run(ctx: Context, models: list[str] | None = None, steps: int | None = None) -> Path:
     from tactile_zoo.engine import seed_everything
     from tactile_zoo.export import export_model, onnx_available, onnxruntime_available
-    from tactile_zoo.registry import create_model, get_model_entry, list_models
+    from tactile_zoo.registry import get_model_entry, instantiate_model, model_names
 
     data = ev_objects(ctx)
     test = data.test
@@ -142,13 +142,13 @@ def run(ctx: Context, models: list[str] | None = None, steps: int | None = None)
         import onnxruntime
 
         ort_version = onnxruntime.__version__
-    names = [n for n in (models or list_models()) if get_model_entry(n).meta.get("streaming")]
+    names = [n for n in (models or model_names()) if get_model_entry(n).meta.get("streaming")]
     note = _load_note()
     rows = []
     with ctx.threads_scope(1), tempfile.TemporaryDirectory() as tmp:
         for name in names:
             seed_everything(0)
-            model = create_model(name, test.spec).eval()
+            model = instantiate_model(name, test.spec).eval()
             result = export_model(model, Path(tmp) / name, name=name, spec=test.spec, batch=1, forward=False,
                                   formats=("torchscript", "onnx") if with_onnx else ("torchscript",))
             opset = result.manifest["exporters"].get("onnx_opset", "") or ""

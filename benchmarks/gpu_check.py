@@ -187,14 +187,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import torch
 
-    from tactile_zoo.registry import get_dataset_entry, list_datasets, list_models
+    from tactile_zoo.registry import get_dataset_entry, list_datasets, model_names
 
     sims = [d for d in list_datasets() if get_dataset_entry(d).meta.get("simulated")]
-    models = _names(args.models, list_models(), "model", parser)
+    models = _names(args.models, model_names(), "model", parser)
     datasets = _names(args.datasets, sims, "dataset", parser)
     # the whole test file unless a subset was asked for (by test id, so that "tacformer" does not pick x_tacformer)
     nodes = ([PARITY_TESTS] if models is None and datasets is None
-             else parity_nodes(models or list_models(), datasets or sims))
+             else parity_nodes(models or model_names(), datasets or sims))
     steps = [s for s in _names(args.only, list(STEPS), "step", parser) or STEPS
              if s not in (_names(args.skip, list(STEPS), "step", parser) or [])]
     device = args.device if torch.cuda.is_available() else "cpu"

@@ -38,7 +38,7 @@ def _latency(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None, sa
 
 def run(ctx: Context, models: list[str] | None = None, samples: int | None = None, batch: int = 64) -> Path:
     from tactile_zoo.engine import seed_everything
-    from tactile_zoo.registry import create_model, list_models
+    from tactile_zoo.registry import instantiate_model, model_names
 
     data = ev_objects(ctx)
     test = data.test
@@ -48,9 +48,9 @@ def run(ctx: Context, models: list[str] | None = None, samples: int | None = Non
     xb = x[:batch] if x.shape[0] >= batch else x[torch.arange(batch) % x.shape[0]]  # (batch, T, N, C)
     gb = None if g is None else (g[:batch] if g.shape[0] >= batch else g[torch.arange(batch) % g.shape[0]])
     rows = []
-    for name in models or list_models():
+    for name in models or model_names():
         seed_everything(0)
-        model = create_model(name, test.spec).to(ctx.device).eval()
+        model = instantiate_model(name, test.spec).to(ctx.device).eval()
         with torch.inference_mode():
             with ctx.threads_scope(1):
                 lat = _latency(model, x, g, n, ctx)

@@ -44,7 +44,7 @@ def _snntorch_leaky() -> torch.nn.Module:
     """``snntorch.Leaky`` with TactileSGNet's constants (snnTorch always detaches its reset)."""
     import snntorch
 
-    from tactile_zoo.nn.lif import make_surrogate
+    from tactile_zoo.nn.surrogate import make_surrogate
 
     return snntorch.Leaky(beta=BETA, threshold=THRESHOLD, spike_grad=make_surrogate("rect").spike_fn,
                           reset_mechanism="zero")

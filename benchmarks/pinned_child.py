@@ -54,7 +54,7 @@ def measure(job: dict[str, Any]) -> dict[str, Any]:
     from tactile_zoo.engine import fit, resolve_recipe, seed_everything, take
     from tactile_zoo.engine.runtime import flush_denormals
     from tactile_zoo.recipe import named_recipe_for
-    from tactile_zoo.registry import create_model, get_model_entry
+    from tactile_zoo.registry import get_model_entry, instantiate_model
 
     torch.set_num_threads(job["threads"])
     name, device = job["model"], torch.device(job["device"])
@@ -64,7 +64,7 @@ def measure(job: dict[str, Any]) -> dict[str, Any]:
     timed = take(train, bs * job["batches"], seed=0) if job["batches"] else train
     with flush_denormals():  # on before the first fit, as benchmarks.run does for the whole suite
         seed_everything(0)
-        model = create_model(name, train.spec).to(device)
+        model = instantiate_model(name, train.spec).to(device)
         fit(model, take(train, bs, seed=1), recipe=recipe, device=device, epochs=1)  # warm-up: lazy buffers
         loadavg = os.getloadavg()
         before, start = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()

@@ -32,13 +32,13 @@ def profile_model(ctx: Context, name: str, batches: int = 2, top: int = TOP) -> 
     from torch.profiler import ProfilerActivity, profile
 
     from tactile_zoo.engine import fit, seed_everything, take
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     data = ev_objects(ctx)
     recipe = model_recipe(name)
     bs = recipe.batch_size
     seed_everything(0)
-    model = create_model(name, data.train.spec).to(ctx.device)
+    model = instantiate_model(name, data.train.spec).to(ctx.device)
     fit(model, take(data.train, bs, seed=1), recipe=recipe, device=ctx.device, epochs=1)  # warm-up
     timed = take(data.train, bs * batches, seed=0)
     with profile(activities=[ProfilerActivity.CPU], record_shapes=True) as prof:

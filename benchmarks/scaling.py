@@ -148,7 +148,7 @@ def _scaled_rows(name: str, axis: str, keys: list[Any], values: list[int], timin
 def _tn_rows(ctx: Context, models: tuple[str, ...], steps: tuple[int, ...], copies: tuple[int, ...],
              batches: int | None, basis: str) -> list[dict[str, Any]]:
     from tactile_zoo.engine import fit, seed_everything
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     nb = batches or (1 if ctx.quick else 4)
     base_t = 250 if 250 in steps else steps[len(steps) // 2]
@@ -161,7 +161,7 @@ def _tn_rows(ctx: Context, models: tuple[str, ...], steps: tuple[int, ...], copi
         for t, c in dict.fromkeys(axes["T"] + axes["N"]):  # (T=250, N=39) serves both axes
             spec = ev_spec(t, c)
             seed_everything(0)
-            model = create_model(name, spec).to(ctx.device)
+            model = instantiate_model(name, spec).to(ctx.device)
             fit(model, synthetic_events(spec, recipe.batch_size, seed=1), recipe=recipe, device=ctx.device,
                 epochs=1)  # warm-up
             split = synthetic_events(spec, n, seed=0)
@@ -184,7 +184,7 @@ def _tn_rows(ctx: Context, models: tuple[str, ...], steps: tuple[int, ...], copi
 def _batch_rows(ctx: Context, models: tuple[str, ...], sizes: tuple[int, ...], samples: int | None,
                 num_steps: int, basis: str) -> list[dict[str, Any]]:
     from tactile_zoo.engine import fit, seed_everything
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     base = samples or (8 if ctx.quick else BATCH_SAMPLES)
     spec = ev_spec(num_steps, 1)
@@ -197,7 +197,7 @@ def _batch_rows(ctx: Context, models: tuple[str, ...], sizes: tuple[int, ...], s
         for b in keys:
             r = recipe.replace(batch_size=b)
             seed_everything(0)
-            model = create_model(name, spec).to(ctx.device)
+            model = instantiate_model(name, spec).to(ctx.device)
             # warm-up on a small batch (lazy buffers, allocator): a whole batch of 64 would cost as much as a round
             fit(model, synthetic_events(spec, min(b, 8), seed=1), recipe=r, device=ctx.device, epochs=1)
             counts[b] = max(b, base)
@@ -266,7 +266,7 @@ def _graph_conv_step(model: Any, split: Any, batch: int, device: torch.device) -
 def _breakdown_rows(ctx: Context, copies: tuple[int, ...], batches: int | None, num_steps: int, basis: str
                     ) -> list[dict[str, Any]]:
     from tactile_zoo.engine import fit, seed_everything
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     name = "x_tacformer"
     recipe = model_recipe(name)
@@ -279,7 +279,7 @@ def _breakdown_rows(ctx: Context, copies: tuple[int, ...], batches: int | None, 
         spec = ev_spec(num_steps, c)
         nodes[c] = spec.num_nodes
         seed_everything(0)
-        model = create_model(name, spec).to(ctx.device)
+        model = instantiate_model(name, spec).to(ctx.device)
         fit(model, synthetic_events(spec, 2, seed=1), recipe=recipe, device=ctx.device, epochs=1)  # warm-up
         split = synthetic_events(spec, n, seed=0)
         bins = -(-num_steps // model.bin_size)

@@ -154,7 +154,7 @@ def run(ctx: Context, fast_samples: int | None = None, naive_samples: int | None
         opt_in: bool = True) -> Path:
     from tactile_zoo.engine import TensorSplit, fit, take
     from tactile_zoo.engine.train import build_optimizer
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     data = ev_objects(ctx)
     split = data.train
@@ -164,7 +164,7 @@ def run(ctx: Context, fast_samples: int | None = None, naive_samples: int | None
     naive_n = min(full, naive_samples or (4 if ctx.quick else 32))
     recipe = model_recipe("sgnet")
     torch.manual_seed(0)
-    model = create_model("sgnet", split.spec).to(dev)
+    model = instantiate_model("sgnet", split.spec).to(dev)
     net = StepwiseSGNet.like(model).to(dev)
     on_dev = TensorSplit(split.x.to(dev), split.g.to(dev), split.y.to(dev), split.spec, split.name)
     rate_diff, grad_diff = _same_model(model, net, on_dev, min(check_samples, full), recipe)
@@ -172,7 +172,7 @@ def run(ctx: Context, fast_samples: int | None = None, naive_samples: int | None
             f"weight-gradient relative difference {grad_diff:.2g}")
     fast_split = take(split, fast_n, seed=0) if fast_n < full else split
     opt = build_optimizer(net, recipe)
-    fused = create_model("sgnet", split.spec).to(dev)  # the same model on the fused torch LIF path
+    fused = instantiate_model("sgnet", split.spec).to(dev)  # the same model on the fused torch LIF path
     fused.load_state_dict(model.state_dict())
 
     def fit_fused() -> None:
@@ -182,7 +182,7 @@ def run(ctx: Context, fast_samples: int | None = None, naive_samples: int | None
     fns = {"fast": lambda: fit(model, fast_split, recipe=recipe, device=dev, epochs=1), "fused": fit_fused,
            "naive": lambda: _naive_train(net, opt, on_dev, naive_n, recipe)}
     if opt_in:  # the same initial weights as the default model, so the same naive network checks it
-        variant = create_model("sgnet", split.spec, graph_weight_grad="fast").to(dev)
+        variant = instantiate_model("sgnet", split.spec, graph_weight_grad="fast").to(dev)
         variant.load_state_dict(model.state_dict())
         v_rate_diff, v_grad_diff = _same_model(variant, net, on_dev, min(check_samples, full), recipe)
         ctx.log(f"  graph_weight_grad='fast': max |rate difference| {v_rate_diff:g}, weight-gradient relative "

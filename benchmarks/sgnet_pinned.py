@@ -38,12 +38,12 @@ torch.set_num_threads(threads)
 from benchmarks.common import Context, ev_objects, model_recipe
 from tactile_zoo.engine import fit, take
 from tactile_zoo.engine.runtime import flush_denormals
-from tactile_zoo.registry import create_model
+from tactile_zoo.registry import instantiate_model
 with flush_denormals():
     data = ev_objects(Context(threads=threads, log=lambda _m: None))
     recipe = model_recipe("sgnet")
     torch.manual_seed(0)
-    model = create_model("sgnet", data.train.spec)
+    model = instantiate_model("sgnet", data.train.spec)
     fit(copy.deepcopy(model), take(data.train, recipe.batch_size, seed=1), recipe=recipe, device="cpu", epochs=1)
     cpu, start = time.process_time(), time.perf_counter()
     fit(model, data.train, recipe=recipe, device="cpu", epochs=1)

@@ -49,7 +49,7 @@ def _stream(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None, ctx
 def run(ctx: Context, models: list[str] | None = None, prefixes: int | None = None, steps: int | None = None
         ) -> Path:
     from tactile_zoo.engine import seed_everything
-    from tactile_zoo.registry import create_model, get_model_entry, list_models
+    from tactile_zoo.registry import get_model_entry, instantiate_model, model_names
 
     data = ev_objects(ctx)
     test = data.test
@@ -60,12 +60,12 @@ def run(ctx: Context, models: list[str] | None = None, prefixes: int | None = No
     total = x.shape[1]
     k = prefixes or (5 if ctx.quick else 25)
     lengths = sorted({max(1, round(total * (i + 1) / k)) for i in range(k)})  # evenly spaced prefix lengths
-    names = [n for n in (models or list_models()) if get_model_entry(n).meta.get("streaming")]
+    names = [n for n in (models or model_names()) if get_model_entry(n).meta.get("streaming")]
     rows = []
     with ctx.threads_scope(1), torch.inference_mode():
         for name in names:
             seed_everything(0)
-            model = create_model(name, test.spec).to(ctx.device).eval()
+            model = instantiate_model(name, test.spec).to(ctx.device).eval()
             _stream(model, x[:, :min(total, 10)], g, ctx, set())  # warm-up
             stream = Timing([], [])
             naive = Timing([], [])

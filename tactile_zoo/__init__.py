@@ -3,10 +3,11 @@
 Importing the package registers the built-in sensors, datasets and models; third-party plugins (and installed
 pretrained weights) are discovered lazily through entry points on the first list/create/load call.
 
-``create_model`` is the weights layer's (:func:`tactile_zoo.weights.create_model`): the registry's
-``Model(spec, **hparams)``, plus ``pretrained=`` weights (``True`` picks them), a weights tag in the name
-(``x_tacformer.full_ev_objects``), ``new_head=`` and ``num_classes=``; ``list_models`` is the weights layer's too
-(``pretrained=True`` lists weight tags).
+This is the one public home of :func:`create_model` (the registry's ``Model(spec, **hparams)``, plus
+``pretrained=`` weights (``True`` picks them), a weights tag in the name (``x_tacformer.full_ev_objects``),
+``new_head=`` and ``num_classes=``) and of :func:`list_models` (``pretrained=True`` lists weight tags). Both are
+defined in :mod:`tactile_zoo.weights.load`; the registry's lower-level calls are
+:func:`~tactile_zoo.registry.instantiate_model` and :func:`~tactile_zoo.registry.model_names`.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ from .registry import (  # noqa: E402
     register_model,
     register_sensor,
 )
-from .weights import create_model, list_models, list_weights, predict  # noqa: E402
+from .weights import list_weights, predict  # noqa: E402
+from .weights.load import create_model, list_models  # noqa: E402
 
 __all__ = [
     "__version__", "DatasetSpec", "Sensor", "TactileSample", "collate", "TactileZooError", "UnknownNameError",

@@ -78,7 +78,7 @@ def test_the_site_builds_strictly_with_every_nav_page_and_the_api_reference(site
                             ("api/data.md", "tactile_zoo.data.TactileDataset"),
                             ("api/engine.md", "tactile_zoo.engine.fit"),
                             ("api/bench.md", "tactile_zoo.bench.run_bench"),
-                            ("api/weights.md", "tactile_zoo.weights.create_model"),
+                            ("api/weights.md", "tactile_zoo.create_model"),
                             ("api/nn.md", "tactile_zoo.nn.lif.MultiStepLIF"),
                             ("api/testing.md", "tactile_zoo.testing.check_model"),
                             ("api/testing.md", "tactile_zoo.testing.ContractError")]:

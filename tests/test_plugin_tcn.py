@@ -23,12 +23,12 @@ from tactile_zoo.cli import main
 from tactile_zoo.data import DatasetSpec
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.registry import (
-    create_model,
     get_model_entry,
     get_sensor,
+    instantiate_model,
     list_datasets,
-    list_models,
     load_dataset,
+    model_names,
     read_recipe_file,
 )
 from tactile_zoo.testing import MODEL_RULES, check_model
@@ -79,7 +79,7 @@ def test_the_distribution_installs_only_its_package(installed):
 
 
 def test_tcn_is_discovered_with_its_metadata(installed):
-    assert "tcn" in list_models() and list_models("*tcn*", tags=["temporal", "convolutional"]) == ["tcn"]
+    assert "tcn" in model_names() and model_names("*tcn*", tags=["temporal", "convolutional"]) == ["tcn"]
     entry = get_model_entry("TCN")
     assert (entry.dist, entry.version, entry.qualified_name) == (DIST, VERSION, f"{DIST}:tcn")
     assert Path(sys.modules["tactile_zoo_tcn"].__file__).is_relative_to(installed)  # the installed copy
@@ -113,9 +113,9 @@ def test_tcn_keeps_the_model_contract(installed, readout):
 @pytest.mark.parametrize("sensor, channels, globals_", FAMILIES)
 def test_tcn_depth_covers_the_recording(installed, sensor, channels, globals_):
     spec = _spec(sensor, channels, globals_, steps=40)
-    model = create_model("tcn", spec, hidden=8)
+    model = instantiate_model("tcn", spec, hidden=8)
     assert model.receptive_field >= 40  # the default depth covers the whole recording
-    assert isinstance(create_model(f"{DIST}:tcn", spec, hidden=8, levels=2, readout="last"), type(model))
+    assert isinstance(instantiate_model(f"{DIST}:tcn", spec, hidden=8, levels=2, readout="last"), type(model))
 
 
 def test_tcn_trains(installed):
@@ -128,7 +128,7 @@ def test_tcn_trains(installed):
     for i, label in enumerate(y.tolist()):
         start = int(torch.randint(0, 8, (1,), generator=gen))
         x[i, start:start + 4, 8 * label:8 * label + 8, 0] = 1.0  # an ON burst on patch `label`
-    model = create_model("tcn", spec, hidden=16)
+    model = instantiate_model("tcn", spec, hidden=16)
     opt = torch.optim.Adam(model.parameters(), lr=1e-2)
     losses = []
     for _ in range(30):
@@ -144,16 +144,16 @@ def test_tcn_trains(installed):
 
 def test_tcn_rejects_bad_input_with_one_clear_error(installed):
     spec = _spec("uskin_allegro", 3, 8)
-    model = create_model("tcn", spec, hidden=8)
+    model = instantiate_model("tcn", spec, hidden=8)
     x, g = _batch(spec)
     with pytest.raises(ConfigError, match="global features"):
         model(x)
     with pytest.raises(ConfigError, match=r"x must be \(B, T, 60, 3\)"):
         model(x[:, :, :30], g)
     with pytest.raises(ConfigError, match="readout"):
-        create_model("tcn", spec, readout="max")
+        instantiate_model("tcn", spec, readout="max")
     with pytest.raises(ConfigError, match="kernel_size"):
-        create_model("tcn", spec, kernel_size=1)
+        instantiate_model("tcn", spec, kernel_size=1)
 
 
 def test_tcn_in_the_cli(installed, capsys):
@@ -171,4 +171,4 @@ def test_tcn_in_the_cli(installed, capsys):
     if simulated:  # `info` builds the model for the first simulated dataset and counts its parameters
         spec = load_dataset(simulated[0], split="train").spec
         assert info["built_for"] == simulated[0]
-        assert info["parameters"] == sum(p.numel() for p in create_model("tcn", spec).parameters())
+        assert info["parameters"] == sum(p.numel() for p in instantiate_model("tcn", spec).parameters())

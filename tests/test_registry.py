@@ -24,14 +24,14 @@ from tactile_zoo.data import DatasetSpec
 from tactile_zoo.errors import ConfigError, PluginError, TactileZooError, UnknownNameError
 from tactile_zoo.registry import (
     PluginWarning,
-    create_model,
     get_dataset_entry,
     get_model_entry,
     get_sensor,
+    instantiate_model,
     list_datasets,
-    list_models,
     list_sensors,
     load_dataset,
+    model_names,
     plugins,
     register_dataset,
     register_model,
@@ -91,14 +91,14 @@ def test_register_model_bare_and_with_arguments(spec):
     def build(spec: DatasetSpec, **hparams):
         return _Tiny(spec, **hparams)
 
-    assert "zt_bare_net" in list_models()  # the class name, snake_cased
+    assert "zt_bare_net" in model_names()  # the class name, snake_cased
     assert ZtBareNet.zoo_meta == {}
-    assert isinstance(create_model("zt_bare_net", spec), ZtBareNet)
+    assert isinstance(instantiate_model("zt_bare_net", spec), ZtBareNet)
     entry = get_model_entry(name)
     assert entry.name == name and entry.obj is build and entry.dist is None and not entry.is_plugin
     assert entry.meta["year"] == 2021 and entry.meta["recipe"]["loss"] == "mse_rate"
     assert build.zoo_meta == dict(entry.meta)  # the metadata travels with the object (for entry points to it)
-    model = create_model(name, spec, width=7)
+    model = instantiate_model(name, spec, width=7)
     assert isinstance(model, _Tiny) and model.width == 7  # hyper-parameters reach the factory
     with pytest.raises(TypeError):
         entry.meta["year"] = 1999  # read-only
@@ -134,7 +134,7 @@ def test_lookups_are_normalised(spec):
              f"zt q tacformer {stem}"]
     entries = {id(get_model_entry(form)) for form in forms}
     assert len(entries) == 1
-    if list_models("x_tacformer"):  # the paper's model, once it is registered
+    if model_names("x_tacformer"):  # the paper's model, once it is registered
         assert get_model_entry("X-Tacformer") is get_model_entry("x-tacformer") is get_model_entry("XTacformer")
     # a different object under a name that normalises the same is refused, not silently replaced
     with pytest.raises(TactileZooError, match="already registered"):
@@ -152,11 +152,12 @@ def test_unknown_name_lists_close_matches_and_every_known_name():
     assert isinstance(err.value, KeyError) and isinstance(err.value, TactileZooError)
     assert f"Did you mean '{name}'" in message
     known = message.split("Known models:")[1]
-    assert all(n in known for n in list_models())
+    assert all(n in known for n in model_names())
     with pytest.raises(UnknownNameError, match="Did you mean 'neutouch'") as err:
         get_sensor("neutuch")
     assert all(s in str(err.value) for s in SENSORS)
-    for call in (lambda: create_model(typo, None), lambda: load_dataset(unique("nothing")), lambda: get_sensor("")):
+    for call in (lambda: instantiate_model(typo, None), lambda: load_dataset(unique("nothing")),
+                 lambda: get_sensor("")):
         with pytest.raises(UnknownNameError):
             call()
 
@@ -165,16 +166,16 @@ def test_list_patterns_wildcards_and_tags():
     alpha, beta, gamma = unique("alpha_graph"), unique("beta_graph"), unique("gamma")
     for name, tags in ((gamma, ["convolutional"]), (alpha, ["graph", "spiking"]), (beta, ["graph"])):
         register_model(name, tags=tags)(lambda spec: _Tiny(spec))
-    assert list_models("zt_*") == sorted([alpha, beta, gamma])
-    assert list_models("ZT-*-GRAPH*") == [alpha, beta]  # patterns are normalised like names
-    assert list_models("zt_?eta*") == [beta]
-    assert list_models(["zt_a*", "zt_g*"]) == [alpha, gamma]
-    assert list_models("zt_*", tags=["graph"]) == [alpha, beta]
-    assert list_models("zt_*", tags="graph") == [alpha, beta]  # one tag as a string, not its characters
-    assert list_models("zt_*", tags=["graph", "spiking"]) == [alpha]
-    assert list_models("zt_*", tags=["attention"]) == []
-    assert list_models("zt_nothing_*") == []
-    everything = list_models()
+    assert model_names("zt_*") == sorted([alpha, beta, gamma])
+    assert model_names("ZT-*-GRAPH*") == [alpha, beta]  # patterns are normalised like names
+    assert model_names("zt_?eta*") == [beta]
+    assert model_names(["zt_a*", "zt_g*"]) == [alpha, gamma]
+    assert model_names("zt_*", tags=["graph"]) == [alpha, beta]
+    assert model_names("zt_*", tags="graph") == [alpha, beta]  # one tag as a string, not its characters
+    assert model_names("zt_*", tags=["graph", "spiking"]) == [alpha]
+    assert model_names("zt_*", tags=["attention"]) == []
+    assert model_names("zt_nothing_*") == []
+    everything = model_names()
     assert everything == sorted(everything) and {alpha, beta, gamma} <= set(everything)
     assert SENSORS <= set(list_sensors()) and list_sensors() == sorted(list_sensors())
     assert list_sensors("*touch") == ["neutouch"]
@@ -199,7 +200,7 @@ def test_bad_model_metadata_is_a_config_error(meta, culprit):
     name = unique("bad_meta")
     with pytest.raises(ConfigError, match=culprit):
         register_model(name, **meta)(lambda spec: _Tiny(spec))
-    assert list_models(name) == []  # nothing half-registered
+    assert model_names(name) == []  # nothing half-registered
 
 
 def test_bad_dataset_metadata_is_a_config_error():
@@ -213,11 +214,11 @@ def test_bad_dataset_metadata_is_a_config_error():
 def test_entry_point_plugin_is_listed_and_created_like_a_builtin(site, spec):
     name = unique("plug")
     module = site.add("zt-good", GOOD_MODULE, models={name: "Net"}, version="1.2")
-    assert name in list_models() and name in list_models("zt_plug*", tags=["convolutional"])
+    assert name in model_names() and name in model_names("zt_plug*", tags=["convolutional"])
     entry = get_model_entry(name)
     assert (entry.dist, entry.version, entry.qualified_name) == ("zt-good", "1.2", f"zt-good:{name}")
     assert entry.meta["paper"] == "A fake paper" and entry.meta["recipe"]["optimizer"] == "adam"
-    model = create_model(name, spec, width=9)
+    model = instantiate_model(name, spec, width=9)
     assert model.origin == module and model.width == 9
     assert model(torch.zeros(2, 5, 39, 2)).shape == (2, 3)
     assert get_model_entry(f"ZT_Good:{name}") is entry  # dist:name, normalised too
@@ -263,16 +264,16 @@ def test_discovery_is_lazy_and_cached(site, monkeypatch):
     list_sensors()
     get_sensor("neutouch")
     assert module not in sys.modules and calls == []  # sensors never need plugins
-    assert name in list_models()
+    assert name in model_names()
     assert module in sys.modules and calls == [1]
     del sys.modules[module]
-    list_models()
+    model_names()
     list_datasets()
     plugins()
     get_model_entry(name)
     assert module not in sys.modules and calls == [1]  # cached: neither found again nor imported again
     registry.reset_plugins()
-    assert name in list_models() and calls == [1, 1]
+    assert name in model_names() and calls == [1, 1]
 
 
 def test_importing_tactile_zoo_imports_no_plugin(site):
@@ -302,11 +303,11 @@ def test_same_object_met_twice_is_one_registration(site, spec):
     module = site.add("zt-twice", source, models={name: "Twice"})
     with warnings.catch_warnings():
         warnings.simplefilter("error", PluginWarning)  # neither shadowed nor a clash
-        assert list_models("zt_twice*") == [name]
+        assert model_names("zt_twice*") == [name]
     entry = get_model_entry(name)
     assert entry.dist == "zt-twice" and entry.meta["tags"] == ["recurrent"]
     assert [i.status for i in _ours(plugins())] == ["ok"]
-    assert isinstance(create_model(name, spec), sys.modules[module].Twice)
+    assert isinstance(instantiate_model(name, spec), sys.modules[module].Twice)
 
 
 def test_plugin_module_imported_before_discovery_is_still_one_registration(site, spec):
@@ -323,11 +324,11 @@ def test_plugin_module_imported_before_discovery_is_still_one_registration(site,
     assert registry.normalize_name(name) in registry._TABLES["model"].builtin  # filed as a local registration
     with warnings.catch_warnings():
         warnings.simplefilter("error", PluginWarning)  # the plugin is not "shadowed" by itself
-        assert list_models("zt_early*") == [name]
+        assert model_names("zt_early*") == [name]
     entry = get_model_entry(name)
     assert entry.dist == "zt-early" and entry.meta["tags"] == ["recurrent"]
     assert [i.status for i in _ours(plugins())] == ["ok"]
-    assert isinstance(create_model(name, spec), torch.nn.Linear)
+    assert isinstance(instantiate_model(name, spec), torch.nn.Linear)
 
 
 def test_builtin_wins_a_clash_and_the_plugin_stays_reachable(site, spec):
@@ -335,10 +336,10 @@ def test_builtin_wins_a_clash_and_the_plugin_stays_reachable(site, spec):
     register_model(name)(lambda spec: _Tiny(spec))
     module = site.add("zt-shadower", GOOD_MODULE, models={name: "Net"})
     with pytest.warns(PluginWarning, match=f"zt-shadower:{name}.*shadowed"):
-        names = list_models("zt_shadow*")
+        names = model_names("zt_shadow*")
     assert names == sorted([name, f"zt-shadower:{name}"])
-    assert get_model_entry(name).dist is None and isinstance(create_model(name, spec), _Tiny)
-    assert create_model(f"zt-shadower:{name}", spec).origin == module
+    assert get_model_entry(name).dist is None and isinstance(instantiate_model(name, spec), _Tiny)
+    assert instantiate_model(f"zt-shadower:{name}", spec).origin == module
     [info] = _ours(plugins())
     assert info.status == "shadowed" and f"zt-shadower:{name}" in info.error
 
@@ -348,17 +349,17 @@ def test_clash_between_two_plugins_names_both_and_both_stay_reachable(site, spec
     mod_b = site.add("zt-beta", GOOD_MODULE, models={name: "Net"})
     mod_a = site.add("zt-alpha", GOOD_MODULE, models={name: "Net"})
     with pytest.warns(PluginWarning, match="zt-alpha.*zt-beta"):
-        assert list_models("zt_clash*") == [f"zt-alpha:{name}", f"zt-beta:{name}"]
+        assert model_names("zt_clash*") == [f"zt-alpha:{name}", f"zt-beta:{name}"]
     with pytest.raises(PluginError, match="zt-alpha.*zt-beta"):
         get_model_entry(name)
     with pytest.raises(PluginError, match="zt-alpha.*zt-beta"):
-        create_model(name, spec)
-    assert create_model(f"zt-alpha:{name}", spec).origin == mod_a
-    assert create_model(f"zt-beta:{name}", spec).origin == mod_b
+        instantiate_model(name, spec)
+    assert instantiate_model(f"zt-alpha:{name}", spec).origin == mod_a
+    assert instantiate_model(f"zt-beta:{name}", spec).origin == mod_b
     assert [(i.dist, i.status) for i in _ours(plugins())] == [("zt-alpha", "clash"), ("zt-beta", "clash")]
     monkeypatch.setenv("TACTILE_ZOO_STRICT_PLUGINS", "1")
     with pytest.raises(PluginError, match="zt-alpha.*zt-beta"):
-        list_models()
+        model_names()
 
 
 BROKEN_SOURCES = {
@@ -378,9 +379,10 @@ def test_broken_plugin_is_skipped_with_a_warning_and_listed_as_failed(site, spec
     site.add("zt-fine", GOOD_MODULE, models={good: "Net"})
     site.add("zt-broken", BROKEN_SOURCES[how], models={broken: "Net"})
     with pytest.warns(PluginWarning, match=f"zt-broken.*{BROKEN_CAUSES[how]}"):
-        names = list_models()
-    assert good in names and local in names and broken not in names and not list_models(f"*{broken}*")
-    assert isinstance(create_model(local, spec), _Tiny) and isinstance(create_model(good, spec), torch.nn.Module)
+        names = model_names()
+    assert good in names and local in names and broken not in names and not model_names(f"*{broken}*")
+    assert isinstance(instantiate_model(local, spec), _Tiny)
+    assert isinstance(instantiate_model(good, spec), torch.nn.Module)
     status = {i.dist: (i.status, i.error) for i in _ours(plugins())}
     assert status["zt-fine"] == ("ok", None)
     assert status["zt-broken"][0] == "failed"
@@ -392,15 +394,15 @@ def test_strict_plugins_makes_a_broken_plugin_fatal(site, monkeypatch):
     site.add("zt-fine", GOOD_MODULE, models={fine: "Net"})
     site.add("zt-broken", BROKEN_SOURCES["import"], models={unique("broken"): "Net"})
     with pytest.warns(PluginWarning, match="zt-broken"):
-        assert list_models("zt_fine*") == [fine]
+        assert model_names("zt_fine*") == [fine]
     monkeypatch.setenv("TACTILE_ZOO_STRICT_PLUGINS", "1")  # the policy changed: discovered again, strictly
     with pytest.raises(PluginError, match="'zt-broken'.*ModuleNotFoundError.*zt_no_such_dependency_xyz"):
-        list_models()
+        model_names()
     with pytest.raises(PluginError, match="'zt-broken'"):  # an error, not a half-filled cache, the second time too
         get_model_entry(fine)
     monkeypatch.delenv("TACTILE_ZOO_STRICT_PLUGINS")
     with pytest.warns(PluginWarning, match="zt-broken"):  # lenient again: every good plugin is back
-        assert list_models("zt_fine*") == [fine]
+        assert model_names("zt_fine*") == [fine]
     assert [(i.dist, i.status) for i in _ours(plugins())] == [("zt-broken", "failed"), ("zt-fine", "ok")]
 
 
@@ -421,11 +423,11 @@ def test_no_plugins_turns_discovery_off(site, monkeypatch, capsys):
     name = unique("off")
     module = site.add("zt-off", GOOD_MODULE, models={name: "Net"})
     monkeypatch.setenv("TACTILE_ZOO_NO_PLUGINS", "1")
-    assert name not in list_models() and plugins() == [] and module not in sys.modules
+    assert name not in model_names() and plugins() == [] and module not in sys.modules
     with pytest.raises(UnknownNameError):
         get_model_entry(name)
     monkeypatch.delenv("TACTILE_ZOO_NO_PLUGINS")
-    assert name in list_models()  # on again: discovered under the new policy
+    assert name in model_names()  # on again: discovered under the new policy
     assert main(["--no-plugins", "list", "models", "zt_off*"]) == 0
     assert capsys.readouterr().out == ""
     assert main(["list", "models", "zt_off*"]) == 0
@@ -446,7 +448,7 @@ def test_wrong_types_are_plugin_errors(site, spec, monkeypatch):
         meta_typo.zoo_meta = {"papr": "typo"}
     """, models={not_callable: "VALUE", not_module: "make", bad_meta: "meta_typo"})
     with pytest.warns(PluginWarning) as record:
-        names = list_models("zt_*")
+        names = model_names("zt_*")
     messages = " ".join(str(w.message) for w in record)
     assert "not a class or callable" in messages and "papr" in messages
     assert not_module in names and not_callable not in names and bad_meta not in names
@@ -454,10 +456,10 @@ def test_wrong_types_are_plugin_errors(site, spec, monkeypatch):
     assert status[not_callable][0] == "failed" and status[not_callable][1].startswith("PluginError")
     assert status[bad_meta][0] == "failed" and status[bad_meta][1].startswith("ConfigError")
     with pytest.raises(PluginError, match=r"'zt-wrong'.*dict, not a torch\.nn\.Module"):
-        create_model(not_module, spec)
+        instantiate_model(not_module, spec)
     monkeypatch.setenv("TACTILE_ZOO_STRICT_PLUGINS", "1")
     with pytest.raises(PluginError, match="'zt-wrong'.*failed to load"):
-        list_models()
+        model_names()
 
 
 def test_discovery_order_is_deterministic(site):
@@ -467,7 +469,7 @@ def test_discovery_order_is_deterministic(site):
     first = [(i.dist, i.group, i.name) for i in _ours(plugins())]
     assert first == sorted(first) and [d for d, _, _ in first] == ["zt-alpha", "zt-alpha", "zt-zulu", "zt-zulu"]
     assert [n for d, g, n in first if d == "zt-zulu"] == sorted([z1, z2])
-    assert list_models() == sorted(list_models())
+    assert model_names() == sorted(model_names())
     registry.reset_plugins()
     sys.modules.pop(mod_z)
     assert [(i.dist, i.group, i.name) for i in _ours(plugins())] == first

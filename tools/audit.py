@@ -243,7 +243,7 @@ def write_freeze(tuning: Path, recipe: str, trial_folders: list[str]) -> Path:
     missing = [f for f in trial_folders if not (tuning / f).is_dir()]
     if missing:
         raise SystemExit(f"--freeze: no trial folder {', '.join(missing)} under {tuning}")
-    recipes = {name: registry.get_model_entry(name).meta.get("recipes") or {} for name in registry.list_models()}
+    recipes = {name: registry.get_model_entry(name).meta.get("recipes") or {} for name in registry.model_names()}
     models = {name: entry[recipe] for name, entry in recipes.items() if recipe in entry}
     path = tuning / "freeze.json"
     path.write_text(json.dumps({"recipe": recipe, "trial_folders": sorted(trial_folders), "models": models},

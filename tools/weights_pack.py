@@ -61,10 +61,11 @@ import numpy as np
 import torch
 
 from tactile_zoo import registry
-from tactile_zoo.bench.records import recipe_name_of, revision_gaps, run_records
+from tactile_zoo.bench.records import revision_gaps, run_records
 from tactile_zoo.bench.tables import leaderboard_rows
 from tactile_zoo.data.base import file_sha256
 from tactile_zoo.errors import ConfigError
+from tactile_zoo.recipe import recipe_name_of
 from tactile_zoo.weights import WeightEntry, entry_from_record, make_tag, read_manifest, write_manifest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -339,9 +340,9 @@ def inputs_sha256(x: torch.Tensor, g: torch.Tensor) -> str:
 
 def model_logits(entry: WeightEntry, x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
     """The pretrained model's scores on ``x, g`` through the path :func:`tactile_zoo.evaluate` takes."""
+    from tactile_zoo import create_model
     from tactile_zoo.engine.evaluate import predict_scores
     from tactile_zoo.engine.runtime import flush_denormals
-    from tactile_zoo.weights import create_model
 
     model = create_model(entry.model, pretrained=entry)
     with flush_denormals():

@@ -139,7 +139,7 @@ def _listed_name(kind: str, entry: registry.Entry) -> str:
 
 
 def _resolve(kind: str, tokens: Iterable[str]) -> list[str]:
-    lister = registry.list_models if kind == "model" else registry.list_datasets
+    lister = registry.model_names if kind == "model" else registry.list_datasets
     lookup = registry.get_model_entry if kind == "model" else registry.get_dataset_entry
     out: list[str] = []
     for token in (t.strip() for item in tokens for t in item.split(",") if t.strip()):

@@ -37,11 +37,11 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .._files import atomic_write_text
-from ..engine.progress import format_seconds, make_bar
+from ..engine.progress import format_seconds, interactive, make_bar
 
 __all__ = ["ProgressWriter", "add_listener", "remove_listener", "listening", "read_progress", "running_cells",
-           "remove_progress", "CostModel", "ProgressDisplay", "format_seconds", "describe_running", "PROGRESS_DIR",
-           "DEFAULT_EPOCH_SECONDS", "process_start", "process_alive"]
+           "remove_progress", "CostModel", "ProgressDisplay", "describe_running", "PROGRESS_DIR",
+           "DEFAULT_EPOCH_SECONDS", "process_start", "process_alive", "RunConsole"]
 
 logger = logging.getLogger(__name__)
 
@@ -355,3 +355,44 @@ class ProgressDisplay:
         for bar in self.bars.values():
             bar.close()
         self.bars.clear()
+
+
+class RunConsole:
+    """The bench runner's console: per-cell lines on ``out`` (through tqdm when a bar is shown), and the grid's
+    progress bar with the cost-weighted ETA."""
+
+    def __init__(self, total: int, quiet: bool, out: TextIO, err: TextIO) -> None:
+        self.quiet, self.out, self.err = quiet, out, err
+        self.bar = None
+        if not quiet and total and interactive(err):
+            # tqdm's own ETA assumes equally costly cells; the cost-weighted one goes in the postfix (set_eta)
+            self.bar = make_bar(total, "cells", "cell", err, leave=True,
+                                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
+
+    def line(self, text: str, always: bool = False) -> None:
+        if self.quiet and not always:
+            return
+        if self.bar is not None:
+            self.bar.write(text, file=self.out)
+        else:
+            print(text, file=self.out, flush=True)
+
+    def error(self, text: str) -> None:
+        if self.bar is not None:
+            self.bar.write(text, file=self.err)
+        else:
+            print(text, file=self.err, flush=True)
+
+    def step(self) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def set_eta(self, seconds: float, done: int, total: int) -> None:
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"eta {format_seconds(seconds)}", refresh=True)
+        elif not self.quiet and done < total:
+            logger.info("%d/%d cells done, eta %s", done, total, format_seconds(seconds))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()

@@ -28,8 +28,7 @@ from ..recipe import recipe_name_of
 from .schema import check_record, joined, newer_format
 
 __all__ = ["CELLS_DIR", "DAMAGED_DIR", "InvalidCell", "CellScan", "InvalidCellsError", "read_record", "scan_cells",
-           "refuse_newer", "move_aside", "cell_files", "run_records", "revision_gaps", "qualifying_cells",
-           "recipe_name_of"]
+           "refuse_newer", "move_aside", "cell_files", "run_records", "revision_gaps", "qualifying_cells"]
 
 #: a bench folder's folder of cell records, one ``<cell id>.json`` each
 CELLS_DIR = "cells"

@@ -33,11 +33,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from .._files import atomic_write_text
 from ..engine.metrics import registered_metrics
 from ..errors import ResultsError
+from ..recipe import recipe_name_of
 from .plots import write_plots
-from .records import CellScan, InvalidCell, InvalidCellsError, recipe_name_of, refuse_newer, revision_gaps
-from .results import RunDir, atomic_write_text
+from .records import CellScan, InvalidCell, InvalidCellsError, refuse_newer, revision_gaps
+from .results import RunDir
 from .tables import (
     UNAVAILABLE,
     leaderboard_rows,

@@ -41,24 +41,12 @@ from ..errors import ConfigError
 from .records import CellScan, InvalidCell, read_record, scan_cells
 from .schema import InvalidRecordError, check_record
 
-# The table maths lives in .tables; its names stay importable from here for code written against the old layout.
-from .tables import (
-    LEADERBOARD_COLUMNS,
-    SUMMARY_COLUMNS,
-    TIMING_COLUMNS,
-    leaderboard_rows,
-    prefix_label,
-    rows_to_csv,
-    summary_rows,
-)
-
 try:
     import fcntl
 except ImportError:  # pragma: no cover - Windows: no claims; one process per --out
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["atomic_write_text", "atomic_write_json", "RunDir", "Claim", "CellWriteError", "LEADERBOARD_COLUMNS",
-           "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows", "rows_to_csv", "prefix_label"]
+__all__ = ["atomic_write_json", "RunDir", "Claim", "CellWriteError"]
 
 
 #: the version of ``run.json``'s ``format`` this code reads and writes (a higher one: a newer tactile-zoo wrote it)

@@ -24,14 +24,13 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .. import registry
-from ..engine.progress import interactive, make_bar
 from ..errors import ResultsError, TactileZooError
 from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
 from .executors import Executor, LocalExecutor, check_workers, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
-from .progress import CostModel, ProgressDisplay, format_seconds, remove_progress
+from .progress import CostModel, ProgressDisplay, RunConsole, remove_progress
 from .records import InvalidCell, move_aside, refuse_newer
 from .results import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
 from .schema import RECORD_FORMAT, InvalidRecordError
@@ -53,46 +52,6 @@ class BenchOutcome:
     counts: dict[str, int] = field(default_factory=dict)
     ran: list[str] = field(default_factory=list)  # cell ids computed by this process
     reused: list[str] = field(default_factory=list)  # finished before (or by another process)
-
-
-class _Console:
-    """Per-cell lines on ``out`` (through tqdm when a bar is shown), and the grid's progress bar."""
-
-    def __init__(self, total: int, quiet: bool, out: TextIO, err: TextIO) -> None:
-        self.quiet, self.out, self.err = quiet, out, err
-        self.bar = None
-        if not quiet and total and interactive(err):
-            # tqdm's own ETA assumes equally costly cells; the cost-weighted one goes in the postfix (set_eta)
-            self.bar = make_bar(total, "cells", "cell", err, leave=True,
-                                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]")
-
-    def line(self, text: str, always: bool = False) -> None:
-        if self.quiet and not always:
-            return
-        if self.bar is not None:
-            self.bar.write(text, file=self.out)
-        else:
-            print(text, file=self.out, flush=True)
-
-    def error(self, text: str) -> None:
-        if self.bar is not None:
-            self.bar.write(text, file=self.err)
-        else:
-            print(text, file=self.err, flush=True)
-
-    def step(self) -> None:
-        if self.bar is not None:
-            self.bar.update(1)
-
-    def set_eta(self, seconds: float, done: int, total: int) -> None:
-        if self.bar is not None:
-            self.bar.set_postfix_str(f"eta {format_seconds(seconds)}", refresh=True)
-        elif not self.quiet and done < total:
-            logger.info("%d/%d cells done, eta %s", done, total, format_seconds(seconds))
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
 
 
 def _score(value: Any) -> str:
@@ -183,7 +142,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         _name_damaged(scan.invalid, {c.cell_id for c in grid.cells}, skip_invalid, out_dir, console_error=err)
         running = {c.cell_id for c in todo}  # a set: a list here made 10,000 cells take minutes to start
         outcome.reused = [c.cell_id for c in grid.cells if c.cell_id not in running]
-        console = _Console(len(todo), quiet, out, err)
+        console = RunConsole(len(todo), quiet, out, err)
         display = ProgressDisplay(run.path, err, enabled=not quiet, live=console.bar is not None)
         console.line(f"tactile-zoo bench: {len(grid.cells)} cells, {len(outcome.reused)} already finished, "
                      f"{len(todo)} to run on {executor.describe()} -> {out_dir}")
@@ -195,7 +154,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
                 console.line(f"skipped dataset {name}: {note}", always=True)
         status = "finished"
         try:
-            write_error = _loop(todo, run, config, executor, console, outcome, started, display, existing)
+            write_error = _Loop(todo, run, config, executor, console, outcome, started, display, existing).run()
         except KeyboardInterrupt:
             status = "interrupted"
             write_error = None
@@ -259,161 +218,191 @@ def _name_damaged(invalid: list[InvalidCell], grid_ids: set[str], skip_invalid: 
         print(f"tactile-zoo: {level}: damaged cell file {item}; {fate}", file=console_error, flush=True)
 
 
-def _loop(todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor, console: _Console,
-          outcome: BenchOutcome, started: float, display: ProgressDisplay | None = None,
-          existing: dict[str, dict[str, Any]] | None = None) -> str | None:
-    """Claim, submit, collect and write cells until none is left. Returns a write error, if one stopped the run."""
-    pending = deque(todo)
-    inflight: dict[Any, tuple[Cell, Claim]] = {}
-    deferred: deque[Cell] = deque()
-    total, done = len(todo), 0
-    waited_note = False
-    display = display or ProgressDisplay(run.path, console.err, enabled=False, live=False)
-    costs = CostModel((existing or {}).values())
+class _Loop:
+    """Claim, submit, collect and write the cells of one run until none is left.
 
-    def running() -> list[str]:
-        return [cell.cell_id for cell, _ in inflight.values()]
+    A cell of ``todo`` moves through three places: ``pending`` (not looked at yet, in grid order), ``inflight``
+    (submitted to the executor; we hold its claim) and ``deferred`` (another process held its claim when we looked).
+    :meth:`run` repeats three steps: fill the executor's free slots from ``pending``, collect and write what finished,
+    and, once nothing else is left, wait for a deferred cell's claim and either keep the record its holder wrote or
+    run the cell ourselves. A record is written the moment its cell finishes; the claims of cells still in flight are
+    released whatever stops the loop.
+    """
 
-    def eta() -> None:
-        left = [costs.remaining(c.model, c.dataset, c.config, display.states.get(c.cell_id))
-                for c in [*(cell for cell, _ in inflight.values()), *pending, *deferred]]
-        console.set_eta(costs.eta(left, executor.slots), done, total)
+    def __init__(self, todo: list[Cell], run: RunDir, config: BenchConfig, executor: Executor, console: RunConsole,
+                 outcome: BenchOutcome, started: float, display: ProgressDisplay | None = None,
+                 existing: dict[str, dict[str, Any]] | None = None) -> None:
+        self.run_dir, self.config, self.executor, self.console = run, config, executor, console
+        self.outcome, self.started = outcome, started
+        self.display = display or ProgressDisplay(run.path, console.err, enabled=False, live=False)
+        self.costs = CostModel((existing or {}).values())
+        self.pending: deque[Cell] = deque(todo)
+        self.inflight: dict[Any, tuple[Cell, Claim]] = {}
+        self.deferred: deque[Cell] = deque()
+        self.total, self.done = len(todo), 0
+        self.waited_note = False
 
-    def epoch(state: dict[str, Any]) -> None:  # a cell running in this process finished an epoch
-        display.show(state)
-        if console.bar is not None:
-            eta()
+    def run(self) -> str | None:
+        """Run every cell. Returns the write error that stopped the run, if one did; Ctrl-C propagates."""
+        if isinstance(self.executor, LocalExecutor):
+            self.executor.listener = self.on_epoch
+        try:
+            while self.pending or self.inflight or self.deferred:
+                self.fill_slots()
+                if self.inflight:
+                    error = self.collect()
+                    if error is not None:
+                        return error
+                elif self.deferred:  # everything left is claimed by other processes
+                    self.take_over(self.deferred.popleft())
+        except BaseException:  # Ctrl-C: stop the cells in flight first, so no worker writes their progress after this
+            if self.inflight:
+                self.executor.abandon()
+            raise
+        finally:
+            for cell, claim in self.inflight.values():
+                self.display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): its progress file goes
+                claim.release()
+            if isinstance(self.executor, LocalExecutor):
+                self.executor.listener = None
+        return None
 
-    if isinstance(executor, LocalExecutor):
-        executor.listener = epoch
+    # ---------------------------------------------------------------------------------------- the three steps
+    def fill_slots(self) -> None:
+        """Take cells from ``pending`` until the executor's slots are full: claim each, keep a record another
+        process finished meanwhile, defer one whose claim is held, submit the rest."""
+        while self.pending and len(self.inflight) < self.executor.slots:
+            cell = self.pending.popleft()
+            claim = self.run_dir.claim(cell.cell_id)
+            if claim is None:
+                self.deferred.append(cell)
+                continue
+            record = self.fresh_record(cell)
+            if record is not None:
+                claim.release()
+                self.finish(cell, record, by_us=False)
+                continue
+            self.run_dir.remove_torn(self.run_dir.cells_dir, f"{cell.cell_id}.json")  # a killed writer's half file
+            if not self.set_aside(cell):
+                claim.release()
+                continue
+            self.submit(cell, claim)
+            if self.console.bar is not None and len(self.inflight) == 1 and not self.done:
+                self.show_eta()
 
-    def fresh(cell: Cell) -> dict[str, Any] | None:
+    def collect(self) -> str | None:
+        """Wait for cells in flight (polling other processes' progress meanwhile) and write each that finished.
+        Returns the write error that stops the run, if one happened."""
+        polling = self.display.enabled and not isinstance(self.executor, LocalExecutor)
+        finished = self.executor.wait(list(self.inflight), timeout=POLL_SECONDS if polling else None)
+        if polling:
+            self.display.poll([cell.cell_id for cell, _ in self.inflight.values()])
+            if not finished and self.console.bar is not None:
+                self.show_eta()
+        for future in finished:
+            cell, claim = self.inflight.pop(future)
+            attempts = self.executor.attempts(future)  # before result(), which lets the executor forget the task
+            try:
+                record = self.executor.result(future)
+            except KeyboardInterrupt:
+                raise
+            except BaseException as exc:  # noqa: BLE001 - a worker died: this cell failed, the grid goes on
+                record = _worker_failure(cell, exc)
+            record["attempts"] = attempts
+            try:
+                record = _write_record(self.run_dir, cell, record)
+            except CellWriteError as exc:
+                self.display.done(cell.cell_id)
+                claim.release()
+                self.console.error(f"tactile-zoo: error: {exc.strerror}")
+                self.pending.clear()
+                self.deferred.clear()
+                return str(exc.strerror)
+            self.display.done(cell.cell_id)  # before the claim goes: the next holder may write a new one
+            claim.release()
+            self.finish(cell, record, by_us=True)
+        return None
+
+    def take_over(self, cell: Cell) -> None:
+        """Wait until the process holding ``cell``'s claim lets it go; keep its record, or run the cell if the
+        holder stopped without finishing it."""
+        if not self.waited_note:
+            self.console.line(f"waiting for {len(self.deferred) + 1} cell(s) that another tactile-zoo bench on "
+                              f"{self.run_dir.path} is running ({self.run_dir.claim_holder(cell.cell_id)})",
+                              always=True)
+            self.waited_note = True
+        claim = self.run_dir.claim(cell.cell_id, blocking=True)
+        assert claim is not None
+        record = self.fresh_record(cell)
+        if record is not None:
+            claim.release()
+            self.finish(cell, record, by_us=False)
+        elif self.set_aside(cell):
+            self.submit(cell, claim)
+        else:
+            claim.release()
+
+    # ---------------------------------------------------------------------------------------- one cell
+    def fresh_record(self, cell: Cell) -> dict[str, Any] | None:
         """A finished record of ``cell`` that this run may keep (written by another process since we started)."""
-        record = run.read_cell(cell.cell_id)
+        record = self.run_dir.read_cell(cell.cell_id)
         if record is None or record.get("status") not in FINISHED:
             return None
-        if config.force and run.cell_path(cell.cell_id).stat().st_mtime < started:
+        if self.config.force and self.run_dir.cell_path(cell.cell_id).stat().st_mtime < self.started:
             return None
         return record
 
-    def set_aside(cell: Cell) -> bool:
+    def set_aside(self, cell: Cell) -> bool:
         """Move a damaged file of ``cell`` (we hold its claim) to cells/damaged/ before it is recomputed, so the
         new record never silently replaces it; False when that failed (the cell is then not run)."""
-        found = run.read_cell_file(cell.cell_id)
+        found = self.run_dir.read_cell_file(cell.cell_id)
         if not isinstance(found, InvalidCell):
             return True
         try:
             moved = move_aside(found.path)
         except OSError as exc:
-            console.error(f"tactile-zoo: error: cannot move the damaged cell file {found.path} aside "
-                          f"({exc.strerror or exc}); {cell.label()} is not run")
+            self.console.error(f"tactile-zoo: error: cannot move the damaged cell file {found.path} aside "
+                               f"({exc.strerror or exc}); {cell.label()} is not run")
             return False
-        console.line(f"moved the damaged cell file {found.path.name} to {moved.parent}/; recomputing "
-                     f"{cell.label()}", always=True)
+        self.console.line(f"moved the damaged cell file {found.path.name} to {moved.parent}/; recomputing "
+                          f"{cell.label()}", always=True)
         return True
 
-    def finish(cell: Cell, record: dict[str, Any], by_us: bool) -> None:
-        nonlocal done
-        done += 1
-        (outcome.ran if by_us else outcome.reused).append(cell.cell_id)
-        suffix = "" if by_us else "  (finished by another process)"
-        costs.learn(record)
-        console.line(_cell_line(record, done, total) + suffix)
-        console.step()
-        eta()
-
-    try:
-        while pending or inflight or deferred:
-            while pending and len(inflight) < executor.slots:
-                cell = pending.popleft()
-                claim = run.claim(cell.cell_id)
-                if claim is None:
-                    deferred.append(cell)
-                    continue
-                record = fresh(cell)
-                if record is not None:
-                    claim.release()
-                    finish(cell, record, by_us=False)
-                    continue
-                run.remove_torn(run.cells_dir, f"{cell.cell_id}.json")  # a killed writer's half file
-                if not set_aside(cell):
-                    claim.release()
-                    continue
-                _submit(executor, cell, claim, config, inflight, run)
-                if console.bar is not None and len(inflight) == 1 and not done:
-                    eta()
-            if inflight:
-                polling = display.enabled and not isinstance(executor, LocalExecutor)
-                finished = executor.wait(list(inflight), timeout=POLL_SECONDS if polling else None)
-                if polling:
-                    display.poll(running())
-                    if not finished and console.bar is not None:
-                        eta()
-                for future in finished:
-                    cell, claim = inflight.pop(future)
-                    attempts = executor.attempts(future)  # before result(), which lets the executor forget the task
-                    try:
-                        record = executor.result(future)
-                    except KeyboardInterrupt:
-                        raise
-                    except BaseException as exc:  # noqa: BLE001 - a worker died: this cell failed, the grid goes on
-                        record = _worker_failure(cell, exc)
-                    record["attempts"] = attempts
-                    try:
-                        record = _write_record(run, cell, record)
-                    except CellWriteError as exc:
-                        display.done(cell.cell_id)
-                        claim.release()
-                        console.error(f"tactile-zoo: error: {exc.strerror}")
-                        pending.clear()
-                        deferred.clear()
-                        return str(exc.strerror)
-                    display.done(cell.cell_id)  # before the claim goes: the next holder may write a new one
-                    claim.release()
-                    finish(cell, record, by_us=True)
-                continue
-            if not deferred:  # the last pending cells were found finished by another process
-                continue
-            # everything left is claimed by other processes: wait for them, then take over what they left undone
-            cell = deferred.popleft()
-            if not waited_note:
-                console.line(f"waiting for {len(deferred) + 1} cell(s) that another tactile-zoo bench on {run.path} "
-                             f"is running ({run.claim_holder(cell.cell_id)})", always=True)
-                waited_note = True
-            claim = run.claim(cell.cell_id, blocking=True)
-            assert claim is not None
-            record = fresh(cell)
-            if record is not None:
-                claim.release()
-                finish(cell, record, by_us=False)
-            elif set_aside(cell):  # its holder stopped without finishing it
-                _submit(executor, cell, claim, config, inflight, run)
-            else:
-                claim.release()
-    except BaseException:  # Ctrl-C: stop the cells in flight first, so no worker writes their progress after this
-        if inflight:
-            executor.abandon()
-        raise
-    finally:
-        for cell, claim in inflight.values():
-            display.done(cell.cell_id)  # abandoned (Ctrl-C, a write error): its progress file goes, not running
+    def submit(self, cell: Cell, claim: Claim) -> None:
+        """Hand ``cell`` (whose claim we hold) to the executor."""
+        run, config = self.run_dir, self.config
+        remove_progress(run.path, cell.cell_id)  # a killed run's leftover: we hold the claim, nobody else runs it
+        try:
+            future = self.executor.submit(_task(cell, config, self.executor, run.progress_dir,
+                                                run.path / "weights" if config.save_weights else None, run.path))
+        except BaseException:  # Ctrl-C inside a local cell: its claim and progress must not outlive it
+            remove_progress(run.path, cell.cell_id)
             claim.release()
-        if isinstance(executor, LocalExecutor):
-            executor.listener = None
-    return None
+            raise
+        self.inflight[future] = (cell, claim)
 
+    def finish(self, cell: Cell, record: dict[str, Any], by_us: bool) -> None:
+        """Count a finished cell, print its line, and update the ETA."""
+        self.done += 1
+        (self.outcome.ran if by_us else self.outcome.reused).append(cell.cell_id)
+        suffix = "" if by_us else "  (finished by another process)"
+        self.costs.learn(record)
+        self.console.line(_cell_line(record, self.done, self.total) + suffix)
+        self.console.step()
+        self.show_eta()
 
-def _submit(executor: Executor, cell: Cell, claim: Claim, config: BenchConfig, inflight: dict[Any, Any],
-            run: RunDir) -> None:
-    remove_progress(run.path, cell.cell_id)  # a killed run's leftover: we hold the claim, nobody else runs it
-    try:
-        future = executor.submit(_task(cell, config, executor, run.progress_dir,
-                                       run.path / "weights" if config.save_weights else None, run.path))
-    except BaseException:  # Ctrl-C inside a local cell: its claim and progress must not outlive it
-        remove_progress(run.path, cell.cell_id)
-        claim.release()
-        raise
-    inflight[future] = (cell, claim)
+    # ---------------------------------------------------------------------------------------- progress
+    def on_epoch(self, state: dict[str, Any]) -> None:
+        """The executor's listener: a cell running in this process finished an epoch."""
+        self.display.show(state)
+        if self.console.bar is not None:
+            self.show_eta()
+
+    def show_eta(self) -> None:
+        """The cost-weighted time left for the cells in flight and those still to start."""
+        left = [self.costs.remaining(c.model, c.dataset, c.config, self.display.states.get(c.cell_id))
+                for c in [*(cell for cell, _ in self.inflight.values()), *self.pending, *self.deferred]]
+        self.console.set_eta(self.costs.eta(left, self.executor.slots), self.done, self.total)
 
 
 def _write_record(run: RunDir, cell: Cell, record: dict[str, Any]) -> dict[str, Any]:

@@ -29,7 +29,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from ..engine.metrics import MetricError, MetricInputMissing, metric_value, registered_metrics
-from .records import recipe_name_of
+from ..recipe import recipe_name_of
 
 if TYPE_CHECKING:  # pandas is imported on first use: it adds most of a second to every worker's start-up
     import pandas as pd

@@ -23,13 +23,13 @@ def add_list(sub: argparse._SubParsersAction) -> None:
 
 def _cmd_list(args: argparse.Namespace) -> int:
     tags = [t for t in (args.tags or "").split(",") if t]
-    lister = {"models": registry.list_models, "datasets": registry.list_datasets}.get(args.what)
+    lister = {"models": registry.model_names, "datasets": registry.list_datasets}.get(args.what)
     if not (lister(args.pattern, tags=tags) if lister else registry.list_sensors(args.pattern)):
         print(f"tactile-zoo: no {args.what} match {args.pattern!r}" + (f" with tags {tags}" if tags else ""),
               file=sys.stderr)
         return 0
     if args.what == "models":
-        for name in registry.list_models(args.pattern, tags=tags):
+        for name in registry.model_names(args.pattern, tags=tags):
             meta = registry.get_model_entry(name).meta
             echo(f"{name:<24} {', '.join(meta.get('tags', ())):<36} {meta.get('paper', '')}")
     elif args.what == "datasets":
@@ -69,7 +69,7 @@ def _model_info(name: str, args: argparse.Namespace) -> dict[str, Any]:
     ds_name = args.dataset or next(iter(registry.list_datasets("sim_*")), None)
     if ds_name is not None:
         ds = registry.load_dataset(ds_name, root=args.root, split="train")
-        model = registry.create_model(name, ds.spec)
+        model = registry.instantiate_model(name, ds.spec)
         info["built_for"] = ds.spec.name
         info["parameters"] = sum(p.numel() for p in model.parameters())
     return info
@@ -93,7 +93,7 @@ def _unknown_name_message(name: str) -> str:
     """Close matches among every model, dataset and sensor name (a typo of a sensor must suggest the sensor)."""
     import difflib
 
-    known = {"models": registry.list_models(), "datasets": registry.list_datasets(),
+    known = {"models": registry.model_names(), "datasets": registry.list_datasets(),
              "sensors": registry.list_sensors()}
     by_key = {registry.normalize_name(n): n for names in known.values() for n in names}
     close = [by_key[k] for k in difflib.get_close_matches(registry.normalize_name(name), list(by_key), n=3,

@@ -147,7 +147,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         name = registry.get_model_entry(args.model).qualified_name  # an unknown model fails here, before any work
         spec = spec_for_dataset(args.spec_from, root=args.root)
         seed_everything(args.seed)
-        model = registry.create_model(name, spec)
+        model = registry.instantiate_model(name, spec)
         info = {"weights": None, "initialisation": {"random": True, "seed": args.seed},
                 "preprocessing": _preprocessing(spec.name, {})}
         label = f"random initialisation (seed {args.seed}) for the spec of {spec.name}"

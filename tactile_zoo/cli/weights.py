@@ -102,7 +102,8 @@ def add_pretrained_flags(p: argparse.ArgumentParser) -> None:
 
 def pretrained_model(model: str, args: argparse.Namespace) -> Any:
     """Model ``model`` with the weights the flags name (``--pretrained``, or ``--weights`` with ``--manifest``)."""
-    from ..weights import create_model, local_weights
+    from ..weights import local_weights
+    from ..weights.load import create_model
 
     if args.pretrained and (args.weights or args.manifest):
         raise ConfigError("give --pretrained (installed weights) or --weights/--manifest (a local file), not both")

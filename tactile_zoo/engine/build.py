@@ -5,8 +5,8 @@ sit below both: the loop never has to import the cell to build a model.
 
 - :func:`load_splits` is the one place a dataset's splits are loaded (memoised for consecutive cells).
 - :func:`build_model` is the one place a model is built from its registry name (seeded first, so its initial weights
-  depend on the seed only). :class:`~tactile_zoo.errors.ModelCannotConsume` (re-exported here) is the one signal
-  that a model cannot take a dataset.
+  depend on the seed only). :class:`~tactile_zoo.errors.ModelCannotConsume` is the one signal that a model
+  cannot take a dataset.
 """
 
 from __future__ import annotations
@@ -19,10 +19,9 @@ from typing import Any
 import torch
 
 from .. import registry
-from ..errors import ModelCannotConsume
 from .runtime import seed_everything
 
-__all__ = ["SPLITS", "ModelCannotConsume", "load_splits", "build_model"]
+__all__ = ["SPLITS", "load_splits", "build_model"]
 
 SPLITS = ("train", "val", "test")
 
@@ -56,6 +55,6 @@ def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, 
             a :class:`~tactile_zoo.errors.ConfigError` for a bad hyper-parameter value stays what it is, an error).
     """
     seed_everything(seed)
-    return registry.create_model(name, spec, **dict(hparams or {}))
+    return registry.instantiate_model(name, spec, **dict(hparams or {}))
 
 

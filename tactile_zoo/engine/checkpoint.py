@@ -67,7 +67,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 
 def build_from_checkpoint(blob: dict[str, Any], spec: Any, where: str = "checkpoint") -> torch.nn.Module:
     """Rebuild the model of a loaded checkpoint for ``spec`` through the registry and load its weights."""
-    from ..registry import create_model
+    from ..registry import instantiate_model
 
     config = blob["config"]
     trained = config.get("spec") or {}
@@ -75,7 +75,7 @@ def build_from_checkpoint(blob: dict[str, Any], spec: Any, where: str = "checkpo
         if key in trained and trained[key] != getattr(spec, key):
             raise ConfigError(f"{where} was trained on {trained.get('name')!r} with {key}={trained[key]}; dataset "
                               f"{spec.name!r} has {key}={getattr(spec, key)}")
-    model = create_model(config["model"], spec, **(config.get("hparams") or {}))
+    model = instantiate_model(config["model"], spec, **(config.get("hparams") or {}))
     try:
         model.load_state_dict(blob["state_dict"])
     except RuntimeError as exc:

@@ -278,7 +278,7 @@ def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]
 
     try:
         with torch.random.fork_rng(devices=[]):  # the check leaves the caller's random state as it found it
-            registry.create_model(resolved.model, spec, **dict(resolved.hparams))
+            registry.instantiate_model(resolved.model, spec, **dict(resolved.hparams))
     except ModelCannotConsume:
         return False
     except Exception as exc:  # noqa: BLE001 - whatever a constructor raises for a value it cannot use

@@ -52,23 +52,21 @@ ONNX files under onnxruntime when it is installed). The largest differences go i
 :data:`TOLERANCE` the export fails with :class:`ExportError`.
 """
 
+from ..errors import ExportError
 from .exporter import (
     EXPORT_FORMAT,
     FORMATS,
     MAX_INPUT_BYTES,
     MAX_STEPS,
     TOLERANCE,
-    ExportError,
     ExportResult,
-    ForwardGraph,
-    StateTensor,
-    StepGraph,
     check_shape,
     check_steps,
     export_model,
     initial_state,
     spec_for_dataset,
 )
+from .graphs import ForwardGraph, StateTensor, StepGraph
 from .onnx_io import ONNX_INSTALL, check_opset, onnx_available, onnx_opsets, onnxruntime_available
 
 __all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "MAX_STEPS", "MAX_INPUT_BYTES", "check_steps", "check_shape",

@@ -22,7 +22,7 @@ from .._version import __version__
 from ..engine.progress import Progress
 from ..errors import ConfigError, ExportError
 from .folder import _SUFFIX, ExportFolder, export_targets
-from .graphs import ForwardGraph, StateTensor, StepGraph, _dtype_name, _for_export, _registry_key
+from .graphs import ForwardGraph, StepGraph, _dtype_name, _for_export, _registry_key
 from .onnx_io import (
     ONNX_INSTALL,
     check_opset,
@@ -35,8 +35,8 @@ from .onnx_io import (
     to_onnx,
 )
 
-__all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "MAX_STEPS", "MAX_INPUT_BYTES", "ExportError", "StateTensor",
-           "ForwardGraph", "StepGraph", "ExportResult", "export_model", "check_shape",
+__all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "MAX_STEPS", "MAX_INPUT_BYTES", "ExportResult", "export_model",
+           "check_shape",
            "check_steps", "initial_state", "spec_for_dataset"]
 
 #: The formats :func:`export_model` writes.
@@ -128,7 +128,7 @@ def spec_for_dataset(name: str, root: str | os.PathLike | None = None) -> Any:
 
 
 def _registered_name(model: nn.Module) -> str:
-    for name in registry.list_models():
+    for name in registry.model_names():
         if registry.get_model_entry(name).obj is type(model):
             return name.rpartition(":")[2]
     return type(model).__name__

@@ -29,9 +29,9 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..errors import ConfigError
-from .lif import LIFConfig  # re-exported: tactile_zoo.nn.attention.LIFConfig keeps working
+from .lif import LIFConfig
 
-__all__ = ["LIFConfig", "SpikingSelfAttention"]
+__all__ = ["SpikingSelfAttention"]
 
 MSAState = tuple[Tensor | None, Tensor | None]  # (Q/K/V-chain membrane, output-chain membrane)
 

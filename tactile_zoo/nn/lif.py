@@ -51,13 +51,13 @@ import torch
 from torch import Tensor, nn
 
 from ..errors import ConfigError
-from .lif_active import ActiveSpikes, active_spikes
+from .lif_active import active_spikes
 from .lif_compiled import KERNEL_ENV, _CompiledLIF, _kernel_for, _kernel_forward
 from .lif_fused import _FusedLIF, _run
-from .surrogate import Surrogate, make_surrogate
+from .surrogate import make_surrogate
 
 # the surrogates live in .surrogate, the fused and compiled paths in .lif_fused and .lif_compiled
-__all__ = ["MultiStepLIF", "LIFConfig", "Surrogate", "make_surrogate", "KERNEL_ENV", "ActiveSpikes", "active_spikes"]
+__all__ = ["MultiStepLIF", "LIFConfig", "KERNEL_ENV"]
 
 _RESETS = ("zero", "subtract")
 _BACKENDS = ("fused", "snntorch")

@@ -25,11 +25,14 @@ from ..recipe import RECIPE_KEYS
 # the private names are re-exported for the test suite and the CLI's policy line (``registry._enabled()``)
 from .discovery import (  # noqa: F401
     ENTRY_POINT_GROUPS,
+    FoundEntryPoint,
     PluginInfo,
     PluginWarning,
     _enabled,
     _strict,
+    find_entry_points,
     import_plugin_modules,
+    load_failure,
     plugins,
     reset_plugins,
     set_plugin_policy,
@@ -49,25 +52,25 @@ from .entries import (  # noqa: F401
     register_sensor,
 )
 from .lookup import (
-    create_model,
     get_dataset_entry,
     get_model_entry,
     get_sensor,
+    instantiate_model,
     list_datasets,
-    list_models,
     list_sensors,
     listed_name,
     load_dataset,
+    model_names,
     revision_of,
 )
 from .recipe_files import read_recipe_file, recipe_file, recipe_file_path
 
 __all__ = [
     "Entry", "PluginInfo", "PluginWarning", "register_model", "register_dataset", "register_sensor",
-    "list_models", "list_datasets", "list_sensors", "create_model", "load_dataset", "get_sensor",
+    "model_names", "list_datasets", "list_sensors", "instantiate_model", "load_dataset", "get_sensor",
     "get_model_entry", "get_dataset_entry", "listed_name", "plugins", "normalize_name", "reset_plugins",
     "set_plugin_policy",
     "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
-    "RECIPE_KEYS", "import_plugin_modules", "UnknownNameError", "model_recipe",
-    "recipe_file", "read_recipe_file", "recipe_file_path",
+    "RECIPE_KEYS", "import_plugin_modules", "find_entry_points", "FoundEntryPoint", "load_failure",
+    "UnknownNameError", "model_recipe", "recipe_file", "read_recipe_file", "recipe_file_path",
 ]

@@ -1,8 +1,13 @@
-"""Plugin discovery: entry points of installed distributions, and ``--plugin-module`` imports.
+"""Entry-point discovery, for every group tactile-zoo reads, and ``--plugin-module`` imports.
 
-Discovery is kept apart from loading (:func:`_discover_entry_points` only lists), runs lazily on the first lookup,
-is cached, and is deterministic (sorted by distribution, then entry-point name). A plugin that fails to load is
-skipped with a :class:`PluginWarning` naming its distribution, or is an error under the strict policy.
+One finder (:func:`find_entry_points`) serves the model and dataset plugins (``tactile_zoo.models``,
+``tactile_zoo.datasets``, loaded here) and the weights distributions (``tactile_zoo.weights``, loaded by
+:mod:`tactile_zoo.weights.discovery`), in the manner of flake8's plugin finder: finding is kept apart from loading
+(the finder imports nothing), the order is deterministic (sorted by distribution, then group, then entry-point
+name, one entry per key), and a failure to load names the distribution and the entry point
+(:func:`load_failure`). Loading runs lazily on the first lookup and is cached. A plugin that fails to load is
+skipped with a :class:`PluginWarning` naming its distribution, or is an error under the strict policy; the policy
+(:func:`set_plugin_policy`, ``TACTILE_ZOO_STRICT_PLUGINS``, ``TACTILE_ZOO_NO_PLUGINS``) is one for all groups.
 """
 
 from __future__ import annotations
@@ -19,6 +24,47 @@ from ..errors import PluginError
 from .entries import _LOADING_DIST, _LOCK, _TABLES, Entry, _register, _same_definition, _snake_case, normalize_name
 
 ENTRY_POINT_GROUPS = {"model": "tactile_zoo.models", "dataset": "tactile_zoo.datasets"}
+
+
+@dataclass(frozen=True)
+class FoundEntryPoint:
+    """One entry point found, not loaded: its group, distribution (name and version), name and target."""
+
+    group: str
+    dist: str
+    version: str
+    name: str
+    value: str
+    entry_point: importlib.metadata.EntryPoint
+
+    def describe(self) -> str:
+        """``'dist' (group entry 'name' = module:attr)``: what a message about this entry point names."""
+        return f"{self.dist!r} ({self.group} entry {self.name!r} = {self.value})"
+
+
+def find_entry_points(groups: Iterable[str]) -> list[FoundEntryPoint]:
+    """Find (not load) every entry point of ``groups``: one per (distribution, group, name), sorted by the
+    normalised distribution name, then group, then entry-point name, whatever order the environment lists them in
+    (the first found wins a duplicate, as ``importlib.metadata`` lists a distribution once per path entry)."""
+    found: dict[tuple[str, str, str], FoundEntryPoint] = {}
+    for group in groups:
+        for ep in importlib.metadata.entry_points(group=group):
+            dist = ep.dist.name if ep.dist is not None else "<unknown>"
+            version = ep.dist.version if ep.dist is not None else "?"
+            found.setdefault((normalize_name(dist), group, ep.name), FoundEntryPoint(group, dist, version, ep.name,
+                                                                                     ep.value, ep))
+    return [found[key] for key in sorted(found)]
+
+
+def load_failure(what: str, found: FoundEntryPoint, exc: BaseException, strict: bool) -> str:
+    """Handle ``exc``, raised while loading ``found`` (``what``: ``"plugin"``, ``"weights"``): a
+    :class:`PluginError` naming the distribution under the strict policy, else a :class:`PluginWarning`. Returns
+    the error text (``Type: message``) for the status listing."""
+    error = f"{type(exc).__name__}: {exc}"
+    if strict:
+        raise PluginError(f"{what} distribution {found.describe()} failed to load: {error}") from exc
+    warnings.warn(f"skipping {what} distribution {found.describe()}: {error}", PluginWarning, stacklevel=4)
+    return error
 
 class PluginWarning(UserWarning):
     """A third-party plugin was skipped or shadowed."""
@@ -56,16 +102,11 @@ def _enabled() -> bool:
     return _POLICY["enabled"] if _POLICY["enabled"] is not None else not env_flag("TACTILE_ZOO_NO_PLUGINS")
 
 
-def _discover_entry_points() -> list[tuple[PluginInfo, importlib.metadata.EntryPoint]]:
-    """Find (not load) every entry point of both groups, sorted, one per (distribution, group, name)."""
-    found: dict[tuple[str, str, str], tuple[PluginInfo, importlib.metadata.EntryPoint]] = {}
-    for kind, group in ENTRY_POINT_GROUPS.items():
-        for ep in importlib.metadata.entry_points(group=group):
-            dist = ep.dist.name if ep.dist is not None else "<unknown>"
-            version = ep.dist.version if ep.dist is not None else "?"
-            key = (normalize_name(dist), group, ep.name)
-            found.setdefault(key, (PluginInfo(kind, group, dist, version, ep.name, ep.value), ep))
-    return [found[k] for k in sorted(found)]
+def _discover_entry_points() -> list[tuple[PluginInfo, FoundEntryPoint]]:
+    """The model and dataset plugins' entry points (:func:`find_entry_points`), each with its status record."""
+    kinds = {group: kind for kind, group in ENTRY_POINT_GROUPS.items()}
+    return [(PluginInfo(kinds[f.group], f.group, f.dist, f.version, f.name, f.value), f)
+            for f in find_entry_points(ENTRY_POINT_GROUPS.values())]
 
 
 def _load_plugin(info: PluginInfo, ep: importlib.metadata.EntryPoint) -> Entry:
@@ -133,17 +174,13 @@ def _ensure_discovered() -> list[PluginInfo]:
         infos: list[PluginInfo] = []
         loaded: list[tuple[PluginInfo, Entry]] = []
         if policy[1]:
-            for info, ep in _discover_entry_points():
+            for info, found in _discover_entry_points():
                 infos.append(info)
                 try:
-                    loaded.append((info, _load_plugin(info, ep)))
+                    loaded.append((info, _load_plugin(info, found.entry_point)))
                 except Exception as exc:  # a broken plugin must never take the built-ins down with it
-                    info.status, info.error = "failed", f"{type(exc).__name__}: {exc}"
-                    if policy[0]:
-                        raise PluginError(f"plugin distribution {info.dist!r} ({info.group} entry {info.name!r} = "
-                                          f"{info.value}) failed to load: {info.error}") from exc
-                    warnings.warn(f"skipping plugin distribution {info.dist!r} ({info.group} entry {info.name!r} = "
-                                  f"{info.value}): {info.error}", PluginWarning, stacklevel=3)
+                    info.status = "failed"
+                    info.error = load_failure("plugin", found, exc, strict=policy[0])
             _settle(loaded)
         _PLUGINS, _DISCOVERED_UNDER = infos, policy
         return infos

@@ -44,7 +44,7 @@ def _resolve(kind: str, name: str) -> Entry:
 
 
 def listed_name(entry: Entry) -> str:
-    """The name :func:`list_models` (or :func:`list_datasets`) shows for ``entry``, the one that resolves back to it:
+    """The name :func:`model_names` (or :func:`list_datasets`) shows for ``entry``, the one that resolves back to it:
     the bare name where that is unambiguous, ``dist:name`` for a plugin shadowed by a built-in or clashing with
     another plugin. Callers that turn a user's name into a listed one (the harness's grid) go through here, so that
     ``dist:name`` never collapses to the bare name, which would select the built-in."""
@@ -92,8 +92,10 @@ def _list(kind: str, pattern: str | Iterable[str], tags: Iterable[str] | None = 
     return out
 
 
-def list_models(pattern: str | Iterable[str] = "*", tags: Iterable[str] | None = None) -> list[str]:
-    """Registered model names matching fnmatch ``pattern`` (and having all ``tags``), sorted."""
+def model_names(pattern: str | Iterable[str] = "*", tags: Iterable[str] | None = None) -> list[str]:
+    """Registered model names matching fnmatch ``pattern`` (and having all ``tags``), sorted.
+
+    The registry's listing; :func:`tactile_zoo.list_models` is the public one (it lists pretrained weights too)."""
     return _list("model", pattern, tags)
 
 
@@ -112,8 +114,11 @@ def get_sensor(name: str) -> Any:
     return _resolve("sensor", name).obj
 
 
-def create_model(name: str, spec: Any, **hparams: Any) -> Any:
-    """Build model ``name`` for a dataset ``spec``: ``Model(spec, **hparams)``, a ``torch.nn.Module``."""
+def instantiate_model(name: str, spec: Any, **hparams: Any) -> Any:
+    """Build model ``name`` for a dataset ``spec``: ``Model(spec, **hparams)``: a fresh ``torch.nn.Module``.
+
+    The registry's constructor call; :func:`tactile_zoo.create_model` is the public one (it loads pretrained weights
+    too)."""
     import torch
 
     entry = get_model_entry(name)

@@ -12,7 +12,8 @@ Parts (one concept per module):
 - :mod:`.discovery`: installed weights, through the entry-point group ``tactile_zoo.weights``;
 - :mod:`.files`: locating a file (installed, local, or a URL downloaded into the cache), sha256-checked;
 - :mod:`.heads`: the classifier-head convention (``zoo_head``) that ``new_head=True`` relies on;
-- :mod:`.load`: ``create_model(name, spec=None, pretrained=..., new_head=False)``;
+- :mod:`.load`: loading weights into a model, and the public :func:`tactile_zoo.create_model` and
+  :func:`tactile_zoo.list_models` (their one home is the top-level package);
 - :mod:`.predict`: reading recordings in the bring-your-own format, and :func:`predict` (:func:`iter_predict`:
   the same, streamed in bounded batches).
 
@@ -28,7 +29,7 @@ from .discovery import WEIGHTS_GROUP, WeightSource, find_weights, list_weights, 
 from .entry import ENTRY_KEYS, MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
 from .files import locate, weights_cache
 from .heads import head_keys, head_name
-from .load import check_fit, create_model, list_models, load_pretrained, local_weights, resolve_weights
+from .load import check_fit, load_pretrained, local_weights, resolve_weights
 from .manifest import (
     DEFAULT_LICENCE,
     dataset_options,
@@ -55,7 +56,7 @@ __all__ = [
     "WeightEntry", "MANIFEST_FORMAT", "ENTRY_KEYS", "make_tag", "tag_key", "read_manifest", "parse_manifest",
     "write_manifest", "entry_from_record", "preprocessing_of", "DEFAULT_LICENCE", "WEIGHTS_GROUP", "WeightSource",
     "weight_sources", "list_weights", "find_weights", "reset_weights", "locate", "weights_cache", "head_name",
-    "head_keys", "create_model", "list_models", "load_pretrained", "resolve_weights", "local_weights", "check_fit",
+    "head_keys", "load_pretrained", "resolve_weights", "local_weights", "check_fit",
     "predict", "iter_predict", "read_recording", "Prediction", "Recording", "Refused", "LENGTHS", "ON_ERROR",
     "DEFAULT_BATCH", "dataset_options", "entry_preprocessing",
 ]

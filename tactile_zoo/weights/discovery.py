@@ -7,11 +7,13 @@ A distribution ships weights by declaring an entry point in the group ``tactile_
   relative to the module folder), or a manifest document (``{"format": ..., "weights": [...]}``),
 * or a callable with no arguments returning one of those.
 
-Discovery (:func:`_discover_entry_points`) only lists entry points, sorted by distribution then entry-point name;
-loading them happens on the first :func:`list_weights` or lookup, is cached, and follows the plugin policy of the
-model and dataset plugins (``TACTILE_ZOO_NO_PLUGINS`` / ``--no-plugins`` turns it off, ``TACTILE_ZOO_STRICT_PLUGINS``
-/ ``--strict-plugins`` makes a broken distribution an error). A distribution that fails to load is skipped with a
-:class:`~tactile_zoo.registry.PluginWarning` naming it, and listed as ``failed`` by :func:`weight_sources`.
+Finding the entry points is the registry's one finder (:func:`tactile_zoo.registry.find_entry_points`, which
+only lists them, sorted by distribution then entry-point name; the model and dataset plugins use it too). Loading
+them happens here, on the first :func:`list_weights` or lookup, is cached, and follows the plugin policy of the
+model and dataset plugins (``TACTILE_ZOO_NO_PLUGINS`` / ``--no-plugins`` turns it off,
+``TACTILE_ZOO_STRICT_PLUGINS`` / ``--strict-plugins`` makes a broken distribution an error). A distribution that
+fails to load is skipped with a :class:`~tactile_zoo.registry.PluginWarning` naming it
+(:func:`tactile_zoo.registry.load_failure`), and listed as ``failed`` by :func:`weight_sources`.
 
 Lookups (:func:`find_weights`): ``<distribution>:<tag>`` selects one distribution's entry; a bare tag that two
 distributions both ship is ambiguous (a :class:`PluginError` names both qualified tags).
@@ -23,7 +25,6 @@ import importlib.metadata
 import importlib.util
 import os
 import threading
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -56,15 +57,9 @@ _LOCK = threading.RLock()
 _STATE: dict[str, Any] = {"sources": None, "entries": None, "policy": None}
 
 
-def _discover_entry_points() -> list[tuple[WeightSource, importlib.metadata.EntryPoint]]:
-    """Find (not load) every entry point of the group, sorted, one per (distribution, name)."""
-    found: dict[tuple[str, str], tuple[WeightSource, importlib.metadata.EntryPoint]] = {}
-    for ep in importlib.metadata.entry_points(group=WEIGHTS_GROUP):
-        dist = ep.dist.name if ep.dist is not None else "<unknown>"
-        version = ep.dist.version if ep.dist is not None else "?"
-        found.setdefault((registry.normalize_name(dist), ep.name), (WeightSource(dist, version, ep.name, ep.value),
-                                                                     ep))
-    return [found[k] for k in sorted(found)]
+def _discover_entry_points() -> list[tuple[WeightSource, registry.FoundEntryPoint]]:
+    """The group's entry points (:func:`tactile_zoo.registry.find_entry_points`), each with its status record."""
+    return [(WeightSource(f.dist, f.version, f.name, f.value), f) for f in registry.find_entry_points([WEIGHTS_GROUP])]
 
 
 def _module_dir(ep: importlib.metadata.EntryPoint) -> Path | None:
@@ -118,17 +113,13 @@ def _ensure_discovered() -> tuple[list[WeightSource], list[WeightEntry]]:
         sources: list[WeightSource] = []
         entries: list[WeightEntry] = []
         if policy[1]:
-            for src, ep in _discover_entry_points():
+            for src, found in _discover_entry_points():
                 sources.append(src)
                 try:
-                    loaded = _load_source(src, ep)
+                    loaded = _load_source(src, found.entry_point)
                 except Exception as exc:  # a broken weights distribution must never take the others down
-                    src.status, src.error = "failed", f"{type(exc).__name__}: {exc}"
-                    message = (f"weights distribution {src.dist!r} ({WEIGHTS_GROUP} entry {src.name!r} = "
-                               f"{src.value})")
-                    if policy[0]:
-                        raise PluginError(f"{message} failed to load: {src.error}") from exc
-                    warnings.warn(f"skipping {message}: {src.error}", registry.PluginWarning, stacklevel=3)
+                    src.status = "failed"
+                    src.error = registry.load_failure("weights", found, exc, strict=policy[0])
                     continue
                 src.status, src.count = "ok", len(loaded)
                 entries += loaded

@@ -228,9 +228,9 @@ def load_pretrained(name: str, pretrained: Any, spec: Any = None, *, new_head: b
     target = trained if spec is None else spec
     check_fit(entry, target, new_head=new_head)
     options = {**entry.hparams, **hparams}
-    model = registry.create_model(entry.model, target, **options)
+    model = registry.instantiate_model(entry.model, target, **options)
     if target.num_steps != trained.num_steps and not new_head:
-        reference = registry.create_model(entry.model, trained, **options)
+        reference = registry.instantiate_model(entry.model, trained, **options)
         if _time_dependence(model) != _time_dependence(reference):
             raise _misfit(entry, target, [f"steps: the weights were trained on {trained.num_steps} steps, your data "
                                           f"has {target.num_steps}, and model {entry.model!r} depends on the length "
@@ -360,7 +360,7 @@ def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: 
                               f"then used)")
         if num_classes is not None:
             spec = _with_classes(spec, num_classes)
-        return registry.create_model(model_name, spec, **hparams)
+        return registry.instantiate_model(model_name, spec, **hparams)
     if num_classes is not None:
         entry = resolve_weights(model_name, pretrained)
         base = entry.dataset_spec() if spec is None else spec
@@ -374,14 +374,14 @@ def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: 
 def list_models(pattern: str | Iterable[str] = "*", tags: Iterable[str] | None = None, pretrained: bool = False
                 ) -> list[str]:
     """Registered model names matching fnmatch ``pattern`` and having all ``tags`` (the registry's
-    :func:`~tactile_zoo.registry.list_models`); with ``pretrained=True``, the tags of their installed weights
+    :func:`~tactile_zoo.registry.model_names`); with ``pretrained=True``, the tags of their installed weights
     instead, timm style (``["x_tacformer.full_ev_objects", ...]``), which ``pattern`` may also match whole
     (``"*ev_objects"``). A tag shipped by several distributions is listed as ``<distribution>:<tag>``."""
-    names = registry.list_models(pattern, tags)
+    names = registry.model_names(pattern, tags)
     if not pretrained:
         return names
     models = {registry.get_model_entry(n).qualified_name for n in names}
-    allowed = {registry.get_model_entry(n).qualified_name for n in registry.list_models("*", tags)}
+    allowed = {registry.get_model_entry(n).qualified_name for n in registry.model_names("*", tags)}
     patterns = [pattern] if isinstance(pattern, str) else list(pattern)
     entries = []
     for entry in list_weights():

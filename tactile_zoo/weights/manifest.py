@@ -138,7 +138,7 @@ def _frame_bin_size(model: str, spec_json: str, hparams_json: str) -> int | None
     try:
         spec = DatasetSpec.from_dict(json.loads(spec_json))
         with torch.random.fork_rng(devices=[]):  # building initialises weights: the caller's RNG stream stays put
-            built = registry.create_model(model, spec, **json.loads(hparams_json))
+            built = registry.instantiate_model(model, spec, **json.loads(hparams_json))
     except Exception:  # noqa: BLE001 - an unregistered plugin model: the entry is still valid without the figure
         return None
     size = getattr(built, "bin_size", None)

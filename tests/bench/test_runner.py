@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import io
 import json
 import shutil
 from pathlib import Path
@@ -215,3 +216,31 @@ def test_a_too_large_main_split_leaves_its_probabilities_to_its_subsets(monkeypa
     # a main split small enough keeps the only copy
     stored = cell._predictions(SimpleNamespace(tests={"test": part, "test_a": part}, test_groups={}))
     assert "probabilities" in stored["test"] and "probabilities" not in stored["test_a"]
+
+
+def test_a_cell_claimed_elsewhere_waits_until_the_rest_is_done_then_is_taken_over(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    """The first cell's claim is held by "another process" when the runner first looks (the non-blocking claim
+    fails): the runner runs the other cell first, then says it waits, takes the claim (the holder stopped without
+    writing a record) and runs the deferred cell itself; every claim is released."""
+    cfg = BenchConfig(models=["tiny_mlp", "tiny_rate"], datasets=["tiny_blobs"], threads=1, out=str(tmp_path / "run"))
+    first, second = (c.cell_id for c in run_bench(cfg, dry_run=True, out=io.StringIO()).grid.cells)
+    real = results.RunDir.claim
+    asked: list[tuple[str, bool]] = []
+
+    def held_once(self: results.RunDir, cell_id: str, blocking: bool = False) -> results.Claim | None:
+        asked.append((cell_id, blocking))
+        if cell_id == first and not blocking and asked.count((first, False)) == 1:
+            return None  # held by someone else the first time we look
+        return real(self, cell_id, blocking)
+
+    monkeypatch.setattr(results.RunDir, "claim", held_once)
+    outcome = run_bench(cfg)
+    text = capsys.readouterr().out
+    assert outcome.exit_code == 0 and outcome.ran == [second, first] and outcome.reused == []
+    assert asked == [(first, False), (second, False), (first, True)]  # deferred, then the blocking wait
+    assert "waiting for 1 cell(s) that another tactile-zoo bench" in text
+    assert text.index("[1/2]") < text.index("waiting for") < text.index("[2/2]")
+    records = {p.stem: json.loads(p.read_text()) for p in (tmp_path / "run" / "cells").glob("*.json")}
+    assert {k: r["status"] for k, r in records.items()} == {first: "ok", second: "ok"}
+    assert not list((tmp_path / "run" / "claims").iterdir())

@@ -50,12 +50,12 @@ def test_graph_conv_compares_all_paths_on_the_same_outputs(tmp_path: Path) -> No
 def test_stepwise_sgnet_is_the_zoo_model() -> None:
     """The naive side of sgnet_epoch computes the same rates and gradients as the zoo's SGnet with its weights."""
     from tactile_zoo.engine import resolve_recipe
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     spec = common.ev_spec(num_steps=12)
     split = common.synthetic_events(spec, 3, seed=0, density=0.5)
     torch.manual_seed(0)
-    model = create_model("sgnet", spec)
+    model = instantiate_model("sgnet", spec)
     with torch.no_grad():  # a larger first layer so that spikes reach the output within 12 steps
         model.gc.conv.lins[0].weight.mul_(8.0)
     net = sgnet_epoch.StepwiseSGNet.like(model)

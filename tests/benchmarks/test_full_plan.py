@@ -11,11 +11,11 @@ from pathlib import Path
 import pytest
 
 from tactile_zoo.engine.config import resolve_model_recipe
-from tactile_zoo.registry import get_model_entry, list_models
+from tactile_zoo.registry import get_model_entry, model_names
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 DATASETS = ("ev_objects", "ev_containers", "biotac_dos")
-BUILT_IN = [m for m in list_models() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")]
+BUILT_IN = [m for m in model_names() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")]
 #: the built-ins with a `full` recipe; one without (DeepTactile, added after the round) has no `zoo` cells yet
 WITH_FULL = [m for m in BUILT_IN if "full" in get_model_entry(m).meta["recipes"]]
 

@@ -68,7 +68,7 @@ def test_every_registered_model_recipe_resolves() -> None:
     from tactile_zoo import registry
     from tactile_zoo.recipe import named_recipe_for
 
-    for name in registry.list_models():
+    for name in registry.model_names():
         for recipe_name, recipe in registry.get_model_entry(name).meta.get("recipes", {}).items():
             for dataset in (None, *registry.list_datasets()):  # a dataset's own section, where the recipe has one
                 training = named_recipe_for(recipe, dataset, where=f"recipe {recipe_name!r} of {name}")[0]

@@ -17,9 +17,9 @@ import pytest
 import torch
 from parity import BATCH, compare_model, sim_split, simulated_datasets, tf32_off
 
-from tactile_zoo.engine.build import ModelCannotConsume
 from tactile_zoo.engine.runtime import flush_denormals
-from tactile_zoo.registry import list_models
+from tactile_zoo.errors import ModelCannotConsume
+from tactile_zoo.registry import model_names
 
 #: the device compared against the CPU (``cuda``, ``cuda:N``; ``cpu`` for the self-test)
 DEVICE = torch.device(os.environ.get("TACTILE_ZOO_PARITY_DEVICE", "cuda"))
@@ -30,7 +30,7 @@ pytestmark = pytest.mark.skipif(
            "with `python -m benchmarks.gpu_check`)")
 
 # datasets outermost, sim_evtouch first: a run stopped early has still checked every model once
-CASES = [pytest.param(m, d, id=f"{m}-{d}") for d in simulated_datasets() for m in list_models()]
+CASES = [pytest.param(m, d, id=f"{m}-{d}") for d in simulated_datasets() for m in model_names()]
 
 
 @functools.cache

@@ -9,7 +9,7 @@ from tactile_zoo.data.sensors import NEUTOUCH, USKIN_ALLEGRO
 from tactile_zoo.data.spec import DatasetSpec
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.models.tacformer import Tacformer
-from tactile_zoo.registry import create_model, get_model_entry
+from tactile_zoo.registry import get_model_entry, instantiate_model
 
 SMALL = dict(dim=16, heads=2, v_th=0.5)
 
@@ -76,7 +76,7 @@ def test_registered_with_recipe_and_streaming_meta() -> None:
     assert meta["causal"] is True and meta["streaming"] is True
     assert {"spiking", "graph", "attention"} <= set(meta["tags"])
     assert {"loss", "optimizer", "lr", "max_epochs", "patience", "batch_size"} <= set(meta["recipe"])
-    model = create_model("Tacformer", spec(), dim=8, heads=2)
+    model = instantiate_model("Tacformer", spec(), dim=8, heads=2)
     assert isinstance(model, Tacformer)
     with pytest.raises(ConfigError, match="bin_size"):
         Tacformer(spec(), bin_size=0)

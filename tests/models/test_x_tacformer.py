@@ -14,7 +14,7 @@ from tactile_zoo.errors import ConfigError
 from tactile_zoo.models.tacformer import Tacformer
 from tactile_zoo.models.x_tacformer import XTacformer
 from tactile_zoo.nn.tgcn import TemporalGraphAttention
-from tactile_zoo.registry import create_model, get_model_entry
+from tactile_zoo.registry import get_model_entry, instantiate_model
 
 SMALL = dict(dim=16, heads=2, hidden=8, attn_dim=8, v_th=0.5)
 
@@ -76,7 +76,7 @@ def test_registered_with_recipe_and_streaming_meta() -> None:
     assert meta["causal"] is True and meta["streaming"] is True
     assert {"spiking", "graph", "attention", "recurrent"} <= set(meta["tags"])
     assert {"loss", "optimizer", "lr", "max_epochs", "patience", "batch_size"} <= set(meta["recipe"])
-    assert isinstance(create_model("X-Tacformer", spec(), dim=8, heads=2, hidden=4), XTacformer)
+    assert isinstance(instantiate_model("X-Tacformer", spec(), dim=8, heads=2, hidden=4), XTacformer)
 
 
 # --------------------------------------------------------------- one constructor signature, shared with Tacformer

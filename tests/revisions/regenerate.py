@@ -173,7 +173,7 @@ def grad_fingerprint(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor) -
 def model_record(name: str, specs: Mapping[str, DatasetSpec]) -> dict[str, Any]:
     """Revision of model ``name`` and, per simulated spec it accepts, its initial state, logits and gradients.
 
-    The model is built through ``registry.create_model`` (looked up at call time, so a test can wrap it).
+    The model is built through ``registry.instantiate_model`` (looked up at call time, so a test can wrap it).
     """
     cases: dict[str, Any] = {}
     rejected: dict[str, str] = {}
@@ -181,7 +181,7 @@ def model_record(name: str, specs: Mapping[str, DatasetSpec]) -> dict[str, Any]:
         x, g, about = model_input(spec)
         seed_everything(MODEL_SEED)
         try:
-            model = registry.create_model(name, spec).eval()
+            model = registry.instantiate_model(name, spec).eval()
             with torch.no_grad():
                 logits = model(x, g)
         except ConfigError as exc:  # a model built for other sensors: try the next simulated dataset

@@ -103,7 +103,7 @@ def test_guard_fails_on_a_changed_model_output(monkeypatch: pytest.MonkeyPatch,
     name = _guard_model()
     one_spec = dict(list(specs.items())[:1])
     baseline = rg.model_record(name, one_spec)
-    create = registry.create_model
+    create = registry.instantiate_model
 
     def nudged(*args: Any, **kwargs: Any) -> torch.nn.Module:
         model = create(*args, **kwargs)
@@ -113,7 +113,7 @@ def test_guard_fails_on_a_changed_model_output(monkeypatch: pytest.MonkeyPatch,
         return model
 
     assert rg.model_problems(name, baseline, rg.model_record(name, one_spec)) == []  # deterministic when unchanged
-    monkeypatch.setattr(registry, "create_model", nudged)
+    monkeypatch.setattr(registry, "instantiate_model", nudged)
     problems = rg.model_problems(name, baseline, rg.model_record(name, one_spec))
     revision = rg.model_revision(name)
     assert len(problems) == 1 and "logits differ" in problems[0], problems

@@ -183,3 +183,24 @@ def test_an_installed_distribution_with_an_empty_manifest_says_it_ships_none(sit
     assert main(["weights"]) == 0
     assert capsys.readouterr().out.startswith("no pretrained weights yet: empty-weights 0.1.0 is installed, but its "
                                               "manifest lists none")
+
+
+def test_one_finder_serves_the_plugins_and_the_weights(site: FakeSite, recwarn: pytest.WarningsRecorder) -> None:
+    """The model/dataset plugins and the weights distributions are found by one finder: sorted by distribution
+    (case and separators ignored), then group, then name, whatever order the groups are asked in; nothing imported;
+    a failure to load names the distribution and its entry point in either group."""
+    both = site.add("Bb-Both", "raise ImportError('broken on purpose')\n", models={"net": "X"}, weights={"w": "X"})
+    other = site.add("aa-data", "def Y(**kwargs):\n    return None\n", datasets={"d": "Y"})
+    groups = ["tactile_zoo.weights", "tactile_zoo.models", "tactile_zoo.datasets"]
+    found = [(f.dist, f.group, f.name) for f in registry.find_entry_points(groups)
+             if f.dist in {"Bb-Both", "aa-data"}]
+    assert found == [("aa-data", "tactile_zoo.datasets", "d"), ("Bb-Both", "tactile_zoo.models", "net"),
+                     ("Bb-Both", "tactile_zoo.weights", "w")]
+    assert both not in sys.modules and other not in sys.modules
+    assert [(s.dist, s.name) for s, _ in discovery._discover_entry_points()] == [("Bb-Both", "w")]
+    registry.set_plugin_policy(strict=True)
+    with pytest.raises(PluginError, match=r"^weights distribution 'Bb-Both' \(tactile_zoo.weights entry 'w' = "):
+        list_weights()
+    with pytest.raises(PluginError, match=r"^plugin distribution 'Bb-Both' \(tactile_zoo.models entry 'net' = "):
+        registry.model_names()
+    registry.set_plugin_policy()

@@ -37,11 +37,11 @@ import torch
 from weights_helpers import installed_weight_pack, sample_table
 
 import tactile_zoo as tz
-from tactile_zoo import registry
+from tactile_zoo import create_model, registry
 from tactile_zoo.cli import main
 from tactile_zoo.engine.evaluate import EvalResult, predict_scores
 from tactile_zoo.engine.runtime import flush_denormals
-from tactile_zoo.weights import WeightEntry, create_model, head_name, read_manifest
+from tactile_zoo.weights import WeightEntry, head_name, read_manifest
 
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
