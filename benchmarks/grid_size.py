@@ -20,7 +20,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from tactile_zoo.bench.config import MAX_CELLS
+from tactile_zoo.bench.parsing import MAX_CELLS
 
 from .bench_wall import launch_measured
 from .common import Context, write_csv

@@ -34,10 +34,9 @@ MODEL, DATASET, EPOCHS = "dcnn", "sim_biotac_slip", 10
 
 
 def run(ctx: Context) -> Path:
-    from tactile_zoo.bench.config import QUICK_SUBSET
     from tactile_zoo.bench.progress import ProgressWriter
-    from tactile_zoo.engine.cell import resolve_cell, train_cell
-
+    from tactile_zoo.engine.cell import train_cell
+    from tactile_zoo.engine.config import QUICK_SUBSET, resolve_cell
     config = resolve_cell(MODEL, DATASET, epochs=EPOCHS, subset=QUICK_SUBSET)
     cell = {"cell_id": "bench", "model": MODEL, "dataset": DATASET, "fold": 0, "seed": 0}
     rows = []

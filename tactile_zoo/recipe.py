@@ -34,7 +34,7 @@ model's settings beside the training keys, because a recipe tuned for a dataset 
     dataset_kwargs: the dataset's keyword arguments (``{"augment": ["time_warp"], "augment_factor": 2}``);
     evaluation: how a cell of this recipe reaches its test figure, when the user names none (``"final"`` for a
         recipe that trains on every training recording for a fixed number of epochs; see
-        :data:`tactile_zoo.engine.cell.EVALUATIONS`);
+        :data:`tactile_zoo.engine.config.EVALUATIONS`);
     datasets: per-dataset sections, ``{"biotac_dos": {"max_epochs": 30, "dataset_kwargs": {"window": 5}}}``, each
         holding training keys, ``hparams``, ``dataset_kwargs`` and an ``evaluation`` that apply on that dataset only,
         on top of the rest.

@@ -56,7 +56,7 @@ from tactile_zoo.bench.records import (
     recipe_name_of,
     run_records,
 )
-from tactile_zoo.engine.cell import resolve_cell
+from tactile_zoo.engine.config import resolve_cell
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"

@@ -37,9 +37,10 @@ from pathlib import Path
 from typing import Any
 
 from tactile_zoo.bench import BenchConfig, build_grid
-from tactile_zoo.bench.grid import HASH_FORMAT, cell_id, config_hash
+from tactile_zoo.bench.grid import cell_id
 from tactile_zoo.bench.records import InvalidCell, cell_files, read_record, run_records
-from tactile_zoo.bench.results import atomic_write_json
+from tactile_zoo.bench.rundir import atomic_write_json
+from tactile_zoo.engine.config import HASH_FORMAT, config_hash
 from tactile_zoo.recipe import recipe_name_of
 
 REVISION_KEYS = ("model_revision", "dataset_revision")

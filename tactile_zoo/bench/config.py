@@ -28,7 +28,7 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     tracker_dir: null               # where the tracker writes (default: the run folder, OUT)
     prefixes: [0.1, 0.25, 0.5, 0.75, 1.0]
     recipe_name: source             # which named recipe every model starts from (default: each model's default)
-    evaluation: validation          # or reference, tuning, final (engine.cell.EVALUATIONS); default: the recipe's
+    evaluation: validation          # or reference, tuning, final (engine.config.EVALUATIONS); default: the recipe's
     recipe: {lr: 0.001}             # every model
     hparams: {}                     # every model's constructor keywords
     model_overrides:
@@ -57,11 +57,10 @@ from ..engine.config import QUICK_EPOCHS, QUICK_SUBSET, CellConfig, check_hparam
 from ..engine.evaluate import DEFAULT_PREFIXES
 from ..engine.runtime import cpu_count, resolve_device
 from ..errors import ConfigError, TactileZooError
-from .parsing import MAX_CELLS, parse_folds, parse_positive_int, parse_prefixes, parse_seeds
+from .parsing import parse_folds, parse_positive_int, parse_prefixes, parse_seeds
 
-__all__ = ["BenchConfig", "load_yaml_config", "merge_config", "parse_seeds", "parse_folds", "parse_assignment",
-           "parse_value", "parse_prefixes", "parse_positive_int", "parse_threads", "QUICK_SUBSET", "QUICK_EPOCHS",
-           "EXECUTORS", "OVERSUBSCRIPTION", "MAX_REMOTE_THREADS", "MAX_CELLS", "CellPlan", "plan_cells"]
+__all__ = ["BenchConfig", "load_yaml_config", "merge_config", "parse_assignment", "parse_value", "parse_threads",
+           "EXECUTORS", "OVERSUBSCRIPTION", "MAX_REMOTE_THREADS", "CellPlan", "plan_cells"]
 
 EXECUTORS = ("local", "process", "dask")
 #: ``--threads``, and worker processes x threads, may reach this many times the cores of the machine the cells run

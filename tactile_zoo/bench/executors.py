@@ -35,8 +35,8 @@ from typing import Any
 
 from ..engine.runtime import cpu_count
 from ..errors import ConfigError
-from .cell import CellTask, run_cell, setup_worker
 from .progress import listening
+from .worker import CellTask, run_cell, setup_worker
 
 logger = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """The grid: which models, which datasets (and which are skipped, why, and how to get them), which cells.
 
 A cell is ``(model, dataset, fold, seed, config hash)``. The config hash covers everything that can change a cell's
-numbers except its fold and seed (:class:`~tactile_zoo.engine.cell.CellConfig`): the model (and the plugin
+numbers except its fold and seed (:class:`~tactile_zoo.engine.config.CellConfig`): the model (and the plugin
 distribution it comes from), the computational revisions of the model's and the dataset's code (registry metadata
 ``revision``, bumped whenever what the code computes changes), the constructor hyper-parameters, the fully resolved
 training recipe (every key, defaults included, so a changed default in a model's registry metadata is a new cell
@@ -23,13 +23,13 @@ from typing import Any
 
 from .. import registry
 from ..engine.build import load_splits
-from ..engine.config import HASH_FORMAT, CellConfig, check_model_builds, config_hash
+from ..engine.config import CellConfig, check_model_builds, config_hash
 from ..errors import ConfigError, DatasetError, UnknownNameError
-from .config import MAX_CELLS, BenchConfig, plan_cells
+from .config import BenchConfig, plan_cells
+from .parsing import MAX_CELLS
 
-__all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "resolve_models", "resolve_datasets",
-           "config_hash", "cell_id", "default_out_dir", "HASH_FORMAT", "safe_name", "skip_message",
-           "check_model_builds"]
+__all__ = ["Cell", "Grid", "DatasetInfo", "SkipRow", "build_grid", "resolve_models", "resolve_datasets", "cell_id",
+           "default_out_dir", "safe_name", "skip_message"]
 
 _WILDCARD = re.compile(r"[*?\[]")
 

@@ -9,7 +9,7 @@ from typing import Any
 
 from .._files import atomic_path
 from .grid import safe_name
-from .results import RunDir
+from .rundir import RunDir
 
 __all__ = ["write_plots"]
 

@@ -39,7 +39,7 @@ from ..errors import ResultsError
 from ..recipe import recipe_name_of
 from .plots import write_plots
 from .records import CellScan, InvalidCell, InvalidCellsError, refuse_newer, revision_gaps
-from .results import RunDir
+from .rundir import RunDir
 from .tables import (
     UNAVAILABLE,
     leaderboard_rows,
@@ -84,7 +84,7 @@ def write_outputs(path: str | os.PathLike, plots: bool = True, all_cells: bool =
     folder's table lock (another bench process on the same folder waits; it never sees half a table). With
     ``all_cells`` every cell file of the folder counts (see the module docstring).
 
-    A ``run.json`` of a format this code does not know raises ConfigError (:meth:`~.results.RunDir.check_format`).
+    A ``run.json`` of a format this code does not know raises ConfigError (:meth:`~.rundir.RunDir.check_format`).
     A damaged cell file (:mod:`.records`) raises :class:`~.records.InvalidCellsError` naming every one before
     anything is written; with ``skip_invalid`` the tables are built without them, ``on_invalid`` is called with
     each, and report.md lists them. A folder where the tables cannot be written raises

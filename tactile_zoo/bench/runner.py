@@ -25,15 +25,15 @@ from typing import Any, TextIO
 
 from .. import registry
 from ..errors import ResultsError, TactileZooError
-from .cell import CellTask
 from .config import BenchConfig
 from .environment import environment
 from .executors import Executor, LocalExecutor, check_workers, make_executor
 from .grid import Cell, Grid, build_grid, default_out_dir
 from .progress import CostModel, ProgressDisplay, RunConsole, remove_progress
 from .records import InvalidCell, move_aside, refuse_newer
-from .results import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
+from .rundir import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
 from .schema import RECORD_FORMAT, InvalidRecordError
+from .worker import CellTask
 
 logger = logging.getLogger(__name__)
 

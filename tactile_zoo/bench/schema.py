@@ -20,7 +20,7 @@ A record whose ``format`` is above :data:`RECORD_FORMAT` was written by a newer 
 (``InvalidCell.newer``), not read as if it were this version's.
 
 The writing side keeps the rule: :func:`nan_to_null` writes a number that is not one (the score of an empty split, a
-validation loss that overflowed) as ``null``, and :meth:`~.results.RunDir.write_cell` refuses a record that fails
+validation loss that overflowed) as ``null``, and :meth:`~.rundir.RunDir.write_cell` refuses a record that fails
 :func:`check_record` (:class:`InvalidRecordError`), so no process of this code writes a record it would refuse.
 
 The check is written out here rather than with a JSON-Schema library: the package has no such dependency, and the

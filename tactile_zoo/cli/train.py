@@ -47,8 +47,9 @@ def _single_config(args: argparse.Namespace) -> Any:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    from ..bench.config import parse_seeds, parse_threads, plan_cells
+    from ..bench.config import parse_threads, plan_cells
     from ..bench.grid import resolve_datasets, resolve_models
+    from ..bench.parsing import parse_seeds
     from ..bench.trackers import check_tracker
     from ..engine import save_checkpoint
     from ..engine.build import load_splits
@@ -106,9 +107,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
 def _track(tracker: str, folder: str, cell: Any, outcome: Any, summary: dict[str, Any]) -> None:
     """Log the trained cell as bench would log its record (the tracker module's keys: config and hash, curves,
     final metrics, the record as cell.json)."""
-    from ..bench.cell import _ok_record
-    from ..bench.grid import cell_id, config_hash
+    from ..bench.grid import cell_id
     from ..bench.trackers import log_record
+    from ..bench.worker import _ok_record
+    from ..engine.config import config_hash
 
     digest = config_hash(cell)
     record = {"cell_id": cell_id(summary["model"], summary["dataset"], summary["fold"], summary["seed"], digest),

@@ -19,14 +19,13 @@ import torch
 from ..data.guard import tuning
 from ..recipe import Recipe
 from .build import SPLITS, build_model, load_splits
-from .config import EVALUATIONS, MERGED_EVALUATIONS, UNHASHED_KEYS, CellConfig, resolve_cell
+from .config import MERGED_EVALUATIONS, CellConfig
 from .evaluate import EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
 from .runtime import PeakMemory, flush_denormals, resolve_device
 from .tensors import concat, take
 from .train import FitResult, train_model
 
-__all__ = ["CellConfig", "CellResult", "EVALUATIONS", "MERGED_EVALUATIONS", "UNHASHED_KEYS", "resolve_cell",
-           "train_cell"]
+__all__ = ["CellResult", "train_cell"]
 
 
 # ----------------------------------------------------------------------------------------------- the cell

@@ -7,13 +7,13 @@ from torch import Tensor
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
-from ..nn.grid import SensorGrid
+from ..nn.sensor_grid import SensorGrid
 
 __all__ = ["check_inputs", "sensor_grid"]
 
 
 def sensor_grid(spec: DatasetSpec, fill_passes: int | None = None) -> SensorGrid:
-    """The :class:`~tactile_zoo.nn.grid.SensorGrid` of ``spec``'s sensor: its ``grid`` and ``grid_shape``, and
+    """The :class:`~tactile_zoo.nn.sensor_grid.SensorGrid` of ``spec``'s sensor: its ``grid`` and ``grid_shape``, and
     ``fill_passes`` empty-cell fill passes (``None``: the sensor's ``grid_fill``)."""
     sensor = spec.sensor
     return SensorGrid(sensor.grid, sensor.grid_shape, sensor.grid_fill if fill_passes is None else fill_passes)

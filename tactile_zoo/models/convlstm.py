@@ -1,7 +1,7 @@
 """ConvLSTM tactile classifier (Zapata-Impata, Gil & Torres, "Learning Spatio Temporal Tactile Features with a
 ConvLSTM for the Direction Of Slip Detection", Sensors 19(3):523, 2019; code: github.com/yayaneath/BioTacSP-DoS).
 
-Each frame becomes a sensor image (:class:`~tactile_zoo.nn.grid.SensorGrid`: 12x11 with two fill passes for the
+Each frame becomes a sensor image (:class:`~tactile_zoo.nn.sensor_grid.SensorGrid`: 12x11 with two fill passes for the
 BioTac SP, as in the source; the sensor's own grid elsewhere, 9x13 for NeuTouch), consecutive images are averaged in
 bins so that the recurrence sees at most ``max_frames`` of them, a stack of ConvLSTM layers reads the binned sequence,
 and the last hidden state of the top layer is averaged over the grid and classified::

@@ -124,8 +124,8 @@ def test_train_resolves_its_cell_with_the_harness_function(tmp_path: Path, monke
     from fake_plugins import GOOD_MODULE, FakeSite, unique
 
     from tactile_zoo.bench.config import merge_config
-    from tactile_zoo.bench.grid import build_grid, config_hash
-    from tactile_zoo.engine.cell import CellConfig
+    from tactile_zoo.bench.grid import build_grid
+    from tactile_zoo.engine.config import CellConfig, config_hash
 
     site = FakeSite(tmp_path, monkeypatch)
     try:

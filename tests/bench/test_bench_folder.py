@@ -131,7 +131,7 @@ def test_a_cell_of_a_newer_record_format_stops_bench_and_report(reference_run: P
 
 
 def test_committed_result_folders_are_bench_folders() -> None:
-    from tactile_zoo.bench.results import RunDir
+    from tactile_zoo.bench.rundir import RunDir
 
     folders = sorted({p.parent.parent for p in (REPO / "benchmarks" / "results").rglob("cells/*.json")})
     assert len(folders) >= 19

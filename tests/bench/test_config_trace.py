@@ -21,10 +21,9 @@ from typing import Any
 import pytest
 
 from tactile_zoo.bench.config import BenchConfig
-from tactile_zoo.bench.grid import config_hash
 from tactile_zoo.cli import main
 from tactile_zoo.engine import train
-from tactile_zoo.engine.config import CellConfig
+from tactile_zoo.engine.config import CellConfig, config_hash
 from tactile_zoo.recipe import Recipe
 
 PACKAGE = Path(__file__).resolve().parents[2] / "tactile_zoo"
@@ -128,11 +127,11 @@ def test_the_trace_sees_a_second_resolution(tracer: Tracer) -> None:
     tracer.on = True
     config = resolve_cell("sgnet", "sim_evtouch", quick=True)
     assert tracer.path() == ["tactile_zoo/engine/config.py"]
-    # these lines run as if written in bench/cell.py (its file name is what the trace attributes them to)
+    # these lines run as if written in bench/worker.py (its file name is what the trace attributes them to)
     code = compile("again = resolve_cell(config.model, config.dataset, quick=config.subset is not None)",
-                   str(PACKAGE / "bench" / "cell.py"), "exec")
+                   str(PACKAGE / "bench" / "worker.py"), "exec")
     scope = {"config": config, "resolve_cell": resolve_cell}
     exec(code, scope)  # noqa: S102
     assert scope["again"] == config
-    assert tracer.path() == ["tactile_zoo/engine/config.py", "tactile_zoo/bench/cell.py",
+    assert tracer.path() == ["tactile_zoo/engine/config.py", "tactile_zoo/bench/worker.py",
                              "tactile_zoo/engine/config.py"]

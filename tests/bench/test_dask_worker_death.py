@@ -27,7 +27,7 @@ from typing import Any
 import pytest
 from conftest import SMALL, read_board, run_cli
 
-from tactile_zoo.bench import results
+from tactile_zoo.bench import rundir
 
 distributed = pytest.importorskip("distributed")
 
@@ -130,16 +130,16 @@ def _bench(cluster: dict[str, Any], out: Path, retries: int, monkeypatch: pytest
         client.wait_for_workers(2, timeout=120)
     cluster["marker"].unlink(missing_ok=True)
     writes: list[str] = []
-    real = results.RunDir.write_cell
+    real = rundir.RunDir.write_cell
 
-    def counting(self: results.RunDir, record: dict) -> Path:
+    def counting(self: rundir.RunDir, record: dict) -> Path:
         writes.append(record["cell_id"])
         return real(self, record)
 
-    monkeypatch.setattr(results.RunDir, "write_cell", counting)
+    monkeypatch.setattr(rundir.RunDir, "write_cell", counting)
     code = run_cli([*SMALL, "--plugin-module", PLUGIN, "--executor", "dask", "--scheduler", cluster["address"],
                     "--retries", str(retries), "--out", str(out), "-q"])
-    monkeypatch.setattr(results.RunDir, "write_cell", real)
+    monkeypatch.setattr(rundir.RunDir, "write_cell", real)
     assert cluster["marker"].exists(), "the doomed cell's worker was never killed: the test proves nothing"
     return code, writes
 

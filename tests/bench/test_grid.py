@@ -5,7 +5,8 @@ from pathlib import Path
 import pytest
 
 from tactile_zoo.bench.config import BenchConfig
-from tactile_zoo.bench.grid import build_grid, cell_id, config_hash, default_out_dir, resolve_models
+from tactile_zoo.bench.grid import build_grid, cell_id, default_out_dir, resolve_models
+from tactile_zoo.engine.config import config_hash
 from tactile_zoo.errors import ConfigError, UnknownNameError
 
 

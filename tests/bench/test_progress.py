@@ -16,12 +16,12 @@ from conftest import run_cli
 
 from tactile_zoo import registry
 from tactile_zoo.bench import progress
-from tactile_zoo.bench.cell import run_cell
 from tactile_zoo.bench.config import BenchConfig
 from tactile_zoo.bench.executors import LocalExecutor
 from tactile_zoo.bench.grid import build_grid
 from tactile_zoo.bench.progress import CostModel, ProgressDisplay, ProgressWriter
 from tactile_zoo.bench.runner import _task
+from tactile_zoo.bench.worker import run_cell
 from tactile_zoo.cli import main
 
 TIMING = {"seconds", "train_seconds", "infer_ms_per_sample", "started", "finished", "peak_memory_mb",

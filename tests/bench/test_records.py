@@ -116,7 +116,7 @@ def test_an_empty_split_scores_null_and_only_an_empty_one() -> None:
 def test_the_writer_refuses_a_record_the_readers_would_refuse(reference_run: Path, tmp_path: Path) -> None:
     """A NaN (or any record failing the schema) is never written: write_cell raises before the file exists, and
     atomic_write_json refuses a non-finite number wherever it is."""
-    from tactile_zoo.bench.results import RunDir, atomic_write_json
+    from tactile_zoo.bench.rundir import RunDir, atomic_write_json
     from tactile_zoo.bench.schema import InvalidRecordError
 
     record = json.loads(sorted((reference_run / "cells").glob("*.json"))[0].read_text())

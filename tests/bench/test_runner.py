@@ -9,7 +9,7 @@ import pytest
 import torch
 from conftest import SMALL, read_board, run_cli
 
-from tactile_zoo.bench import executors, results
+from tactile_zoo.bench import executors, rundir
 from tactile_zoo.bench.config import BenchConfig
 from tactile_zoo.bench.runner import run_bench
 
@@ -123,23 +123,23 @@ def test_a_model_that_refuses_a_dataset_is_skipped(tmp_path: Path) -> None:
 def test_a_failing_write_keeps_earlier_cells_and_is_reported(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                              capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "run"
-    real = results.RunDir.write_cell
+    real = rundir.RunDir.write_cell
     calls = []
 
-    def flaky(self: results.RunDir, record: dict) -> Path:
+    def flaky(self: rundir.RunDir, record: dict) -> Path:
         calls.append(record["cell_id"])
         if len(calls) == 2:
-            raise results.CellWriteError(28, f"cannot write cell file {record['cell_id']}: No space left on device")
+            raise rundir.CellWriteError(28, f"cannot write cell file {record['cell_id']}: No space left on device")
         return real(self, record)
 
-    monkeypatch.setattr(results.RunDir, "write_cell", flaky)
+    monkeypatch.setattr(rundir.RunDir, "write_cell", flaky)
     assert run_cli([*SMALL, "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert "No space left on device" in err and "intact" in err
     files = list((out / "cells").glob("*.json"))
     assert len(files) == 1 and json.loads(files[0].read_text())["status"] == "ok"
     assert len(read_board(out)) == 1
-    monkeypatch.setattr(results.RunDir, "write_cell", real)
+    monkeypatch.setattr(rundir.RunDir, "write_cell", real)
     assert run_cli([*SMALL, "--out", str(out), "-q"]) == 0
     assert len(read_board(out)) == 6
 
@@ -179,7 +179,7 @@ def test_quick_and_refit(tmp_path: Path) -> None:
 
 
 def test_a_cell_record_keeps_the_recording_of_each_window_when_windows_share_one() -> None:
-    from tactile_zoo.bench.cell import _eval_dict
+    from tactile_zoo.bench.worker import _eval_dict
     from tactile_zoo.engine.evaluate import EvalResult
 
     result = EvalResult({"accuracy": 0.5}, [0, 1], [[0.1234567, 0.8765433], [0.5, 0.5]], [0, 0])
@@ -190,14 +190,14 @@ def test_a_cell_record_keeps_the_recording_of_each_window_when_windows_share_one
 
 
 def test_a_large_test_split_keeps_predictions_but_not_probabilities(monkeypatch: pytest.MonkeyPatch) -> None:
-    from tactile_zoo.bench import cell
+    from tactile_zoo.bench import worker
     from tactile_zoo.engine.evaluate import EvalResult
 
-    monkeypatch.setattr(cell, "MAX_PROBABILITY_ROWS", 2)
+    monkeypatch.setattr(worker, "MAX_PROBABILITY_ROWS", 2)
     small = EvalResult({"accuracy": 1.0}, [0, 1], [[0.9, 0.1], [0.2, 0.8]], [0, 1])
     large = EvalResult({"accuracy": 1.0}, [0, 1, 1], [[0.9, 0.1], [0.2, 0.8], [0.3, 0.7]], [0, 1, 1])
-    assert cell._eval_dict(small, None, probabilities=True)["probabilities"] == [[0.9, 0.1], [0.2, 0.8]]
-    out = cell._eval_dict(large, [4, 4, 5], probabilities=True)
+    assert worker._eval_dict(small, None, probabilities=True)["probabilities"] == [[0.9, 0.1], [0.2, 0.8]]
+    out = worker._eval_dict(large, [4, 4, 5], probabilities=True)
     assert "probabilities" not in out and out["predictions"] == [0, 1, 1] and out["groups"] == [4, 4, 5]
 
 
@@ -205,16 +205,16 @@ def test_a_too_large_main_split_leaves_its_probabilities_to_its_subsets(monkeypa
     # BioTac-DoS: the whole test split is too large, its unseen sets are not; a seed ensemble on textures needs theirs
     from types import SimpleNamespace
 
-    from tactile_zoo.bench import cell
+    from tactile_zoo.bench import worker
     from tactile_zoo.engine.evaluate import EvalResult
 
-    monkeypatch.setattr(cell, "MAX_PROBABILITY_ROWS", 2)
+    monkeypatch.setattr(worker, "MAX_PROBABILITY_ROWS", 2)
     whole = EvalResult({"accuracy": 1.0}, [0, 1, 1], [[0.9, 0.1], [0.2, 0.8], [0.3, 0.7]], [0, 1, 1])
     part = EvalResult({"accuracy": 1.0}, [0, 1], [[0.9, 0.1], [0.2, 0.8]], [0, 1])
-    stored = cell._predictions(SimpleNamespace(tests={"test": whole, "test_a": part}, test_groups={}))
+    stored = worker._predictions(SimpleNamespace(tests={"test": whole, "test_a": part}, test_groups={}))
     assert "probabilities" not in stored["test"] and stored["test_a"]["probabilities"] == [[0.9, 0.1], [0.2, 0.8]]
     # a main split small enough keeps the only copy
-    stored = cell._predictions(SimpleNamespace(tests={"test": part, "test_a": part}, test_groups={}))
+    stored = worker._predictions(SimpleNamespace(tests={"test": part, "test_a": part}, test_groups={}))
     assert "probabilities" in stored["test"] and "probabilities" not in stored["test_a"]
 
 
@@ -225,16 +225,16 @@ def test_a_cell_claimed_elsewhere_waits_until_the_rest_is_done_then_is_taken_ove
     writing a record) and runs the deferred cell itself; every claim is released."""
     cfg = BenchConfig(models=["tiny_mlp", "tiny_rate"], datasets=["tiny_blobs"], threads=1, out=str(tmp_path / "run"))
     first, second = (c.cell_id for c in run_bench(cfg, dry_run=True, out=io.StringIO()).grid.cells)
-    real = results.RunDir.claim
+    real = rundir.RunDir.claim
     asked: list[tuple[str, bool]] = []
 
-    def held_once(self: results.RunDir, cell_id: str, blocking: bool = False) -> results.Claim | None:
+    def held_once(self: rundir.RunDir, cell_id: str, blocking: bool = False) -> rundir.Claim | None:
         asked.append((cell_id, blocking))
         if cell_id == first and not blocking and asked.count((first, False)) == 1:
             return None  # held by someone else the first time we look
         return real(self, cell_id, blocking)
 
-    monkeypatch.setattr(results.RunDir, "claim", held_once)
+    monkeypatch.setattr(rundir.RunDir, "claim", held_once)
     outcome = run_bench(cfg)
     text = capsys.readouterr().out
     assert outcome.exit_code == 0 and outcome.ran == [second, first] and outcome.reused == []

@@ -73,7 +73,7 @@ def test_the_same_tensors_give_the_same_file(tmp_path: Path) -> None:
     must still write the same bytes (the weight pack compares files by sha256)."""
     from safetensors import safe_open
 
-    from tactile_zoo.bench.cell import save_weights
+    from tactile_zoo.bench.worker import save_weights
 
     torch.manual_seed(0)
     model = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.BatchNorm1d(4))

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 from conftest import run_cli
 
-from tactile_zoo.bench.results import BENCH_FORMAT
+from tactile_zoo.bench.rundir import BENCH_FORMAT
 from tactile_zoo.cli import main
 
 pytestmark = pytest.mark.xdist_group("tiny_bench")

@@ -131,7 +131,7 @@ def test_a_huge_seed_range_is_refused_with_its_count_without_listing_it(tmp_path
     assert run_cli(["--models", "tiny_mlp", "--datasets", "tiny_blobs", "--seeds", "0-20000", "--dry-run",
                     "--out", str(out)]) == 2
     _refused(capsys, out, "20,001 seeds")
-    from tactile_zoo.bench.config import MAX_CELLS, parse_seeds
+    from tactile_zoo.bench.parsing import MAX_CELLS, parse_seeds
 
     with pytest.raises(ConfigError, match=r"--seeds 0-100000000: 100,000,001 seeds; .* at most 10,000 cells"):
         parse_seeds("0-100000000")

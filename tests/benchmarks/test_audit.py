@@ -11,7 +11,7 @@ import pytest
 import tiny_zoo
 
 from tactile_zoo import registry
-from tactile_zoo.engine.cell import resolve_cell
+from tactile_zoo.engine.config import resolve_cell
 from tactile_zoo.recipe import full_recipe
 from tools.audit import audit, audit_plan
 

@@ -22,8 +22,8 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from tactile_zoo.bench.config import BenchConfig, plan_cells  # noqa: E402
-from tactile_zoo.bench.grid import config_hash  # noqa: E402
 from tactile_zoo.bench.records import cell_files, recipe_name_of  # noqa: E402
+from tactile_zoo.engine.config import config_hash  # noqa: E402
 from tools import check_cells  # noqa: E402
 
 CELLS = sorted((REPO / "benchmarks" / "results" / "paper-table1" / "cells").glob("*.json")) + sorted(

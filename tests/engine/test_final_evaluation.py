@@ -6,9 +6,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from tactile_zoo.bench.grid import config_hash
 from tactile_zoo.engine.build import build_model, load_splits
-from tactile_zoo.engine.cell import resolve_cell, train_cell
+from tactile_zoo.engine.cell import train_cell
+from tactile_zoo.engine.config import config_hash, resolve_cell
 from tactile_zoo.engine.tensors import concat
 from tactile_zoo.engine.train import train_model
 from tactile_zoo.errors import ConfigError

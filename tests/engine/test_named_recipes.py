@@ -13,7 +13,7 @@ import tiny_zoo
 import tactile_zoo as tz
 from tactile_zoo import registry
 from tactile_zoo.cli import main
-from tactile_zoo.engine.cell import CellConfig, resolve_cell
+from tactile_zoo.engine.config import CellConfig, resolve_cell
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.recipe import declared_evaluation
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactile_zoo.bench.grid import config_hash
 from tactile_zoo.bench.intervals import bootstrap_accuracy, records_interval
 from tactile_zoo.cli import main
-from tactile_zoo.engine.cell import resolve_cell, train_cell
+from tactile_zoo.engine.cell import train_cell
+from tactile_zoo.engine.config import config_hash, resolve_cell
 from tactile_zoo.errors import ConfigError
 
 

@@ -11,7 +11,8 @@ import pytest
 import tactile_zoo as tz
 from tactile_zoo.cli import main
 from tactile_zoo.data.guard import TUNING_ENV, in_tuning_mode, tuning
-from tactile_zoo.engine.cell import resolve_cell, train_cell
+from tactile_zoo.engine.cell import train_cell
+from tactile_zoo.engine.config import resolve_cell
 from tactile_zoo.errors import TestSplitForbidden
 
 

@@ -231,7 +231,7 @@ def test_taxel_readout_keeps_each_taxels_cell() -> None:
 
 
 def test_the_source_recipe_carries_the_source_setup_on_biotac_dos_and_the_taxel_read_out_on_ev() -> None:
-    from tactile_zoo.engine.cell import resolve_cell
+    from tactile_zoo.engine.config import resolve_cell
 
     own = resolve_cell("convlstm", "biotac_dos", recipe_name="source")
     assert own.hparams == {"frame_norm": "minmax", "init": "torch"}

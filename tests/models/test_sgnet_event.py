@@ -115,8 +115,7 @@ def test_default_is_dense_and_the_option_is_checked() -> None:
 def test_its_cells_hash_apart_and_the_default_cells_do_not_move() -> None:
     """The option is an hparam, so its cells have their own hash; the default cell's configuration names no
     ``compute`` at all, so every committed hash stays as it was."""
-    from tactile_zoo.bench.grid import config_hash
-    from tactile_zoo.engine.cell import resolve_cell
+    from tactile_zoo.engine.config import config_hash, resolve_cell
 
     default = resolve_cell("sgnet", "sim_evtouch")
     event = resolve_cell("sgnet", "sim_evtouch", hparams={"compute": "event"})

@@ -10,7 +10,7 @@ from tactile_zoo.data.sensors import Sensor
 from tactile_zoo.data.spec import DatasetSpec
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.models._inputs import sensor_grid
-from tactile_zoo.nn.grid import SensorGrid, grid_weights
+from tactile_zoo.nn.sensor_grid import SensorGrid, grid_weights
 
 BUILTIN = ["neutouch", "biotac_sp", "optoforce3", "uskin_allegro"]
 

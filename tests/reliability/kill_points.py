@@ -22,7 +22,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tactile_zoo.bench import executors, report, results
+from tactile_zoo.bench import executors, report
+from tactile_zoo.bench import rundir as results
 
 STOP = os.environ.get("TZ_RELIABILITY_STOP", "")
 SIGNAL = os.environ.get("TZ_RELIABILITY_SIGNAL", "")

@@ -1,6 +1,6 @@
 """Weights the tests make themselves: a small CNN-LSTM trained for two epochs on a small ``sim_uskin_textures`` (60
 taxels x 3 channels + 8 globals, so the column order of a recording file matters) through the harness's own cell
-(:func:`tactile_zoo.bench.cell.run_cell` with a weights folder, which calls ``save_weights``), then described by a
+(:func:`tactile_zoo.bench.worker.run_cell` with a weights folder, which calls ``save_weights``), then described by a
 manifest built from the cell record."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import torch
 from weights_helpers import CELL_ID, CONFIG_HASH, DATA_ARGS, DATASET, HPARAMS, MODEL, Trained
 
 import tactile_zoo as tz
-from tactile_zoo.bench import cell as bench_cell
-from tactile_zoo.engine.cell import resolve_cell
+from tactile_zoo.bench import worker as bench_cell
+from tactile_zoo.engine.config import resolve_cell
 from tactile_zoo.engine.evaluate import predict_scores
 from tactile_zoo.weights import entry_from_record, write_manifest
 

@@ -159,7 +159,7 @@ def test_a_manifest_written_elsewhere_keeps_pointing_at_the_file(trained: Traine
 
 
 def test_sgnet_without_a_zoo_head_gets_a_new_head_and_its_rates_read_as_evaluate_reads_them(tmp_path: Path) -> None:
-    from tactile_zoo.bench.cell import save_weights
+    from tactile_zoo.bench.worker import save_weights
     from tactile_zoo.weights import WeightEntry
 
     test = tz.load_dataset("sim_biotac_slip", split="test", n_train_per_class=2, n_test_per_class=2, num_steps=6)

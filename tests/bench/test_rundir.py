@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from tactile_zoo.bench import results
-from tactile_zoo.bench.results import RunDir, atomic_write_json
+from tactile_zoo.bench import rundir
+from tactile_zoo.bench.rundir import RunDir, atomic_write_json
 from tactile_zoo.bench.tables import LEADERBOARD_COLUMNS, SUMMARY_COLUMNS, leaderboard_rows, rows_to_csv, summary_rows
 from tactile_zoo.errors import ConfigError
 
@@ -24,7 +24,7 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path: Path, mo
     def full(*args: object) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(results.os, "replace", full)
+    monkeypatch.setattr(rundir.os, "replace", full)
     with pytest.raises(OSError, match="No space"):
         atomic_write_json(path, {"v": 2})
     assert json.loads(path.read_text()) == {"v": 1}
@@ -149,11 +149,11 @@ def test_the_table_names_have_one_home_in_tables() -> None:
 
     for name in ("LEADERBOARD_COLUMNS", "SUMMARY_COLUMNS", "TIMING_COLUMNS", "leaderboard_rows", "summary_rows",
                  "rows_to_csv", "prefix_label"):
-        assert name in tables.__all__ and not hasattr(results, name), name  # no re-export for an older layout
+        assert name in tables.__all__ and not hasattr(rundir, name), name  # no re-export for an older layout
 
 
 def test_cell_json_is_one_line_per_key_and_round_trips(tmp_path: Path) -> None:
-    from tactile_zoo.bench.results import atomic_write_json
+    from tactile_zoo.bench.rundir import atomic_write_json
 
     record = {"cell_id": "m__d__f0__s0__abc", "metrics": {"test": {"accuracy": 0.5, "loss": None}},
               "predictions": {"test": {"targets": list(range(1000)), "probabilities": [[0.25, 0.75]] * 1000}}}

@@ -23,7 +23,8 @@ import torch
 
 from .. import registry
 from .._files import atomic_path
-from ..engine.cell import CellConfig, CellResult, train_cell
+from ..engine.cell import CellResult, train_cell
+from ..engine.config import CellConfig
 from ..engine.runtime import cpu_isa, cpu_model, flush_denormals, resolve_device, set_threads, versions
 from ..errors import ModelCannotConsume
 from .progress import ProgressWriter
