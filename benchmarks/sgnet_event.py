@@ -58,7 +58,7 @@ def run(ctx: Context, variant: str = "event", batches: int | None = None) -> Pat
     from tactile_zoo.engine.train import build_optimizer, compute_loss
     from tactile_zoo.nn.event_graph_conv import event_graph_conv
     from tactile_zoo.nn.event_linear import event_linear, events_of
-    from tactile_zoo.registry import create_model
+    from tactile_zoo.registry import instantiate_model
 
     if variant not in VARIANTS:
         raise ValueError(f"--variant must be one of {VARIANTS}, got {variant!r}")
@@ -69,8 +69,8 @@ def run(ctx: Context, variant: str = "event", batches: int | None = None) -> Pat
     xs = [split.x[i * size:(i + 1) * size].float() for i in range(n_batches)]
     ys = [split.y[i * size:(i + 1) * size].long() for i in range(n_batches)]
     torch.manual_seed(0)
-    dense = create_model("sgnet", split.spec)
-    fast = create_model("sgnet", split.spec, compute=variant)
+    dense = instantiate_model("sgnet", split.spec)
+    fast = instantiate_model("sgnet", split.spec, compute=variant)
     fast.load_state_dict(dense.state_dict())
     same, grad_diff = _compare(dense, fast, xs[0], ys[0], recipe)
     ctx.log(f"  compute={variant!r} against dense: same spikes {same}, largest gradient relative difference "

@@ -15,11 +15,11 @@ import pytest
 
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.recipe import full_recipe
-from tactile_zoo.registry import get_model_entry, list_models, read_recipe_file, recipe_file, recipe_file_path
+from tactile_zoo.registry import get_model_entry, model_names, read_recipe_file, recipe_file, recipe_file_path
 
 REPO = Path(__file__).resolve().parents[2]
 SNAPSHOT = json.loads((Path(__file__).parent / "fixtures" / "registered_recipes.json").read_text())
-BUILT_IN = [m for m in list_models() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")]
+BUILT_IN = [m for m in model_names() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")]
 
 
 def canonical(value: Any) -> str:
