@@ -14,8 +14,15 @@ training samples at the recipe's batch size (128, then 72) through ``fit``, then
 ``/proc/self/clear_refs`` at its start, so it includes the interpreter, torch, the model and the dataset),
 ``eval_peak_rss_mb`` that of the test scoring, ``process_peak_rss_mb`` the child's peak over its whole life (the
 largest of the three windows: loading, training, scoring);
-``max_logit_diff`` compares the two trained models' test logits (0: the same computation). Synthetic events of the
-same shape stand in where Ev-Containers is absent (``data`` says so; memory depends on the shapes only).
+``max_logit_diff`` compares each trained model's test logits with ``index_only``'s (0: the same computation).
+Synthetic events of the same shape stand in where Ev-Containers is absent (``data`` says so; memory depends on the
+shapes only).
+
+The third case, ``index_only_tuned``, is ``index_only`` with the malloc settings training processes apply at start-up
+(``tactile_zoo.engine.malloc.SETTINGS``, through ``mallopt``; ``malloc`` names them, ``default`` is glibc's own).
+``train_page_faults`` (minor and major, from ``getrusage``) and ``train_sys_s`` (system CPU seconds) cover the
+training epoch; on a loaded machine they move far less than ``epoch_s``. ``measure`` also takes any other settings and
+an epoch count (docs/performance.md has the table they produced).
 
 Run it alone: ``python -m benchmarks.dcnn_memory [--root DIR] [--quick]``; it writes ``results/dcnn_memory.csv``.
 """
@@ -35,7 +42,7 @@ import torch
 from .common import REPO, Context, data_root, model_recipe, synthetic_events, write_csv
 
 NAME = "dcnn_memory"
-TITLE = "D-CNN training peak RSS on Ev-Containers: index-only pools vs nn.MaxPool2d"
+TITLE = "D-CNN training peak RSS and page faults on Ev-Containers: index-only pools vs nn.MaxPool2d, tuned malloc"
 COLUMNS = ("pool", "malloc", "batch_size", "samples", "data", "peak_rss_mb", "eval_peak_rss_mb",
            "process_peak_rss_mb", "rss_source", "epoch_s", "train_page_faults", "train_sys_s", "max_logit_diff",
            "target")
