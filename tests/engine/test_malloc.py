@@ -37,7 +37,8 @@ _CHILD = textwrap.dedent("""
     libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
     libc.free.argtypes = [ctypes.c_void_p]
     size = 40 << 20
-    held = [libc.malloc(size) for _ in range(SETTINGS.get("M_MMAP_MAX", 0))]  # never written: no memory used
+    # never written: no memory used; at most 64, so that a cap too high to matter leaves the block mapped
+    held = [libc.malloc(size) for _ in range(min(SETTINGS.get("M_MMAP_MAX", 0), 64))]
     first = libc.malloc(size)
     ctypes.memset(first, 1, size)
     libc.free(first)
