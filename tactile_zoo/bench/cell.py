@@ -71,7 +71,7 @@ _SETUP: dict[str, Any] = {}
 def setup_worker(plugin_modules: tuple[str, ...] = (), threads: int | None = None, sys_path: tuple[str, ...] = ()
                  ) -> None:
     """Idempotent per-process set-up: malloc settings, the parent's import path, plugin modules, torch threads."""
-    tune_malloc()  # freed activations stay mapped: no page faults to rewrite them (tactile_zoo.engine.malloc)
+    tune_malloc()  # more large freed blocks come back already faulted in (tactile_zoo.engine.malloc)
     for path in sys_path:
         if path not in sys.path:
             sys.path.append(path)

@@ -61,7 +61,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     tracker = check_tracker(args.tracker)  # a missing extra fails now, not after the training
     registry.import_plugin_modules(config.plugin_modules)
     set_threads(parse_threads(args.threads))
-    tune_malloc()  # freed activations stay mapped: no page faults to rewrite them (tactile_zoo.engine.malloc)
+    tune_malloc()  # more large freed blocks come back already faulted in (tactile_zoo.engine.malloc)
     try:
         seeds = parse_seeds(args.seed)
     except ConfigError as exc:  # name the flag this command has (--seed), not bench's --seeds
