@@ -14,8 +14,15 @@ training samples at the recipe's batch size (128, then 72) through ``fit``, then
 ``/proc/self/clear_refs`` at its start, so it includes the interpreter, torch, the model and the dataset),
 ``eval_peak_rss_mb`` that of the test scoring, ``process_peak_rss_mb`` the child's peak over its whole life (the
 largest of the three windows: loading, training, scoring);
-``max_logit_diff`` compares the two trained models' test logits (0: the same computation). Synthetic events of the
-same shape stand in where Ev-Containers is absent (``data`` says so; memory depends on the shapes only).
+``max_logit_diff`` compares each trained model's test logits with ``index_only``'s (0: the same computation).
+Synthetic events of the same shape stand in where Ev-Containers is absent (``data`` says so; memory depends on the
+shapes only).
+
+The third case, ``index_only_tuned``, is ``index_only`` with the malloc settings training processes apply at start-up
+(``tactile_zoo.engine.malloc.SETTINGS``, through ``mallopt``; ``malloc`` names them, ``default`` is glibc's own).
+``train_page_faults`` (minor and major, from ``getrusage``) and ``train_sys_s`` (system CPU seconds) cover the
+training epoch; on a loaded machine they move far less than ``epoch_s``. ``measure`` also takes any other settings and
+an epoch count (docs/performance.md has the table they produced).
 
 Run it alone: ``python -m benchmarks.dcnn_memory [--root DIR] [--quick]``; it writes ``results/dcnn_memory.csv``.
 """
@@ -35,11 +42,15 @@ import torch
 from .common import REPO, Context, data_root, model_recipe, synthetic_events, write_csv
 
 NAME = "dcnn_memory"
-TITLE = "D-CNN training peak RSS on Ev-Containers: index-only pools vs nn.MaxPool2d"
-COLUMNS = ("pool", "batch_size", "samples", "data", "peak_rss_mb", "eval_peak_rss_mb", "process_peak_rss_mb",
-           "rss_source", "epoch_s", "max_logit_diff", "target")
+TITLE = "D-CNN training peak RSS and page faults on Ev-Containers: index-only pools vs nn.MaxPool2d, tuned malloc"
+COLUMNS = ("pool", "malloc", "batch_size", "samples", "data", "peak_rss_mb", "eval_peak_rss_mb",
+           "process_peak_rss_mb", "rss_source", "epoch_s", "train_page_faults", "train_sys_s", "max_logit_diff",
+           "target")
 VARIANTS = {"index_only": "_IndexOnlyMaxPool (keeps the argmax indices)",
             "maxpool2d": "nn.MaxPool2d(2, ceil_mode=True) (keeps its input too)"}
+#: case -> (pool variant, malloc settings: None = glibc's defaults, "tuned" = what training processes apply)
+CASES = {"index_only": ("index_only", None), "maxpool2d": ("maxpool2d", None),
+         "index_only_tuned": ("index_only", "tuned")}
 
 
 def _splits(root: Path | None) -> tuple[Any, Any, str]:
@@ -60,11 +71,27 @@ def _splits(root: Path | None) -> tuple[Any, Any, str]:
         return synthetic_events(spec, 200, seed=0), synthetic_events(spec, 60, seed=1), "synthetic"
 
 
-def measure(variant: str, root: Path | None, samples: int | None) -> dict[str, Any]:
+def _malloc(settings: str | dict[str, int] | None) -> str:
+    """Apply ``settings`` (None: glibc's defaults, ``"tuned"``: tune_malloc's, or a dict for mallopt); its label."""
+    from tactile_zoo.engine.malloc import SETTINGS, apply_mallopt
+
+    if settings is None:
+        return "default"
+    chosen = SETTINGS if settings == "tuned" else settings
+    applied = apply_mallopt(chosen)
+    if applied is None:
+        return "default (not glibc)"
+    return " ".join(f"{name}={value}" for name, value in chosen.items())
+
+
+def measure(variant: str, root: Path | None, samples: int | None,
+            malloc: str | dict[str, int] | None = None, epochs: int = 1) -> dict[str, Any]:
     """Train ``dcnn`` one epoch with the ``variant``'s pools in this process; one CSV row plus its test logits."""
     import resource
 
     from torch import nn
+
+    malloc_label = _malloc(malloc)
 
     from tactile_zoo.engine import PeakMemory, fit, predict_scores, seed_everything, take
     from tactile_zoo.engine.runtime import flush_denormals
@@ -80,14 +107,30 @@ def measure(variant: str, root: Path | None, samples: int | None) -> dict[str, A
         for block in model.features:
             block[-1] = nn.MaxPool2d(2, ceil_mode=True)
     before_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the reset below clears ru_maxrss too
+    usage = resource.getrusage(resource.RUSAGE_SELF)
     with PeakMemory() as peak:
-        result = fit(model, train, recipe=recipe, epochs=1)
+        result = fit(model, train, recipe=recipe, epochs=epochs)
+    after = resource.getrusage(resource.RUSAGE_SELF)
     with PeakMemory() as eval_peak, flush_denormals():
         logits = predict_scores(model, test.x, test.g, recipe.eval_batch_size)
-    return {"case": variant, "pool": VARIANTS[variant], "batch_size": recipe.batch_size, "samples": len(train),
+    return {"pool": VARIANTS[variant], "malloc": malloc_label, "batch_size": recipe.batch_size, "samples": len(train),
             "data": source, "peak_rss_mb": peak.mb, "eval_peak_rss_mb": eval_peak.mb,
             "process_peak_rss_mb": round(max(before_mb, peak.mb or 0.0, eval_peak.mb or 0.0), 1),
-            "rss_source": peak.source, "epoch_s": float(result.curve[0]["seconds"]), "logits": logits.tolist()}
+            "rss_source": peak.source,
+            "epoch_s": round(sum(float(row["seconds"]) for row in result.curve) / len(result.curve), 3),
+            "train_page_faults": after.ru_minflt - usage.ru_minflt + after.ru_majflt - usage.ru_majflt,
+            "train_sys_s": round(after.ru_stime - usage.ru_stime, 2), "logits": logits.tolist()}
+
+
+def child(job: dict[str, Any], variant: str, malloc: str | dict[str, int] | None, env: dict[str, str]
+          ) -> dict[str, Any]:
+    """One measurement in a fresh child process (so that no case inherits another's heap or malloc settings)."""
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.dcnn_memory", "--child",
+                           json.dumps({**job, "variant": variant, "malloc": malloc})],
+                          cwd=REPO, env=env, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"measuring {variant} ({malloc}) failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def run(ctx: Context, samples: int | None = None) -> Path:
@@ -96,21 +139,17 @@ def run(ctx: Context, samples: int | None = None) -> Path:
            "samples": samples if samples is not None else (32 if ctx.quick else None)}
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
     rows = []
-    for variant in VARIANTS:
-        proc = subprocess.run([sys.executable, "-m", "benchmarks.dcnn_memory", "--child",
-                               json.dumps({**job, "variant": variant})],
-                              cwd=REPO, env=env, capture_output=True, text=True, check=False)
-        if proc.returncode != 0:
-            raise RuntimeError(f"measuring {variant} failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
-        rows.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-    ref = torch.tensor(rows[-1]["logits"])
+    for case, (variant, malloc) in CASES.items():
+        rows.append({"case": case, **child(job, variant, malloc, env)})
+    ref = torch.tensor(rows[0]["logits"])
     for row in rows:
         row["max_logit_diff"] = float((torch.tensor(row.pop("logits")) - ref).abs().max())
         row["target"] = "peak < 3 GB (issue 18), the same outputs"
         row["note"] = "one training epoch, then the test split in one batch; fresh child process, 1 thread" \
             if row["samples"] == 200 else f"{row['samples']} training samples (--quick)"
         ctx.log(f"  {row['case']}: training peak {row['peak_rss_mb']} MB, eval peak {row['eval_peak_rss_mb']} MB, "
-                f"process peak {row['process_peak_rss_mb']} MB, logits differ by {row['max_logit_diff']:g}")
+                f"process peak {row['process_peak_rss_mb']} MB, {row['train_page_faults']} page faults, "
+                f"{row['train_sys_s']} s system time, logits differ by {row['max_logit_diff']:g}")
     return write_csv(ctx, NAME, COLUMNS, rows)
 
 
@@ -125,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.child is not None:
         job = json.loads(args.child)
         torch.set_num_threads(job["threads"])
-        print(json.dumps(measure(job["variant"], None if job["root"] is None else Path(job["root"]), job["samples"])))
+        root = None if job["root"] is None else Path(job["root"])
+        print(json.dumps(measure(job["variant"], root, job["samples"], job.get("malloc"), job.get("epochs", 1))))
         return 0
     ctx = Context(quick=args.quick, threads=1, root=args.root, **({"out": args.out} if args.out else {}))
     path = run(ctx)

@@ -30,6 +30,7 @@ BOOLEAN_VARIABLES = {
     "TACTILE_ZOO_STRICT_PLUGINS": "a plugin that fails to load is an error (--strict-plugins)",
     "TACTILE_ZOO_NO_HUGEPAGES": "no transparent-huge-page advice for large CPU tensors (tactile_zoo.nn.memory)",
     "TACTILE_ZOO_KEEP_DENORMALS": "compute with subnormal floats instead of flushing them to zero",
+    "TACTILE_ZOO_DEFAULT_MALLOC": "training processes keep glibc's malloc defaults (tactile_zoo.engine.malloc)",
 }
 #: Every variable that names one of a fixed set of choices, with its choices (the first is the default).
 CHOICE_VARIABLES = {

@@ -25,6 +25,7 @@ from .. import registry
 from .._files import atomic_path
 from ..engine.cell import CellResult, train_cell
 from ..engine.config import CellConfig
+from ..engine.malloc import tune_malloc
 from ..engine.runtime import cpu_isa, cpu_model, flush_denormals, resolve_device, set_threads, versions
 from ..errors import ModelCannotConsume
 from .progress import ProgressWriter
@@ -70,7 +71,8 @@ _SETUP: dict[str, Any] = {}
 
 def setup_worker(plugin_modules: tuple[str, ...] = (), threads: int | None = None, sys_path: tuple[str, ...] = ()
                  ) -> None:
-    """Idempotent per-process set-up: the parent's import path, plugin modules, torch threads."""
+    """Idempotent per-process set-up: malloc settings, the parent's import path, plugin modules, torch threads."""
+    tune_malloc()  # more large freed blocks come back already faulted in (tactile_zoo.engine.malloc)
     for path in sys_path:
         if path not in sys.path:
             sys.path.append(path)

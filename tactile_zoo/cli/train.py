@@ -55,6 +55,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from ..engine.build import load_splits
     from ..engine.cell import train_cell
     from ..engine.config import check_model_builds
+    from ..engine.malloc import tune_malloc
     from ..engine.runtime import set_threads, versions
     from ..errors import ConfigError
 
@@ -62,6 +63,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     tracker = check_tracker(args.tracker)  # a missing extra fails now, not after the training
     registry.import_plugin_modules(config.plugin_modules)
     set_threads(parse_threads(args.threads))
+    tune_malloc()  # more large freed blocks come back already faulted in (tactile_zoo.engine.malloc)
     try:
         seeds = parse_seeds(args.seed)
     except ConfigError as exc:  # name the flag this command has (--seed), not bench's --seeds

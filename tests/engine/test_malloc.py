@@ -1,0 +1,113 @@
+"""tactile_zoo.engine.malloc: the start-up malloc settings are applied by training processes, not by an import, are
+skipped with TACTILE_ZOO_DEFAULT_MALLOC=1 and off glibc, and make a rewritten large buffer cost no page faults."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from tactile_zoo.engine import malloc
+
+REPO = Path(__file__).resolve().parents[2]
+GLIBC = sys.platform.startswith("linux") and malloc._mallopt() is not None
+
+# Hold as many large blocks as the settings let glibc map (M_MMAP_MAX), then allocate, write and free a 40 MB block
+# (above glibc's largest mmap threshold, 32 MiB: by default a fresh mmap each time) and count the page faults of
+# writing a second one of the same size: none where it came back from the heap already faulted in.
+_CHILD = textwrap.dedent("""
+    import ctypes, json, resource, sys
+    mode = sys.argv[1]
+    result = None
+    if mode == "tune":
+        from tactile_zoo.engine.malloc import tune_malloc
+        result = tune_malloc()
+    elif mode == "worker":
+        from tactile_zoo.bench.worker import setup_worker
+        setup_worker()
+    else:  # importing the package and its training layers changes nothing
+        import tactile_zoo, tactile_zoo.bench, tactile_zoo.cli, tactile_zoo.engine  # noqa: F401
+    from tactile_zoo.engine.malloc import SETTINGS
+    libc = ctypes.CDLL(None)
+    libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    size = 40 << 20
+    # never written: no memory used; at most 64, so that a cap too high to matter leaves the block mapped
+    held = [libc.malloc(size) for _ in range(min(SETTINGS.get("M_MMAP_MAX", 0), 64))]
+    first = libc.malloc(size)
+    ctypes.memset(first, 1, size)
+    libc.free(first)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    second = libc.malloc(size)
+    ctypes.memset(second, 2, size)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+    print(json.dumps({"result": result, "faults": faults, "byte": ctypes.string_at(second + size - 1, 1)[0]}))
+""")
+
+
+def _child(mode: str, **env: str) -> dict:
+    environ = {key: value for key, value in os.environ.items() if key != "TACTILE_ZOO_DEFAULT_MALLOC"}
+    environ.update({"PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", **env})
+    proc = subprocess.run([sys.executable, "-c", _CHILD, mode], env=environ, capture_output=True, text=True,
+                          check=True, cwd=REPO)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+FRESH_FAULTS = (40 << 20) // 4096 // 2  # at least half the buffer's 4 KiB pages faulted in
+
+
+@pytest.mark.skipif(not GLIBC, reason="mallopt exists on glibc Linux only")
+def test_tuned_process_rewrites_a_freed_buffer_without_faults() -> None:
+    tuned = _child("tune")
+    assert tuned["result"] == {name: 1 for name in malloc.SETTINGS}  # glibc accepted every setting
+    assert tuned["faults"] < 500, tuned
+    worker = _child("worker")  # every bench worker (and the serial executor's process) applies it
+    assert worker["faults"] < 500, worker
+    imported = _child("import")  # an import leaves the library user's allocator alone
+    assert imported["faults"] > FRESH_FAULTS, imported
+    assert tuned["byte"] == imported["byte"] == worker["byte"] == 2
+
+
+@pytest.mark.skipif(not GLIBC, reason="mallopt exists on glibc Linux only")
+def test_opt_out_keeps_the_defaults() -> None:
+    out = _child("tune", TACTILE_ZOO_DEFAULT_MALLOC="1")
+    assert out["result"] is None
+    assert out["faults"] > FRESH_FAULTS, out
+
+
+def test_settings_go_to_mallopt_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list[tuple[int, int]] = []
+    monkeypatch.setattr(malloc, "_mallopt", lambda: lambda param, value: calls.append((param, value)) or 1)
+    monkeypatch.setattr(malloc, "_APPLIED", {})
+    monkeypatch.delenv("TACTILE_ZOO_DEFAULT_MALLOC", raising=False)
+    assert malloc.tune_malloc() == {name: 1 for name in malloc.SETTINGS}
+    assert malloc.tune_malloc() == {name: 1 for name in malloc.SETTINGS}  # a second call does nothing
+    assert calls == [(malloc.PARAMETERS[name], value) for name, value in malloc.SETTINGS.items()]
+    # glibc's <malloc.h> numbers: a wrong one would set another parameter
+    assert malloc.PARAMETERS == {"M_TRIM_THRESHOLD": -1, "M_TOP_PAD": -2, "M_MMAP_THRESHOLD": -3, "M_MMAP_MAX": -4,
+                                 "M_ARENA_MAX": -8}
+
+
+@pytest.mark.parametrize(("platform_name", "libc"), [("darwin", ("", "")), ("win32", ("", "")),
+                                                     ("linux", ("", ""))])  # the last: musl, no glibc
+def test_no_op_off_glibc(monkeypatch: pytest.MonkeyPatch, platform_name: str, libc: tuple[str, str]) -> None:
+    monkeypatch.setattr(malloc.sys, "platform", platform_name)
+    monkeypatch.setattr(malloc.platform, "libc_ver", lambda: libc)
+    monkeypatch.setattr(malloc, "_APPLIED", {})
+    monkeypatch.delenv("TACTILE_ZOO_DEFAULT_MALLOC", raising=False)
+    assert malloc.apply_mallopt({"M_MMAP_MAX": 0}) is None
+    assert malloc.tune_malloc() is None
+    assert malloc._APPLIED == {}
+
+
+def test_opt_out_variable_is_parsed(monkeypatch: pytest.MonkeyPatch) -> None:
+    from tactile_zoo.errors import ConfigError
+
+    monkeypatch.setenv("TACTILE_ZOO_DEFAULT_MALLOC", "banana")
+    with pytest.raises(ConfigError, match="TACTILE_ZOO_DEFAULT_MALLOC"):
+        malloc.tune_malloc()
