@@ -48,23 +48,49 @@ def _train_split(root: str | None) -> tuple[Any, str]:
         return TensorSplit(x, g, y, spec, "synthetic"), "synthetic"
 
 
+def _model_and_recipe(name: str, spec: Any, hparams: dict[str, Any]) -> tuple[Any, Any]:
+    """The model and its default recipe (no dataset section), through whichever API the timed version has."""
+    from tactile_zoo import registry
+
+    meta = registry.get_model_entry(name).meta
+    build = getattr(registry, "instantiate_model", None) or registry.create_model  # renamed by issue 39
+    try:  # since issue 39: the one resolution of the configuration room
+        from tactile_zoo.engine.config import resolve_model_recipe
+
+        recipe = resolve_model_recipe(meta).recipe
+    except ImportError:  # the pinned commit
+        from tactile_zoo.engine import resolve_recipe
+        from tactile_zoo.recipe import named_recipe_for
+
+        recipe = resolve_recipe(named_recipe_for(meta.get("recipe"), None)[0])
+    return (lambda: build(name, spec, **hparams)), recipe
+
+
 def measure(job: dict[str, Any]) -> dict[str, Any]:
+    import dataclasses
+
     import torch
 
-    from tactile_zoo.engine import fit, resolve_recipe, seed_everything, take
+    from tactile_zoo.engine import fit, seed_everything, take
     from tactile_zoo.engine.runtime import flush_denormals
-    from tactile_zoo.recipe import named_recipe_for
-    from tactile_zoo.registry import get_model_entry, instantiate_model
 
+    try:  # the current version tunes glibc's malloc where bench and train start (issue 40); the pinned one has none
+        from tactile_zoo.engine.malloc import tune_malloc
+
+        tuned = bool(tune_malloc())
+    except ImportError:
+        tuned = False
     torch.set_num_threads(job["threads"])
     name, device = job["model"], torch.device(job["device"])
     train, data = _train_split(job["root"])
-    recipe = resolve_recipe(named_recipe_for(get_model_entry(name).meta.get("recipe"), None)[0])
+    build, recipe = _model_and_recipe(name, train.spec, job.get("hparams") or {})
+    if job.get("batch_size"):  # both versions time the same batches, whatever their recipes say
+        recipe = dataclasses.replace(recipe, batch_size=job["batch_size"])
     bs = recipe.batch_size
     timed = take(train, bs * job["batches"], seed=0) if job["batches"] else train
     with flush_denormals():  # on before the first fit, as benchmarks.run does for the whole suite
         seed_everything(0)
-        model = instantiate_model(name, train.spec).to(device)
+        model = build().to(device)
         fit(model, take(train, bs, seed=1), recipe=recipe, device=device, epochs=1)  # warm-up: lazy buffers
         loadavg = os.getloadavg()
         before, start = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
@@ -74,7 +100,8 @@ def measure(job: dict[str, Any]) -> dict[str, Any]:
     cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     scale = EV_TRAIN_SAMPLES / len(timed)
     return {"epoch_s": wall * scale, "epoch_cpu_s": cpu * scale, "batch_size": bs, "samples_timed": len(timed),
-            "loadavg": loadavg, "cpu_capability": torch.backends.cpu.get_cpu_capability(), "data": data}
+            "loadavg": loadavg, "cpu_capability": torch.backends.cpu.get_cpu_capability(), "data": data,
+            "peak_rss_mb": after.ru_maxrss / 1024, "malloc_tuned": tuned}
 
 
 if __name__ == "__main__":

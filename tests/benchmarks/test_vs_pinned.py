@@ -6,6 +6,7 @@ The timing children are replaced by a stub here (they train for minutes); what i
 from __future__ import annotations
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -40,6 +41,8 @@ def test_rows_alternate_versions_and_divide_medians(tmp_path: Path, monkeypatch:
     def stub(root: Path, job: dict[str, Any], extra: dict[str, str] | None = None) -> dict[str, Any]:
         version = "current" if root == vs_pinned.REPO else "pinned"
         calls.append((job["model"], version))
+        assert job["batch_size"] == 8  # the current recipe's, given to both versions
+        assert job.get("hparams") == ({"compute": "event"} if version == "current" else None)  # opt-in: current only
         assert extra == ({"X": "1"} if version == "current" else None)  # --env-current reaches one side only
         s = next(seconds[version])
         return {"epoch_s": s, "epoch_cpu_s": 2 * s, "batch_size": 8, "samples_timed": 576, "loadavg": [0.5, 0.5, 0.5],
@@ -47,13 +50,14 @@ def test_rows_alternate_versions_and_divide_medians(tmp_path: Path, monkeypatch:
 
     monkeypatch.setattr(vs_pinned, "_run_child", stub)
     ctx = common.Context(threads=1, out=tmp_path, log=lambda _msg: None)
-    path = vs_pinned.run(ctx, pinned=tmp_path / "pinned", models=("sgnet",), repeats=3,
+    path = vs_pinned.run(ctx, pinned=tmp_path / "pinned", models=("sgnet[compute=event]",), repeats=3,
                          env_current={"X": "1"})
     assert calls == [("sgnet", v) for v in ("current", "pinned", "pinned", "current", "current", "pinned")]
     (row,) = csv.DictReader(path.open())
     assert float(row["current_median_s"]) == 2.0 and float(row["pinned_median_s"]) == 5.0
     assert float(row["ratio"]) == 2.5 and float(row["ratio_cpu"]) == 2.5
-    assert row["target"] == ">= 2.0x" and row["cpu_capability"] == "AVX2" and row["loadavg_before"]
+    assert (row["case"], row["model"], row["hparams"]) == ("sgnet[compute=event]", "sgnet", '{"compute": "event"}')
+    assert row["target"] == ">= 2.5x" and row["cpu_capability"] == "AVX2" and row["loadavg_before"]
 
 
 def test_child_env_gives_extra_settings_to_one_version_only(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -62,3 +66,26 @@ def test_child_env_gives_extra_settings_to_one_version_only(monkeypatch: pytest.
     assert "THP_MEM_ALLOC_ENABLE" not in env
     assert (env["PYTHONPATH"], env["OMP_NUM_THREADS"], env["PYTHONDONTWRITEBYTECODE"]) == ("/pinned", "2", "1")
     assert vs_pinned.child_env(Path("/cur"), 2, {"THP_MEM_ALLOC_ENABLE": "1"})["THP_MEM_ALLOC_ENABLE"] == "1"
+
+
+def test_parse_variant() -> None:
+    assert vs_pinned.parse_variant("dcnn") == ("dcnn", {})
+    assert vs_pinned.parse_variant("convlstm[backend=compiled;fc_units=8]") == (
+        "convlstm", {"backend": "compiled", "fc_units": 8})
+    for bad in ("sgnet[compute=event", "sgnet[compute]", "sgnet[=event]"):
+        with pytest.raises(ValueError, match="--models"):
+            vs_pinned.parse_variant(bad)
+
+
+@pytest.mark.parametrize("version", ["current", "pinned"])
+def test_child_runs_against_both_versions(version: str, tmp_path: Path) -> None:
+    """The child uses only API both versions have (issue 39 renamed the registry's constructor): one real batch."""
+    root = REPO if version == "current" else vs_pinned.pinned_tree(vs_pinned.PINNED_COMMIT, tmp_path / "tree")
+    job = {"model": "cnn_lstm", "threads": 1, "batches": 1, "device": "cpu", "root": None, "batch_size": 4}
+    proc = subprocess.run([sys.executable, "-P", str(vs_pinned.CHILD), json.dumps(job)], cwd=root,
+                          env=vs_pinned.child_env(root, 1), capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert (got["batch_size"], got["samples_timed"], got["data"]) == (4, 4, "synthetic")
+    assert got["epoch_s"] > 0 and got["peak_rss_mb"] > 0
+    assert got["malloc_tuned"] is (version == "current" and sys.platform == "linux")
