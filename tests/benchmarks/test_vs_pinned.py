@@ -82,8 +82,11 @@ def test_child_runs_against_both_versions(version: str, tmp_path: Path) -> None:
     """The child uses only API both versions have (issue 39 renamed the registry's constructor): one real batch."""
     root = REPO if version == "current" else vs_pinned.pinned_tree(vs_pinned.PINNED_COMMIT, tmp_path / "tree")
     job = {"model": "cnn_lstm", "threads": 1, "batches": 1, "device": "cpu", "root": None, "batch_size": 4}
-    proc = subprocess.run([sys.executable, "-P", str(vs_pinned.CHILD), json.dumps(job)], cwd=root,
-                          env=vs_pinned.child_env(root, 1), capture_output=True, text=True, check=False)
+    (tmp_path / "no-data").mkdir()  # an empty data home: the synthetic stand-in, whatever the user's data home holds
+    env = vs_pinned.child_env(root, 1, {"TACTILE_ZOO_DATA": str(tmp_path / "no-data")})
+    env.pop("TACTILE_ZOO_DEFAULT_MALLOC", None)
+    proc = subprocess.run([sys.executable, "-P", str(vs_pinned.CHILD), json.dumps(job)], cwd=root, env=env,
+                          capture_output=True, text=True, check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     got = json.loads(proc.stdout.strip().splitlines()[-1])
     assert (got["batch_size"], got["samples_timed"], got["data"]) == (4, 4, "synthetic")
