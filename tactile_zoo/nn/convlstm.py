@@ -295,7 +295,7 @@ class ConvLSTMCell(nn.Module):
         hidden_channels: channels of the hidden and cell state.
         kernel_size: odd side of the square kernels ("same" padding keeps the grid size, also on a 1x3 grid).
         forget_bias: initial forget-gate bias (``init="keras"`` only).
-        backend: ``"fused"`` or ``"autograd"`` (module docstring).
+        backend: ``"fused"`` (default), ``"autograd"`` or ``"compiled"`` (module docstring).
         init: ``"keras"`` (default) or ``"torch"`` (module docstring).
 
     Shapes:
