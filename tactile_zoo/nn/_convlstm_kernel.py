@@ -10,17 +10,20 @@ row is one contiguous shifted copy, after which the positions outside the grid (
 wrapped into a neighbouring grid row or sample) are zeroed; no index array and no zero column are read.
 
 :func:`forward_step` runs the gate arithmetic of step ``t`` channel by channel and, while that channel's new hidden
-row is still in L1, writes its im2col rows for step ``t+1``. :func:`backward_step` does the reverse: per channel it
-sums ``dL/dh_t`` from the im2col gradient of step ``t+1`` (the transpose of the gather, written as a gather so
-that no two writes collide), the gate derivatives, and the im2col rows of ``h_{t-1}`` for the kernel's gradient.
+row is still in cache, writes its im2col rows for step ``t+1``. :func:`backward_step` does the reverse: per channel
+it sums ``dL/dh_t`` from the im2col gradient of step ``t+1`` (the transpose of the gather: the gradient rows' outside
+positions zeroed, then one shifted add per tap, in the fused backend's tap order), the gate derivatives, and the
+im2col rows of ``h_{t-1}`` for the kernel's gradient. Each channel's work is a few one-loop row helpers rather than
+one loop over all its rows, because LLVM vectorises a loop only while its runtime alias checks stay few.
 
-``exp`` and ``tanh`` in float32 are written out (Cody-Waite range reduction and the Cephes polynomials, within 2 ulp
-of the correctly rounded values; tanh below 0.625 by its own odd polynomial, so small values keep their relative
-accuracy) so that LLVM vectorises the loops: numba's ``math.exp`` is a scalar libm call per element without Intel
-SVML. The results are therefore not bit-identical to ATen's ``sigmoid``/``tanh`` (SLEEF), only equal to float32
-rounding. float64 arrays use ``math.exp``/``math.tanh``. No constant in the kernels is a Python float or int mixed
-into float32 arithmetic (numba would promote it to float64). The kernels are single-threaded and release the GIL;
-they run under the calling thread's floating-point mode (flush-to-zero where the engine sets it).
+``exp`` and ``tanh`` in float32 are written out (Cody-Waite range reduction and the Cephes polynomials with fused
+multiply-adds, within 2 ulp, as tests/nn/test_convlstm_kernel.py checks against float64; tanh below 0.625 by its own
+odd polynomial, so small values keep their relative accuracy) so that LLVM vectorises the loops: numba's
+``math.exp`` is a scalar libm call per element without Intel SVML. The results are therefore not bit-identical to
+ATen's ``sigmoid``/``tanh`` (SLEEF), only equal to float32 rounding. float64 arrays use ``math.exp``/``math.tanh``.
+No constant in the kernels is a Python float or int mixed into float32 arithmetic (numba would promote it to
+float64). The kernels are single-threaded and release the GIL; they run under the calling thread's floating-point
+mode (flush-to-zero where the engine sets it).
 """
 
 from __future__ import annotations
