@@ -65,8 +65,9 @@ class ConvLSTMNet(BinnedStreamer):
         kernel_size: ConvLSTM kernel side (source: 3).
         fc_units: width of the hidden fully connected layer (source: 16).
         fill_passes: empty-cell fill passes of the sensor image; ``None`` takes the sensor's (BioTac SP: 2).
-        backend: the recurrence's implementation, ``"fused"`` (default) or ``"autograd"`` (the reference); same
-            results, see :mod:`tactile_zoo.nn.convlstm`.
+        backend: the recurrence's implementation, ``"fused"`` (default), ``"autograd"`` (the reference) or
+            ``"compiled"`` (opt-in: numba kernels per step on CPU, equal to ``"fused"`` within float32 rounding,
+            not bit for bit); see :mod:`tactile_zoo.nn.convlstm`.
         max_frames: the recurrence reads ``ceil(T / k)`` bins of ``k = ceil(T / max_frames)`` averaged frames, ``T``
             the spec's ``num_steps`` (ours, 50); ``None`` reads every frame, as the source did.
         frame_norm: ``None`` (default) feeds the image as is; ``"minmax"`` rescales every image (each frame, or bin,

@@ -25,7 +25,7 @@ def _count_calls(module: nn.Module) -> list[int]:
     return calls
 
 
-@pytest.mark.parametrize("backend", ["fused", "autograd"])
+@pytest.mark.parametrize("backend", ["fused", "autograd", "compiled"])
 def test_convlstm_input_convolutions_run_once_per_layer(backend: str) -> None:
     net = ConvLSTM(ConvLSTMConfig(in_channels=2, hidden_channels=4, num_layers=2, backend=backend))
     inputs = [_count_calls(layer.input_conv) for layer in net.layers]

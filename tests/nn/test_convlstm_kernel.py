@@ -1,0 +1,122 @@
+"""ConvLSTM backend "compiled" (numba kernels per step): equal to the fused and autograd backends within float32
+rounding, forward and every gradient, on grids down to 1x3 and kernels 1, 3, 5; its gather and scatter kernels
+against the fused backend's index; its float32 sigmoid and tanh against float64."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import tactile_zoo as tz
+from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig, _CompiledRecurrence, _tap_index
+
+pytest.importorskip("numba")
+from tactile_zoo.nn import _convlstm_kernel as kern  # noqa: E402  (after the skip: it imports numba)
+
+# (batch, in channels, hidden, height, width, kernel)
+SHAPES = [(3, 2, 4, 4, 5, 3), (2, 3, 5, 1, 3, 1), (2, 2, 3, 1, 3, 3), (2, 1, 4, 3, 4, 5), (4, 2, 16, 9, 13, 3)]
+
+
+def _run(net: ConvLSTM, x: torch.Tensor) -> list[torch.Tensor]:
+    """Sequence, last states and the gradients of the input and every parameter under a loss that reaches all."""
+    xi = x.clone().requires_grad_()
+    seq, states = net(xi)
+    loss = (seq * torch.linspace(-1, 1, seq.numel(), dtype=x.dtype).view_as(seq)).sum()
+    loss = loss + sum((h ** 2).sum() + c.sin().sum() for h, c in states)
+    loss.backward()
+    return [seq.detach(), *(v.detach() for s in states for v in s), xi.grad, *(p.grad for p in net.parameters())]
+
+
+@pytest.mark.parametrize("shape", SHAPES, ids=lambda s: "B{}_C{}_h{}_{}x{}_k{}".format(*s))
+def test_compiled_equals_fused_and_autograd_forward_and_every_gradient(shape: tuple[int, ...]) -> None:
+    b, c_in, hid, height, width, k = shape
+    torch.manual_seed(sum(shape))
+    nets = {backend: ConvLSTM(ConvLSTMConfig(c_in, hid, num_layers=2, kernel_size=k, backend=backend))
+            for backend in ("compiled", "fused", "autograd")}
+    with torch.no_grad():  # biases across the gates' range and a larger recurrent kernel: saturated gates too
+        for layer in nets["fused"].layers:
+            layer.input_conv.bias.copy_(torch.linspace(-2, 2, 4 * hid))
+            layer.hidden_conv.weight.mul_(2.0)
+    for net in nets.values():
+        net.load_state_dict(nets["fused"].state_dict())
+    x = 2 * torch.randn(b, 7, c_in, height, width)
+    got = _run(nets["compiled"], x)
+    for other in ("fused", "autograd"):
+        for a, want in zip(got, _run(nets[other], x)):
+            torch.testing.assert_close(a, want)
+    with torch.no_grad():  # the inference path (no buffers kept) gives the same sequence
+        torch.testing.assert_close(nets["compiled"](x)[0], got[0])
+
+
+def test_compiled_time_loop_gradcheck_on_every_input() -> None:
+    torch.manual_seed(4)
+    hid, b, height, width = 2, 2, 3, 2
+    cols = b * height * width
+    xz = torch.randn(4, 4 * hid, cols, dtype=torch.float64, requires_grad=True)  # (T, 4h, B*H*W)
+    w = (0.5 * torch.randn(4 * hid, hid, 3, 3, dtype=torch.float64)).requires_grad_()
+    h0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
+    c0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda *a: _CompiledRecurrence.apply(*a, (b, height, width)), (xz, w, h0, c0))
+
+
+@pytest.mark.parametrize("grid", [(2, 4, 5, 3), (3, 1, 3, 3), (2, 1, 3, 1), (2, 3, 4, 5), (1, 2, 2, 5)])
+def test_im2col_and_col2im_are_the_fused_gather_and_its_transpose(grid: tuple[int, int, int, int]) -> None:
+    b, height, width, k = grid
+    hid, n = 3, b * height * width
+    torch.manual_seed(7)
+    h = torch.randn(hid, n)
+    idx = _tap_index(b, height, width, k)
+    want = torch.cat([h, torch.zeros(hid, 1)], 1)[:, idx].reshape(hid * k * k, n)
+    cols = torch.full((hid * k * k, n), float("nan"))  # every position must be written, the padding with 0
+    for j in range(hid):
+        kern.im2col(h[j].numpy(), cols.numpy(), j, b, height, width, k)
+    assert torch.equal(cols, want)
+    d_cols = torch.randn(hid * k * k, n)
+    d_h = torch.zeros(hid, n + 1).index_add_(1, idx, d_cols.view(hid, -1))[:, :n]
+    got = torch.zeros(hid, n)
+    for j in range(hid):
+        kern.col2im(d_cols.clone().numpy(), got[j].numpy(), j, b, height, width, k)
+    torch.testing.assert_close(got, d_h, rtol=0, atol=1e-6)
+
+
+def test_float32_sigmoid_and_tanh_within_two_ulp() -> None:
+    x = torch.cat([torch.linspace(-100, 100, 20001), torch.logspace(-8, 0, 200), -torch.logspace(-8, 0, 200),
+                   torch.tensor([0.0, 0.625, -0.625, 87.0, 88.0, 89.0, float("inf"), -float("inf")])])
+    want_sig, want_tanh = torch.sigmoid(x.double()), torch.tanh(x.double())
+    sig, tanh = x.clone(), x.clone()
+    kern._sigmoid_row(sig.numpy())
+    kern._tanh_row(tanh.numpy())
+    # 2 ulp of the true value, and a floor at the smallest normal float (sigmoid far below 0 flushes towards 0)
+    for got, want in ((sig, want_sig), (tanh, want_tanh)):
+        err = (got.double() - want).abs()
+        bound = 2 * torch.finfo(torch.float32).eps * want.abs() + torch.finfo(torch.float32).tiny
+        assert bool((err <= bound).all()), float((err / bound).max())
+
+
+def test_compiled_backend_through_the_model_and_the_default_stays_fused() -> None:
+    from tactile_zoo.data.sensors import NEUTOUCH
+    from tactile_zoo.data.spec import DatasetSpec
+
+    spec = DatasetSpec("ev_objects", 4, ("a", "b", "c", "d"), 20, NEUTOUCH.num_nodes, 2, 0, NEUTOUCH)
+    torch.manual_seed(3)
+    fused = tz.create_model("convlstm", spec)
+    assert all(layer.backend == "fused" for layer in fused.convlstm.layers)
+    compiled = tz.create_model("convlstm", spec, backend="compiled")
+    assert all(layer.backend == "compiled" for layer in compiled.convlstm.layers)
+    compiled.load_state_dict(fused.state_dict())
+    x, y = (torch.rand(4, 20, 39, 2) < 0.3).float(), torch.tensor([0, 1, 2, 3])
+    outs = []
+    for model in (fused, compiled):
+        logits = model(x)
+        torch.nn.functional.cross_entropy(logits, y).backward()
+        outs.append([logits.detach(), *(p.grad for p in model.parameters())])
+    for a, b in zip(*outs):
+        torch.testing.assert_close(a, b)
+
+
+def test_other_dtypes_fall_back_to_the_fused_loop() -> None:
+    torch.manual_seed(2)
+    cells = [ConvLSTMCell(2, 3, backend=backend).to(torch.bfloat16) for backend in ("compiled", "fused")]
+    cells[0].load_state_dict(cells[1].state_dict())
+    x = torch.randn(2, 4, 2, 3, 3, dtype=torch.bfloat16)
+    assert torch.equal(cells[0](x)[0], cells[1](x)[0])  # bfloat16: no kernel, the same torch loop
