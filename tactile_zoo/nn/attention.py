@@ -18,22 +18,85 @@ batched matmul over the three branches.
 The LIF neurons are the paper's (eqs. 2-4 via :meth:`MultiStepLIF.from_tau`) and run over time, so the input carries
 a leading time axis; attention is within a frame, never across frames, which keeps the block causal in time (the LIF
 membranes are the only state carried between frames; see :meth:`SpikingSelfAttention.run`).
+
+Eq. 8 has two implementations (``attention=``): ``"fused"`` (the default) is ``F.scaled_dot_product_attention``, on
+CPU a flash-attention kernel built for long sequences, which tiles the scores and recomputes them in the backward;
+``"explicit"`` (:func:`explicit_attention`) forms the whole ``(L, L)`` score matrix with batched matmuls and keeps
+the softmax probabilities for the backward. For Tacformer's 39 taxel tokens the explicit one is faster on CPU
+(forward + backward of the attention core 1.2x, measured on one thread); the two agree to float rounding, not bit
+for bit, so the fused one stays the default and the committed results keep their numbers.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+from torch.autograd.function import once_differentiable
 
 from ..errors import ConfigError
 from .lif import LIFConfig
 
-__all__ = ["SpikingSelfAttention"]
+__all__ = ["SpikingSelfAttention", "explicit_attention", "ATTENTION_KINDS"]
 
 MSAState = tuple[Tensor | None, Tensor | None]  # (Q/K/V-chain membrane, output-chain membrane)
+#: the implementations of eq. 8 (see the module docstring): ``"fused"`` (``F.scaled_dot_product_attention``, the
+#: default) and ``"explicit"`` (:func:`explicit_attention`)
+ATTENTION_KINDS = ("fused", "explicit")
+
+
+class _ExplicitAttention(torch.autograd.Function):
+    """``softmax(scale Q K^T) V`` over 3-D batches, one autograd node: the forward keeps the probabilities ``P`` and
+    the backward is four batched matmuls and the softmax gradient, nothing recomputed. The scale rides on the
+    matmuls' ``alpha`` (``baddbmm`` with ``beta = 0``) instead of a pass of its own over the scores."""
+
+    @staticmethod
+    def forward(ctx: Any, q: Tensor, k: Tensor, v: Tensor, scale: float) -> Tensor:  # (B, L, dh) each
+        zero = q.new_zeros(())  # baddbmm's ``input``, ignored at beta = 0
+        p = torch.softmax(torch.baddbmm(zero, q, k.transpose(1, 2), beta=0.0, alpha=scale), dim=-1)  # (B, L, L)
+        ctx.save_for_backward(q, k, v, p)
+        ctx.scale = scale
+        return torch.bmm(p, v)  # (B, L, dh)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, grad_o: Tensor) -> tuple[Tensor, Tensor, Tensor, None]:
+        q, k, v, p = ctx.saved_tensors
+        grad_o = grad_o.contiguous()
+        zero = q.new_zeros(())
+        grad_v = torch.bmm(p.transpose(1, 2), grad_o)  # dV = P^T dO
+        grad_p = torch.bmm(grad_o, v.transpose(1, 2))  # dP = dO V^T
+        grad_s = torch._softmax_backward_data(grad_p, p, -1, p.dtype)  # dS = P * (dP - rowsum(dP * P))
+        grad_q = torch.baddbmm(zero, grad_s, k, beta=0.0, alpha=ctx.scale)  # dQ = scale dS K
+        grad_k = torch.baddbmm(zero, grad_s.transpose(1, 2), q, beta=0.0, alpha=ctx.scale)  # dK = scale dS^T Q
+        return grad_q, grad_k, grad_v, None
+
+
+def explicit_attention(q: Tensor, k: Tensor, v: Tensor, dropout_p: float = 0.0) -> Tensor:
+    """``softmax(Q K^T / sqrt(d_k)) V`` with the whole score matrix in memory: what
+    ``F.scaled_dot_product_attention(q, k, v, dropout_p=dropout_p)`` computes (no mask, not causal), up to float
+    rounding, and faster than it on CPU for short sequences (tens of tokens; see the module docstring).
+
+    Args:
+        q, k, v: queries, keys and values; any layout (copied to contiguous 3-D batches).
+        dropout_p: dropout on the attention probabilities (scaled by ``1 / (1 - p)``, as SDPA does); pass 0 outside
+            training. With dropout the pieces run as separate autograd ops (``F.dropout`` on the probabilities).
+
+    Shapes:
+        ``q (*, L, d_k)``, ``k (*, S, d_k)``, ``v (*, S, d_v)`` -> ``(*, L, d_v)``; ``*`` the same batch dims on all.
+    """
+    *batch, n_q, d_k = q.shape
+    scale = 1.0 / math.sqrt(d_k)
+    q3, k3, v3 = (z.reshape(-1, *z.shape[-2:]) for z in (q, k, v))  # (B, L, d) contiguous
+    if dropout_p > 0.0:
+        p = torch.softmax(torch.baddbmm(q3.new_zeros(()), q3, k3.transpose(1, 2), beta=0.0, alpha=scale), dim=-1)
+        o = torch.bmm(F.dropout(p, dropout_p, training=True), v3)
+    else:
+        o = _ExplicitAttention.apply(q3, k3, v3, scale)
+    return o.view(*batch, n_q, v.shape[-1])
 
 
 class SpikingSelfAttention(nn.Module):
@@ -45,18 +108,24 @@ class SpikingSelfAttention(nn.Module):
         num_heads: attention heads; ``D`` must be divisible by it.
         lif: the LIF neurons' configuration (:class:`LIFConfig`).
         attn_dropout: dropout on the attention weights while training.
+        attention: eq. 8's implementation, one of :data:`ATTENTION_KINDS`: ``"fused"``
+            (``F.scaled_dot_product_attention``) or ``"explicit"`` (:func:`explicit_attention`, faster on CPU for
+            tens of tokens); the same up to float rounding.
 
     Shapes:
         input ``x``: ``(T, *, L, D)`` (time first, any batch dims, tokens, features).
         output: ``(T, *, L, D)``; the attention matrix of each frame is ``(heads, L, L)``.
     """
 
-    def __init__(self, dim: int, num_heads: int = 4, lif: LIFConfig | None = None, attn_dropout: float = 0.0) -> None:
+    def __init__(self, dim: int, num_heads: int = 4, lif: LIFConfig | None = None, attn_dropout: float = 0.0,
+                 attention: str = "fused") -> None:
         super().__init__()
         if dim < 1 or num_heads < 1 or dim % num_heads:
             raise ConfigError(f"SpikingSelfAttention: dim={dim} must be a positive multiple of num_heads={num_heads}")
+        if attention not in ATTENTION_KINDS:
+            raise ConfigError(f"SpikingSelfAttention: attention must be one of {ATTENTION_KINDS}, got {attention!r}")
         lif = lif or LIFConfig()
-        self.dim, self.num_heads, self.attn_dropout = dim, num_heads, attn_dropout
+        self.dim, self.num_heads, self.attn_dropout, self.attention = dim, num_heads, attn_dropout, attention
         # eq. 7, stage 1 for Q, K and V at once: Linear (dim -> 3 dim), a LayerNorm per branch, LIF
         self.qkv_in = nn.Linear(dim, 3 * dim)
         self.qkv_in_norm_w = nn.Parameter(torch.ones(3, dim))
@@ -100,7 +169,10 @@ class SpikingSelfAttention(nn.Module):
         mem_qkv, mem_out = state if state is not None else (None, None)
         q, k, v, mem_qkv = self._qkv(x, mem_qkv)
         drop = self.attn_dropout if self.training else 0.0
-        o = F.scaled_dot_product_attention(q, k, v, dropout_p=drop)  # (T * prod(*), H, L, dh), eq. 8
+        if self.attention == "explicit":
+            o = explicit_attention(q, k, v, dropout_p=drop)  # (T * prod(*), H, L, dh), eq. 8
+        else:
+            o = F.scaled_dot_product_attention(q, k, v, dropout_p=drop)
         o = o.transpose(1, 2).reshape(x.shape)  # heads concatenated: (T, *, L, D)
         s_out, mem_out = self.out_lif(o, mem_out, return_mem=True)  # (T, *, L, D)
         return self.proj_norm(self.proj(s_out)), (mem_qkv, mem_out)  # eq. 9
