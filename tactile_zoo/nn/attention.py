@@ -22,9 +22,10 @@ membranes are the only state carried between frames; see :meth:`SpikingSelfAtten
 Eq. 8 has two implementations (``attention=``): ``"fused"`` (the default) is ``F.scaled_dot_product_attention``, on
 CPU a flash-attention kernel built for long sequences, which tiles the scores and recomputes them in the backward;
 ``"explicit"`` (:func:`explicit_attention`) forms the whole ``(L, L)`` score matrix with batched matmuls and keeps
-the softmax probabilities for the backward. For Tacformer's 39 taxel tokens the explicit one is faster on CPU
-(forward + backward of the attention core 1.2x, measured on one thread); the two agree to float rounding, not bit
-for bit, so the fused one stays the default and the committed results keep their numbers.
+the softmax probabilities for the backward. For Tacformer's 39 taxel tokens (4 heads of 16) the explicit one is
+faster on CPU: forward + backward of the attention 1.26x, a whole Tacformer training step about 1.05x (one thread,
+docs/performance.md). The two agree to float rounding, not bit for bit, so the fused one stays the default and
+the committed results keep their numbers.
 """
 
 from __future__ import annotations
@@ -49,54 +50,69 @@ ATTENTION_KINDS = ("fused", "explicit")
 
 
 class _ExplicitAttention(torch.autograd.Function):
-    """``softmax(scale Q K^T) V`` over 3-D batches, one autograd node: the forward keeps the probabilities ``P`` and
-    the backward is four batched matmuls and the softmax gradient, nothing recomputed. The scale rides on the
-    matmuls' ``alpha`` (``baddbmm`` with ``beta = 0``) instead of a pass of its own over the scores."""
+    """``dropout(softmax(scale Q K^T)) V`` on Q, K and V packed in one head-major tensor, as one autograd node.
+
+    The forward keeps the probabilities ``P`` (and the dropout mask), so the backward is four batched matmuls and the
+    softmax gradient, nothing recomputed; it writes dQ, dK and dV straight into one packed gradient, so no stack
+    copies them together afterwards. The scale rides on the matmuls' ``alpha`` (``baddbmm`` at ``beta = 0``)
+    instead of a pass of its own over the scores.
+    """
 
     @staticmethod
-    def forward(ctx: Any, q: Tensor, k: Tensor, v: Tensor, scale: float) -> Tensor:  # (B, L, dh) each
-        zero = q.new_zeros(())  # baddbmm's ``input``, ignored at beta = 0
+    def forward(ctx: Any, qkv: Tensor, scale: float, mask: Tensor | None) -> Tensor:  # (3, B, L, d), (B, L, L)
+        q, k, v = qkv.unbind(0)
+        zero = qkv.new_zeros(())  # baddbmm's ``input``, ignored at beta = 0
         p = torch.softmax(torch.baddbmm(zero, q, k.transpose(1, 2), beta=0.0, alpha=scale), dim=-1)  # (B, L, L)
-        ctx.save_for_backward(q, k, v, p)
+        ctx.save_for_backward(qkv, p, mask)
         ctx.scale = scale
-        return torch.bmm(p, v)  # (B, L, dh)
+        return torch.bmm(p if mask is None else p * mask, v)  # (B, L, d)
 
     @staticmethod
     @once_differentiable
-    def backward(ctx: Any, grad_o: Tensor) -> tuple[Tensor, Tensor, Tensor, None]:
-        q, k, v, p = ctx.saved_tensors
+    def backward(ctx: Any, grad_o: Tensor) -> tuple[Tensor, None, None]:
+        qkv, p, mask = ctx.saved_tensors
+        q, k, v = qkv.unbind(0)
         grad_o = grad_o.contiguous()
-        zero = q.new_zeros(())
-        grad_v = torch.bmm(p.transpose(1, 2), grad_o)  # dV = P^T dO
-        grad_p = torch.bmm(grad_o, v.transpose(1, 2))  # dP = dO V^T
+        grad = torch.empty_like(qkv)  # (3, B, L, d): dQ, dK, dV written in place by the matmuls' ``out``
+        zero = qkv.new_zeros(())
+        torch.bmm((p if mask is None else p * mask).transpose(1, 2), grad_o, out=grad[2])  # dV = P'^T dO
+        grad_p = torch.bmm(grad_o, v.transpose(1, 2))  # dP' = dO V^T
+        if mask is not None:
+            grad_p.mul_(mask)  # P' = P * mask
         grad_s = torch._softmax_backward_data(grad_p, p, -1, p.dtype)  # dS = P * (dP - rowsum(dP * P))
-        grad_q = torch.baddbmm(zero, grad_s, k, beta=0.0, alpha=ctx.scale)  # dQ = scale dS K
-        grad_k = torch.baddbmm(zero, grad_s.transpose(1, 2), q, beta=0.0, alpha=ctx.scale)  # dK = scale dS^T Q
-        return grad_q, grad_k, grad_v, None
+        torch.baddbmm(zero, grad_s, k, beta=0.0, alpha=ctx.scale, out=grad[0])  # dQ = scale dS K
+        torch.baddbmm(zero, grad_s.transpose(1, 2), q, beta=0.0, alpha=ctx.scale, out=grad[1])  # dK = scale dS^T Q
+        return grad, None, None
+
+
+def _packed_attention(qkv: Tensor, dropout_p: float) -> Tensor:
+    """Eq. 8 on packed, contiguous ``qkv (3, B, L, d)`` -> ``(B, L, d)``; dropout (training only: the caller passes
+    0 otherwise) draws its mask as ``F.dropout`` does, ``bernoulli(1 - p) / (1 - p)`` on the probabilities."""
+    _, b, n, d = qkv.shape
+    mask = None
+    if dropout_p > 0.0:
+        mask = qkv.new_empty(b, n, n).bernoulli_(1.0 - dropout_p).div_(1.0 - dropout_p)
+    return _ExplicitAttention.apply(qkv, 1.0 / math.sqrt(d), mask)
 
 
 def explicit_attention(q: Tensor, k: Tensor, v: Tensor, dropout_p: float = 0.0) -> Tensor:
-    """``softmax(Q K^T / sqrt(d_k)) V`` with the whole score matrix in memory: what
+    """Self-attention ``softmax(Q K^T / sqrt(d_k)) V`` with the whole score matrix in memory: what
     ``F.scaled_dot_product_attention(q, k, v, dropout_p=dropout_p)`` computes (no mask, not causal), up to float
     rounding, and faster than it on CPU for short sequences (tens of tokens; see the module docstring).
 
     Args:
-        q, k, v: queries, keys and values; any layout (copied to contiguous 3-D batches).
-        dropout_p: dropout on the attention probabilities (scaled by ``1 / (1 - p)``, as SDPA does); pass 0 outside
-            training. With dropout the pieces run as separate autograd ops (``F.dropout`` on the probabilities).
+        q, k, v: queries, keys and values, one shape; any layout (copied into one packed tensor).
+        dropout_p: dropout on the attention probabilities (kept ones scaled by ``1 / (1 - p)``, as SDPA does); pass
+            0 outside training.
 
     Shapes:
-        ``q (*, L, d_k)``, ``k (*, S, d_k)``, ``v (*, S, d_v)`` -> ``(*, L, d_v)``; ``*`` the same batch dims on all.
+        ``q, k, v (*, L, d_k)`` -> ``(*, L, d_k)``.
     """
-    *batch, n_q, d_k = q.shape
-    scale = 1.0 / math.sqrt(d_k)
-    q3, k3, v3 = (z.reshape(-1, *z.shape[-2:]) for z in (q, k, v))  # (B, L, d) contiguous
-    if dropout_p > 0.0:
-        p = torch.softmax(torch.baddbmm(q3.new_zeros(()), q3, k3.transpose(1, 2), beta=0.0, alpha=scale), dim=-1)
-        o = torch.bmm(F.dropout(p, dropout_p, training=True), v3)
-    else:
-        o = _ExplicitAttention.apply(q3, k3, v3, scale)
-    return o.view(*batch, n_q, v.shape[-1])
+    if not q.shape == k.shape == v.shape:
+        raise ValueError(f"explicit_attention: q, k and v must have one shape (self-attention), got {tuple(q.shape)}, "
+                         f"{tuple(k.shape)} and {tuple(v.shape)}")
+    qkv = torch.stack([z.reshape(-1, *z.shape[-2:]) for z in (q, k, v)])  # (3, B, L, d)
+    return _packed_attention(qkv, dropout_p).view(q.shape)
 
 
 class SpikingSelfAttention(nn.Module):
@@ -150,16 +166,22 @@ class SpikingSelfAttention(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         return self.run(x)[0]
 
-    def _qkv(self, x: Tensor, mem: Tensor | None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """Eq. 7 for all frames at once: Q, K, V as ``(T * prod(*), heads, L, d_k)`` and the LIF membrane."""
-        *_, n_tok, d = x.shape
-        h, dh = self.num_heads, d // self.num_heads
+    def _packed_qkv(self, x: Tensor, mem: Tensor | None) -> tuple[Tensor, Tensor]:
+        """Eq. 7 for all frames at once: Q, K, V packed as ``(3, M, D)`` (``M = T * prod(*) * L`` tokens) and the
+        LIF membrane."""
+        d = x.shape[-1]
         a = self.qkv_in(x).unflatten(-1, (3, d))  # (T, *, L, 3, D)
         a = torch.addcmul(self.qkv_in_norm_b, F.layer_norm(a, (d,)), self.qkv_in_norm_w)  # per-branch affine
         s, mem = self.qkv_lif(a, mem, return_mem=True)  # spikes (T, *, L, 3, D)
-        s = s.reshape(-1, 3, d).transpose(0, 1)  # (3, M, D) with M = T * prod(*) * L
+        s = s.reshape(-1, 3, d).transpose(0, 1)  # (3, M, D)
         qkv = torch.baddbmm(self.qkv_out_b, s, self.qkv_out_w.transpose(1, 2))  # (3, M, D)
-        qkv = torch.addcmul(self.qkv_out_norm_b, F.layer_norm(qkv, (d,)), self.qkv_out_norm_w)
+        return torch.addcmul(self.qkv_out_norm_b, F.layer_norm(qkv, (d,)), self.qkv_out_norm_w), mem
+
+    def _qkv(self, x: Tensor, mem: Tensor | None) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """Eq. 7 for all frames at once: Q, K, V as ``(T * prod(*), heads, L, d_k)`` and the LIF membrane."""
+        *_, n_tok, d = x.shape
+        qkv, mem = self._packed_qkv(x, mem)
+        h, dh = self.num_heads, d // self.num_heads
         q, k, v = (z.view(-1, n_tok, h, dh).transpose(1, 2) for z in qkv.unbind(0))  # (T * prod(*), H, L, dh)
         return q, k, v, mem
 
@@ -167,12 +189,17 @@ class SpikingSelfAttention(nn.Module):
         """The block over ``x`` starting from LIF membranes ``state`` (``None``: at rest); returns the output and
         the membranes after the last frame, so feeding a sequence in pieces equals feeding it whole."""
         mem_qkv, mem_out = state if state is not None else (None, None)
-        q, k, v, mem_qkv = self._qkv(x, mem_qkv)
         drop = self.attn_dropout if self.training else 0.0
+        h, dh = self.num_heads, self.dim // self.num_heads
         if self.attention == "explicit":
-            o = explicit_attention(q, k, v, dropout_p=drop)  # (T * prod(*), H, L, dh), eq. 8
+            qkv, mem_qkv = self._packed_qkv(x, mem_qkv)
+            # one copy to head-major (3, T * prod(*) * H, L, dh); the kernel's packed gradient comes back through
+            # it as one copy too (separate Q, K, V would each be copied, and stacked again in the backward)
+            qkv = qkv.view(3, -1, x.shape[-2], h, dh).transpose(2, 3).reshape(3, -1, x.shape[-2], dh)
+            o = _packed_attention(qkv, drop).view(-1, h, x.shape[-2], dh)  # (T * prod(*), H, L, dh), eq. 8
         else:
-            o = F.scaled_dot_product_attention(q, k, v, dropout_p=drop)
+            q, k, v, mem_qkv = self._qkv(x, mem_qkv)
+            o = F.scaled_dot_product_attention(q, k, v, dropout_p=drop)  # (T * prod(*), H, L, dh), eq. 8
         o = o.transpose(1, 2).reshape(x.shape)  # heads concatenated: (T, *, L, D)
         s_out, mem_out = self.out_lif(o, mem_out, return_mem=True)  # (T, *, L, D)
         return self.proj_norm(self.proj(s_out)), (mem_qkv, mem_out)  # eq. 9
