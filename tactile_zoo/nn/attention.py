@@ -79,7 +79,8 @@ class _ExplicitAttention(torch.autograd.Function):
         grad_p = torch.bmm(grad_o, v.transpose(1, 2))  # dP' = dO V^T
         if mask is not None:
             grad_p.mul_(mask)  # P' = P * mask
-        grad_s = torch._softmax_backward_data(grad_p, p, -1, p.dtype)  # dS = P * (dP - rowsum(dP * P))
+        # dS = P * (dP - rowsum(dP * P)): softmax's own backward kernel (what autograd runs for torch.softmax), one pass
+        grad_s = torch._softmax_backward_data(grad_p, p, -1, p.dtype)
         torch.baddbmm(zero, grad_s, k, beta=0.0, alpha=ctx.scale, out=grad[0])  # dQ = scale dS K
         torch.baddbmm(zero, grad_s.transpose(1, 2), q, beta=0.0, alpha=ctx.scale, out=grad[1])  # dK = scale dS^T Q
         return grad, None, None
@@ -109,7 +110,7 @@ def explicit_attention(q: Tensor, k: Tensor, v: Tensor, dropout_p: float = 0.0) 
         ``q, k, v (*, L, d_k)`` -> ``(*, L, d_k)``.
     """
     if not q.shape == k.shape == v.shape:
-        raise ValueError(f"explicit_attention: q, k and v must have one shape (self-attention), got {tuple(q.shape)}, "
+        raise ConfigError(f"explicit_attention: q, k and v must have one shape (self-attention), got {tuple(q.shape)}, "
                          f"{tuple(k.shape)} and {tuple(v.shape)}")
     qkv = torch.stack([z.reshape(-1, *z.shape[-2:]) for z in (q, k, v)])  # (3, B, L, d)
     return _packed_attention(qkv, dropout_p).view(q.shape)

@@ -146,7 +146,7 @@ def test_explicit_attention_backward_passes_gradcheck_and_any_batch_dims() -> No
     torch.testing.assert_close(explicit_attention(q, k, v), F.scaled_dot_product_attention(q, k, v))
     torch.testing.assert_close(explicit_attention(q[0, 0], k[0, 0], v[0, 0]),  # no batch dims
                                F.scaled_dot_product_attention(q[0, 0], k[0, 0], v[0, 0]))
-    with pytest.raises(ValueError, match="one shape"):  # self-attention only: Q, K and V packed together
+    with pytest.raises(ConfigError, match="one shape"):  # self-attention only: Q, K and V packed together
         explicit_attention(q, k, v[..., :5])
 
 
