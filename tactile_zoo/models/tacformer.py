@@ -27,7 +27,7 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
-from ..nn.attention import SpikingSelfAttention
+from ..nn.attention import ATTENTION_KINDS, SpikingSelfAttention
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import LIFConfig
 from ..registry import recipe_file, register_model
@@ -58,18 +58,22 @@ class SpatialGraphAttention(nn.Module):
     ``x (T, B, N, C)`` -> TAGConv (K hops) -> ``(T, B, N, D)`` taxel tokens (+ a learned per-taxel embedding) ->
     ``depth`` residual blocks ``z = z + MSA(z)`` [``z = z + MLP(z)``] -> pooled over taxels (``"flatten"``: the
     ``N * D`` tokens projected to ``D``; ``"mean"``) -> LayerNorm -> ``(T, B, D)`` frame features. Attention never
-    crosses frames, so only LIF membranes carry over time (:meth:`run` takes and returns them).
+    crosses frames, so only LIF membranes carry over time (:meth:`run` takes and returns them). ``attention``
+    picks the MSA blocks' implementation of eq. 8 (:data:`~tactile_zoo.nn.attention.ATTENTION_KINDS`).
     """
 
     def __init__(self, in_channels: int, dim: int, edge_index: Tensor, num_nodes: int, *, heads: int, depth: int,
                  mlp_ratio: float, lif: LIFConfig, hops: int, taxel_embedding: bool, attn_dropout: float,
-                 graph_backend: str, pool: str = "flatten") -> None:
+                 graph_backend: str, pool: str = "flatten", attention: str = "fused") -> None:
         super().__init__()
         if pool not in ("mean", "flatten"):
             raise ConfigError(f"pool must be 'mean' or 'flatten', got {pool!r}")
+        if attention not in ATTENTION_KINDS:  # checked here too: depth = 0 builds no attention block to check it
+            raise ConfigError(f"attention must be one of {ATTENTION_KINDS}, got {attention!r}")
         self.gc = FrameGraphConv(in_channels, dim, edge_index, num_nodes, kind="tag", K=hops, backend=graph_backend)
         self.embed = nn.Parameter(torch.randn(num_nodes, dim) * 0.02) if taxel_embedding else None
-        self.attn = nn.ModuleList([SpikingSelfAttention(dim, heads, lif, attn_dropout) for _ in range(depth)])
+        self.attn = nn.ModuleList([SpikingSelfAttention(dim, heads, lif, attn_dropout, attention)
+                                   for _ in range(depth)])
         hidden = round(dim * mlp_ratio)
         self.mlp = nn.ModuleList([SpikingMLP(dim, hidden, lif) for _ in range(depth)]) if hidden > 0 else None
         # flatten keeps which taxel is which: (N * D) -> D, one matmul over all frames
@@ -132,6 +136,9 @@ class Tacformer(BinnedStreamer):
         dropout: dropout on the read-out vector; ``attn_dropout`` on the attention weights.
         graph: the sensor graph kind (``"default"``: the sensor's own).
         graph_backend, lif_backend: implementations of the shared operators (same results).
+        attention: the MSA-SNN's attention product (eq. 8): ``"fused"`` (``scaled_dot_product_attention``, the
+            default) or ``"explicit"`` (batched matmuls with the softmax kept for the backward: on CPU faster for
+            the 39 NeuTouch taxels); the same up to float rounding, so opt-in (the revision does not move).
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming ``x_t (B, N, C)``,
@@ -146,7 +153,7 @@ class Tacformer(BinnedStreamer):
                  hops: int = 3, tau: float = 2.0, v_th: float = 1.0, surrogate: str = "atan",
                  detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, pool: str = "flatten",
                  readout_norm: bool = True, dropout: float = 0.1, attn_dropout: float = 0.0, graph: str = "default",
-                 graph_backend: str = "dense", lif_backend: str = "fused") -> None:
+                 graph_backend: str = "dense", lif_backend: str = "fused", attention: str = "fused") -> None:
         super().__init__()
         if bin_size < 1:
             raise ConfigError(f"{type(self).__name__}: bin_size must be >= 1, got {bin_size}")
@@ -155,7 +162,7 @@ class Tacformer(BinnedStreamer):
         self.spatial = SpatialGraphAttention(
             spec.num_channels, dim, spec.sensor.edge_index(graph), spec.num_nodes, heads=heads, depth=depth,
             mlp_ratio=mlp_ratio, lif=self.lif_config, hops=hops, taxel_embedding=taxel_embedding,
-            attn_dropout=attn_dropout, graph_backend=graph_backend, pool=pool)
+            attn_dropout=attn_dropout, graph_backend=graph_backend, pool=pool, attention=attention)
         self.glob = nn.Linear(spec.num_globals, dim) if spec.num_globals else None
         self.rate_width = dim * (2 if self.glob is not None else 1)
         self.readout_lif = self.lif_config.build()

@@ -78,7 +78,7 @@ class XTacformer(Tacformer):
     It takes every argument of :class:`~tactile_zoo.models.tacformer.Tacformer`, with the same meaning (``spec``,
     ``dim``, ``heads``, ``depth``, ``mlp_ratio``, ``hops``, ``tau``, ``v_th``, ``surrogate``, ``detach_reset``,
     ``bin_size``, ``taxel_embedding``, ``pool``, ``readout_norm``, ``attn_dropout``, ``graph``, ``graph_backend``,
-    ``lif_backend``), and these:
+    ``lif_backend``, ``attention``), and these:
 
     Args:
         hidden: T-GCN state width per taxel ``H``.

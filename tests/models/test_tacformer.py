@@ -1,4 +1,5 @@
-"""Tacformer: shapes, gradients, frame binning, streaming equals the forward on every prefix, registry metadata."""
+"""Tacformer: shapes, gradients, frame binning, streaming equals the forward on every prefix, registry metadata, the
+``attention`` hyper-parameter (fused or explicit eq. 8) reaching every block."""
 
 from __future__ import annotations
 
@@ -80,3 +81,29 @@ def test_registered_with_recipe_and_streaming_meta() -> None:
     assert isinstance(model, Tacformer)
     with pytest.raises(ConfigError, match="bin_size"):
         Tacformer(spec(), bin_size=0)
+
+
+def check_attention_hparam(name: str, spec_: DatasetSpec, x: torch.Tensor, **small: object) -> None:
+    """``attention=`` reaches every MSA block of model ``name`` (the default stays ``"fused"``); with the same weights
+    the explicit model's logits and gradients equal the fused one's (float64); a bad value is a ConfigError naming
+    the argument, also where no attention block is built (``depth=0``)."""
+    assert [blk.attention for blk in instantiate_model(name, spec_, **small).spatial.attn] == ["fused"]
+    results = []
+    for attention in ("fused", "explicit"):
+        torch.manual_seed(5)
+        model = instantiate_model(name, spec_, depth=2, attention=attention, **small).double()
+        assert [blk.attention for blk in model.spatial.attn] == [attention] * 2
+        logits = model(x)
+        torch.nn.functional.cross_entropy(logits, torch.arange(len(x)) % 3).backward()
+        results.append((model, logits))
+    (fused, y_f), (explicit, y_e) = results
+    torch.testing.assert_close(y_e, y_f)
+    for (n, p_f), (_, p_e) in zip(fused.named_parameters(), explicit.named_parameters()):
+        torch.testing.assert_close(p_e.grad, p_f.grad, msg=n)
+    for depth in (1, 0):
+        with pytest.raises(ConfigError, match="attention must be one of"):
+            instantiate_model(name, spec_, depth=depth, attention="flash", **small)
+
+
+def test_attention_hparam_reaches_the_blocks() -> None:
+    check_attention_hparam("tacformer", spec(), events(3, 10, 39, 2, seed=6).double() * 2.0, bin_size=2, **SMALL)

@@ -7,6 +7,7 @@ import inspect
 
 import pytest
 import torch
+from test_tacformer import check_attention_hparam
 
 from tactile_zoo.data.sensors import BIOTAC_SP, NEUTOUCH
 from tactile_zoo.data.spec import DatasetSpec
@@ -89,7 +90,8 @@ SIGNATURE = [
     ("taxel_embedding", True, "bool"), ("pool", "flatten", "str"), ("readout_norm", True, "bool"),
     ("hidden", 16, "int"), ("temporal_pool", "mean", "str"), ("attn_dim", 32, "int"),
     ("temporal_backend", "native", "str"), ("dropout", 0.1, "float"), ("attn_dropout", 0.0, "float"),
-    ("graph", "default", "str"), ("graph_backend", "dense", "str"), ("lif_backend", "fused", "str")]
+    ("graph", "default", "str"), ("graph_backend", "dense", "str"), ("lif_backend", "fused", "str"),
+    ("attention", "fused", "str")]
 
 
 class _WrittenOut(Tacformer):
@@ -100,12 +102,13 @@ class _WrittenOut(Tacformer):
                  detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, pool: str = "flatten",
                  readout_norm: bool = True, hidden: int = 16, temporal_pool: str = "mean", attn_dim: int = 32,
                  temporal_backend: str = "native", dropout: float = 0.1, attn_dropout: float = 0.0,
-                 graph: str = "default", graph_backend: str = "dense", lif_backend: str = "fused") -> None:
+                 graph: str = "default", graph_backend: str = "dense", lif_backend: str = "fused",
+                 attention: str = "fused") -> None:
         super().__init__(spec, dim=dim, heads=heads, depth=depth, mlp_ratio=mlp_ratio, hops=hops, tau=tau, v_th=v_th,
                          surrogate=surrogate, detach_reset=detach_reset, bin_size=bin_size,
                          taxel_embedding=taxel_embedding, pool=pool, readout_norm=readout_norm, dropout=dropout,
                          attn_dropout=attn_dropout, graph=graph, graph_backend=graph_backend,
-                         lif_backend=lif_backend)
+                         lif_backend=lif_backend, attention=attention)
         self.name = "x_tacformer"
         self.temporal = TemporalGraphAttention(spec.num_channels, hidden, spec.sensor.edge_index(graph),
                                                spec.num_nodes, pool=temporal_pool, attn_dim=attn_dim,
@@ -144,3 +147,9 @@ def test_the_same_model_bit_for_bit(args: tuple, kwargs: dict, globals_: int) ->
     g = torch.randn(2, 9, globals_) if globals_ else None
     with torch.no_grad():
         assert torch.equal(new(x, g), old(x, g))
+
+
+def test_attention_hparam_reaches_the_blocks() -> None:
+    """Tacformer's check (tests/models/test_tacformer.py) on X-Tacformer: the keyword passes through the shared
+    signature to the spatial branch."""
+    check_attention_hparam("x_tacformer", spec(), events(3, 9, 39, 2, seed=6).double() * 2.0, bin_size=3, **SMALL)
