@@ -10,6 +10,7 @@ BENCHMARKS = {
     "graph_conv": "graph_conv",
     "sgnet_epoch": "sgnet_epoch",
     "sgnet_event": "sgnet_event",
+    "sgnet_reference": "sgnet_reference",
     "epoch_all_models": "epoch_all_models",
     "inference": "inference",
     "streaming_latency": "streaming_latency",
