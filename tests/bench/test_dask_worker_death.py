@@ -100,10 +100,13 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
                                        "--scheduler-file", str(scheduler_file)], env=env, stdout=log,
                                       stderr=subprocess.STDOUT, cwd=root))
         deadline = time.monotonic() + 60
-        while not scheduler_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert scheduler_file.exists(), (root / "scheduler.log").read_text()
-        address = json.loads(scheduler_file.read_text())["address"]
+        address = None
+        while address is None and time.monotonic() < deadline:  # the file appears before its JSON is written
+            try:
+                address = json.loads(scheduler_file.read_text())["address"]
+            except (FileNotFoundError, json.JSONDecodeError, KeyError):
+                time.sleep(0.2)
+        assert address, (root / "scheduler.log").read_text()
         for i in range(2):
             log = open(root / f"worker{i}.log", "w")  # noqa: SIM115 - closed in finally
             logs.append(log)

@@ -142,7 +142,7 @@ def test_an_interrupted_process_bench_leaves_no_cell_listed_as_running(tmp_path:
 
     out = tmp_path / "run"
     proc = bench_subprocess(["--models", "tiny_slow", "--datasets", "tiny_blobs", "--seeds", "0", "--threads", "1",
-                             "--no-plots", "--executor", "process", "--workers", "1", "--epochs", "1000",
+                             "--no-plots", "--executor", "process", "--workers", "1", "--epochs", "5000",
                              "--set", "patience=null", "--out", str(out)])
     try:
         deadline = time.time() + 240
@@ -153,7 +153,9 @@ def test_an_interrupted_process_bench_leaves_no_cell_listed_as_running(tmp_path:
         worker = states[0]["pid"]
         assert worker != proc.pid and _alive(worker)
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=60)  # before: not before the worker had trained all 1000 epochs
+        # Before the fix: not before the worker had trained all 5000 epochs (about 15 min). 150 s leaves room for
+        # a run whose two cores are shared with other work (60 s once failed so on a loaded CI-sized machine).
+        proc.communicate(timeout=150)
     finally:
         proc.kill()
         proc.wait(timeout=30)

@@ -8,7 +8,8 @@ import pytest
 import torch
 
 import tactile_zoo as tz
-from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig, _CompiledRecurrence, _tap_index
+from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig, _tap_index
+from tactile_zoo.nn.convlstm_compiled import CompiledRecurrence
 
 pytest.importorskip("numba")
 from tactile_zoo.nn import _convlstm_kernel as kern  # noqa: E402  (after the skip: it imports numba)
@@ -56,7 +57,7 @@ def test_compiled_time_loop_gradcheck_on_every_input() -> None:
     w = (0.5 * torch.randn(4 * hid, hid, 3, 3, dtype=torch.float64)).requires_grad_()
     h0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
     c0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
-    assert torch.autograd.gradcheck(lambda *a: _CompiledRecurrence.apply(*a, (b, height, width)), (xz, w, h0, c0))
+    assert torch.autograd.gradcheck(lambda *a: CompiledRecurrence.apply(*a, (b, height, width)), (xz, w, h0, c0))
 
 
 @pytest.mark.parametrize("grid", [(2, 4, 5, 3), (3, 1, 3, 3), (2, 1, 3, 1), (2, 3, 4, 5), (1, 2, 2, 5)])
