@@ -264,10 +264,13 @@ class ConvLSTMCell(nn.Module):
         if self.backend in ("fused", "compiled"):
             height, width = xz.shape[-2:]
             # channel-major for the fused loop: (T, 4h, B*H*W), and the states (h, B*H*W)
-            xz_cm = xz.transpose(1, 2).reshape(steps, xz.shape[2], -1).contiguous()
-            h_cm, c_cm = (v.transpose(0, 1).reshape(self.hidden_channels, -1).contiguous() for v in (h, c))
+            # The fused loop takes these views as they come (a channels-last xz is a strided view here): a copy would
+            # change the layout of xz's gradient, and with it the input convolution's backward in the last bits.
+            xz_cm = xz.transpose(1, 2).reshape(steps, xz.shape[2], -1)
+            h_cm, c_cm = (v.transpose(0, 1).reshape(self.hidden_channels, -1) for v in (h, c))
             train = torch.is_grad_enabled() and any(v.requires_grad for v in (xz, weight, h, c))
             if self.backend == "compiled" and compiled_applies(xz_cm, weight, h_cm, c_cm):
+                xz_cm, h_cm, c_cm = xz_cm.contiguous(), h_cm.contiguous(), c_cm.contiguous()  # numba reads raw rows
                 grid = (b, height, width)
                 if train:
                     hs, c = CompiledRecurrence.apply(xz_cm, weight, h_cm, c_cm, grid)

@@ -121,3 +121,26 @@ def test_other_dtypes_fall_back_to_the_fused_loop() -> None:
     cells[0].load_state_dict(cells[1].state_dict())
     x = torch.randn(2, 4, 2, 3, 3, dtype=torch.bfloat16)
     assert torch.equal(cells[0](x)[0], cells[1](x)[0])  # bfloat16: no kernel, the same torch loop
+
+
+def test_the_default_fused_loop_reads_the_input_convolution_in_place(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Adding the compiled backend once made the default path copy ``xz`` to a contiguous tensor. That changed the
+    layout of the gradient the input convolution's backward receives, and with it every committed ConvLSTM cell in
+    the last bits (found by ``tools.check_cells --compare``). The fused loop must get a view of the convolution's
+    output, not a copy."""
+    import tactile_zoo.nn.convlstm as module
+
+    seen: dict[str, int] = {}
+    apply = module._FusedRecurrence.apply
+
+    def spy(xz_cm: torch.Tensor, *rest: object) -> object:
+        seen["loop"] = xz_cm.untyped_storage().data_ptr()
+        return apply(xz_cm, *rest)
+
+    monkeypatch.setattr(module._FusedRecurrence, "apply", spy)
+    torch.manual_seed(0)
+    cell = ConvLSTMCell(2, 3)
+    cell.input_conv.register_forward_hook(
+        lambda _m, _i, out: seen.__setitem__("conv", out.untyped_storage().data_ptr()))
+    cell(torch.randn(2, 5, 2, 3, 4, requires_grad=True))[0].sum().backward()
+    assert seen["loop"] == seen["conv"]
