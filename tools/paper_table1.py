@@ -236,10 +236,12 @@ def ensemble_table(records: list[dict[str, Any]], dataset: str, recipe: str = "z
     return lines
 
 
-def cost_table(records: list[dict[str, Any]], what: str = "this table", fresh: bool = False) -> list[str]:
+def cost_table(records: list[dict[str, Any]], what: str = "this table", fresh: str | None = None,
+               target: float = 5.0) -> list[str]:
     """What the table cost: per model and dataset the summed wall time of its cells (each ran on one torch thread,
-    two cells at a time on two cores, so a cell's wall time is about its CPU time). ``fresh``: the records are one
-    measured run of the default recipe (``table1-cost/``), whose total is the performance issue's figure."""
+    two cells at a time on two cores, so a cell's wall time is about its CPU time). ``fresh``: the folder name of one
+    measured run of the default recipe (``table1-cost/``, ``table1-cost-r4/``), whose total is a performance issue's
+    figure against ``target`` CPU-hours."""
     datasets = (*EV, "biotac_dos")
     lines = [f"**What {what} cost** (the cells' own recorded times, `seconds` in each cell file: CPU-minutes of one "
              "thread, summed over the runs)", "",
@@ -264,8 +266,8 @@ def cost_table(records: list[dict[str, Any]], what: str = "this table", fresh: b
         cpus = sorted({r.get("cpu", "unknown CPU") for r in records})
         planned = len(MODELS) * len(datasets) * 3  # seeds 0-2
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} of the {planned} runs (the performance issue's "
-                  f"target: 5), one fresh run on {' and '.join(cpus)}, two cells at a time, one torch thread each "
-                  "(how it ran: `benchmarks/results/table1-cost/README.md`)."]
+                  f"target: {target:g}), one fresh run on {' and '.join(cpus)}, two cells at a time, one torch thread "
+                  f"each (how it ran: `benchmarks/results/{fresh}/README.md`)."]
     else:
         lines += ["", f"In all {grand / 60:.1f} CPU-hours for {runs} runs, each run computed from scratch."]
     return lines
@@ -290,9 +292,12 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     lines += augment8000_table() + ["", READING, ""] + cost_table(current)
     if zoo:
         lines += [""] + cost_table(zoo, f"the `zoo` cells in `{zoo_folder.name}/`")
-    cost_folder = folder.parent / "table1-cost"  # the measured fresh run of the default recipe, when there is one
-    if (cost_folder / "cells").is_dir():
-        lines += [""] + cost_table(cells(cost_folder, recipe="zoo"), "the fresh run in `table1-cost/`", fresh=True)
+    # the measured fresh runs of the default recipe, when there are: round 3's (`zoo`, then the default) and round 4's
+    for name, recipe, target in (("table1-cost", "zoo", 5.0), ("table1-cost-r4", "full", 1.5)):
+        cost_folder = folder.parent / name
+        if (cost_folder / "cells").is_dir():
+            lines += [""] + cost_table(cells(cost_folder, recipe=recipe), f"the fresh run in `{name}/`", fresh=name,
+                                       target=target)
     left_out = len(run_records(folder)) - len(current)
     if left_out:
         lines.append(f"\n{left_out} cell file(s) are left out: not ok, another recipe, or computed by an older "
