@@ -293,11 +293,12 @@ def table(folder: Path, zoo_folder: Path | None = None) -> str:
     if zoo:
         lines += [""] + cost_table(zoo, f"the `zoo` cells in `{zoo_folder.name}/`")
     # the measured fresh runs of the default recipe, when there are: round 3's (`zoo`, then the default) and round 4's
-    for name, recipe, target in (("table1-cost", "zoo", 5.0), ("table1-cost-r4", "full", 1.5)):
+    for name, evaluation, recipe, target in (("table1-cost", "validation", "zoo", 5.0),
+                                             ("table1-cost-r4", "final", "full", 1.5)):
         cost_folder = folder.parent / name
         if (cost_folder / "cells").is_dir():
-            lines += [""] + cost_table(cells(cost_folder, recipe=recipe), f"the fresh run in `{name}/`", fresh=name,
-                                       target=target)
+            lines += [""] + cost_table(cells(cost_folder, evaluation, recipe), f"the fresh run in `{name}/`",
+                                       fresh=name, target=target)
     left_out = len(run_records(folder)) - len(current)
     if left_out:
         lines.append(f"\n{left_out} cell file(s) are left out: not ok, another recipe, or computed by an older "
