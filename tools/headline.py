@@ -23,10 +23,12 @@ README = RESULTS.parents[1] / "README.md"
 HEADLINE_BEGIN = "<!-- headline: begin (python -m tools.paper_table1 --readme) -->"
 HEADLINE_END = "<!-- headline: end -->"
 
-#: where each recipe's Table I cells live, as a suffix of the ``paper-table1`` folder's name, and the evaluation they
-#: declare (``full`` trains on every training recording and reads the test split once: ``--evaluation final``)
-RECIPES: dict[str, tuple[str, str]] = {"source": ("", "validation"), "zoo": ("-zoo", "validation"),
-                                       "full": ("-full", "final")}
+#: where each recipe's Table I cells live, as suffixes of the ``paper-table1`` folder's name, and the evaluation they
+#: declare (``full`` trains on every training recording and reads the test split once: ``--evaluation final``).
+#: ``full``'s seeds 0-4 (round 3) and 5-9 (round 4, the same configurations on the same CPU type) pool, as
+#: ``paper-table1-full-r4/PLAN.md`` declared before its cells.
+RECIPES: dict[str, tuple[tuple[str, ...], str]] = {"source": (("",), "validation"), "zoo": (("-zoo",), "validation"),
+                                                   "full": (("-full", "-full-r4"), "final")}
 #: how each recipe trains and reads its test split, for the sentence above the table
 WHAT = {"source": "the source's settings, the epoch selected on validation",
         "zoo": "`source` tuned on validation, the epoch selected on validation",
@@ -51,15 +53,22 @@ def default_declared_in(model: str) -> str:
 
 
 def recipe_cells(folder: Path, recipe: str) -> list[dict[str, Any]]:
-    """The ok, current cells of ``recipe`` in its own folder beside ``folder`` (``paper-table1`` for ``source``,
-    ``paper-table1-zoo``, ``paper-table1-full``) under the evaluation it declares; none when that folder has no
-    cells. A recipe without a Table I folder is an error, not an empty row."""
+    """The ok, current cells of ``recipe`` in its own folders beside ``folder`` (``paper-table1`` for ``source``,
+    ``paper-table1-zoo``, ``paper-table1-full`` and ``-full-r4``) under the evaluation it declares; none from a folder
+    without cells. A recipe without a Table I folder is an error, not an empty row."""
     if recipe not in RECIPES:
         raise SystemExit(f"recipe {recipe!r}: no Table I folder holds its cells (known: {', '.join(RECIPES)}); add "
                          f"it to RECIPES in tools/headline.py")
-    suffix, evaluation = RECIPES[recipe]
-    where = folder.parent / f"{folder.name}{suffix}"
-    return cells(where, evaluation=evaluation, recipe=recipe) if (where / "cells").is_dir() else []
+    suffixes, evaluation = RECIPES[recipe]
+    wheres = [folder.parent / f"{folder.name}{suffix}" for suffix in suffixes]
+    found = [r for where in wheres if (where / "cells").is_dir()
+             for r in cells(where, evaluation=evaluation, recipe=recipe)]
+    # pooling rounds needs one CPU type (the same seed can train differently on another); one folder is one round
+    cpus = sorted({f"{r.get('cpu', '?')} ({(r.get('cpu_isa') or {}).get('capability', '?')})" for r in found})
+    if len(wheres) > 1 and len(cpus) > 1:
+        raise SystemExit(f"`{recipe}` cells of {len(cpus)} CPU types ({'; '.join(cpus)}) in "
+                         f"{', '.join(w.name for w in wheres)}: one row pools one CPU type only")
+    return found
 
 
 def _rows() -> list[tuple[str, str, str, float]]:
