@@ -17,7 +17,7 @@ from typing import Any
 from tactile_zoo import registry
 from tactile_zoo.bench.intervals import records_interval
 from tools.fidelity import REPO, cells, replace_block
-from tools.table1_common import EV, MODELS, NAMES, PAPER, RESULTS, _figure, _group, _where
+from tools.table1_common import EV, MODELS, NAMES, PAPER, RESULTS, _figure, _group, _where, cpu_types
 
 README = RESULTS.parents[1] / "README.md"
 HEADLINE_BEGIN = "<!-- headline: begin (python -m tools.paper_table1 --readme) -->"
@@ -64,7 +64,7 @@ def recipe_cells(folder: Path, recipe: str) -> list[dict[str, Any]]:
     found = [r for where in wheres if (where / "cells").is_dir()
              for r in cells(where, evaluation=evaluation, recipe=recipe)]
     # pooling rounds needs one CPU type (the same seed can train differently on another); one folder is one round
-    cpus = sorted({f"{r.get('cpu', '?')} ({(r.get('cpu_isa') or {}).get('capability', '?')})" for r in found})
+    cpus = cpu_types(found)
     if len(wheres) > 1 and len(cpus) > 1:
         raise SystemExit(f"`{recipe}` cells of {len(cpus)} CPU types ({'; '.join(cpus)}) in "
                          f"{', '.join(w.name for w in wheres)}: one row pools one CPU type only")

@@ -41,14 +41,23 @@ def _group(records: list[dict[str, Any]], model: str, dataset: str) -> list[dict
     return recs
 
 
-def _figure(recs: list[dict[str, Any]], split: str, low_high: tuple[float, float] | None = None) -> str:
-    """``mean [95 % interval] (runs)``; pass ``low_high`` when the caller has already bootstrapped the interval."""
+def _figure(recs: list[dict[str, Any]], split: str, low_high: tuple[float, float] | None = None,
+            std: bool = False) -> str:
+    """``mean [95 % interval] (runs)``, with ``std``: ``mean ± std [95 % interval] (runs)``; pass ``low_high`` when the
+    caller has already bootstrapped the interval."""
     if not recs:
         return "not run yet"
     values = [r["metrics"][split]["accuracy"] for r in recs]
     low_high = low_high or records_interval(recs, split)
     interval = "-" if low_high is None else f"[{low_high[0]:.3f}, {low_high[1]:.3f}]"
-    return f"{statistics.fmean(values):.4f} {interval} ({len(recs)})"
+    spread = f" ± {statistics.stdev(values):.3f}" if std and len(values) > 1 else ""
+    return f"{statistics.fmean(values):.4f}{spread} {interval} ({len(recs)})"
+
+
+def cpu_types(records: list[dict[str, Any]]) -> list[str]:
+    """The CPU types (name and torch's instruction-set capability) that ``records`` ran on, sorted: seeds pool only
+    within one type, since the same seed can train differently on another."""
+    return sorted({f"{r.get('cpu', '?')} ({(r.get('cpu_isa') or {}).get('capability', '?')})" for r in records})
 
 
 def _where(paper: float, low_high: tuple[float, float]) -> str:

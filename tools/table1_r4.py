@@ -21,7 +21,8 @@ from typing import Any
 
 from tools.fidelity import cells, replace_block, update_page
 from tools.paper_table1 import ZOO_SPLITS, seed_ensemble
-from tools.table1_common import EV, MODELS, NAMES, PAPER, RESULTS, _group, paper_column
+from tools.table1_common import MODELS, NAMES, PAPER, RESULTS, _figure, _group, cpu_types, paper_column
+from tools.table1_full import DATASETS, TITLES
 
 R3, R4 = RESULTS / "paper-table1-full", RESULTS / "paper-table1-full-r4"
 R3_SEEDS, R4_SEEDS = (0, 1, 2, 3, 4), (5, 6, 7, 8, 9)
@@ -29,8 +30,6 @@ CROSS_SEED = 5  #: the seed of every member of the declared cross-model ensemble
 BUDGET = 16.0  #: CPU-hours, declared in the plan
 #: the plan's ambitions: a declared ensemble at or above these (Ev-Objects, Ev-Containers), X-Tacformer's honest mean
 TARGETS = {"ev_objects": 0.93, "ev_containers": 0.80}
-DATASETS = (*EV, "biotac_dos")
-TITLES = {"ev_objects": "Ev-Objects", "ev_containers": "Ev-Containers", "biotac_dos": "BioTac-DoS (textures)"}
 PAGE = RESULTS.parents[1] / "docs" / "table1.md"
 BEGIN, END = "<!-- table1 round 4: begin (python -m tools.table1_r4 --readme) -->", "<!-- table1 round 4: end -->"
 
@@ -46,7 +45,7 @@ def load(r3: Path = R3, r4: Path = R4) -> tuple[list[dict[str, Any]], list[dict[
 def one_cpu(records: list[dict[str, Any]]) -> str:
     """The one CPU type (name and instruction-set capability) of ``records``; two types are an error, since the plan
     pools seeds only within one type."""
-    types = sorted({f"{r.get('cpu', '?')} ({(r.get('cpu_isa') or {}).get('capability', '?')})" for r in records})
+    types = cpu_types(records)
     if len(types) > 1:
         raise SystemExit(f"cells of {len(types)} CPU types ({'; '.join(types)}): the plan pools one type only; move "
                          f"the other type's cells to a sibling folder")
@@ -55,19 +54,6 @@ def one_cpu(records: list[dict[str, Any]]) -> str:
 
 def _seeds(recs: list[dict[str, Any]], seeds: tuple[int, ...]) -> list[dict[str, Any]]:
     return [r for r in recs if r["seed"] in seeds and r["fold"] == 0]
-
-
-def _figure(recs: list[dict[str, Any]], split: str) -> str:
-    """``mean ± std [95 % interval] (runs)``; the interval is the two-level bootstrap (seeds, one shared test draw)."""
-    from tactile_zoo.bench.intervals import records_interval
-
-    if not recs:
-        return "not run yet"
-    values = [r["metrics"][split]["accuracy"] for r in recs]
-    low_high = records_interval(recs, split)
-    std = f" ± {statistics.stdev(values):.3f}" if len(values) > 1 else ""
-    interval = "" if low_high is None else f" [{low_high[0]:.3f}, {low_high[1]:.3f}]"
-    return f"{statistics.fmean(values):.4f}{std}{interval} ({len(values)})"
 
 
 def _ensemble(recs: list[dict[str, Any]], split: str, members: int) -> tuple[str, float | None]:
@@ -99,9 +85,9 @@ def seeds_table(r3: list[dict[str, Any]], r4: list[dict[str, Any]], dataset: str
             raise SystemExit(f"{model} on {dataset}: round 4's configuration {new[0]['config_hash']} is not round 3's "
                              f"{old[0]['config_hash']}; the plan pools one configuration only")
         text, ensembles[model] = _ensemble(new, split, len(R4_SEEDS))
-        pooled = _figure(old + new, split) if len(new) == len(R4_SEEDS) else "when seeds 5-9 are in"
-        lines.append(f"| {NAMES[model]} | {'-' if paper is None else f'{paper:.4f}'} | {_figure(old, split)} | "
-                     f"{_figure(new, split)} | {pooled} | {text} |")
+        pooled = _figure(old + new, split, std=True) if len(new) == len(R4_SEEDS) else "when seeds 5-9 are in"
+        figures = [_figure(old, split, std=True), _figure(new, split, std=True), pooled, text]
+        lines.append(f"| {NAMES[model]} | {'-' if paper is None else f'{paper:.4f}'} | " + " | ".join(figures) + " |")
     return lines, ensembles
 
 
@@ -150,9 +136,9 @@ def targets(ensembles: dict[str, dict], cross: dict, r3: list[dict[str, Any]], r
 
 def cost(r4: list[dict[str, Any]]) -> str:
     """The round's seeds 5-9 in CPU-hours: the cells' own ``seconds`` (one torch thread each), against the budget."""
-    hours = sum(r.get("seconds", r["train_seconds"]) for r in r4) / 3600
     per = {TITLES[d]: sum(r.get("seconds", r["train_seconds"]) for r in r4 if r["dataset"] == d) / 3600
            for d in DATASETS}
+    hours = sum(per.values())
     return (f"Seeds 5-9 cost {hours:.2f} CPU-hours for {len(r4)} of the {len(MODELS) * len(DATASETS) * 5} planned runs "
             f"({', '.join(f'{t} {h:.2f}' for t, h in per.items())}; the cells' own times, one torch thread each, two "
             f"at a time), of the round's budget of {BUDGET:g}. CPU: {one_cpu(r4)}.")
