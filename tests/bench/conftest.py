@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -36,6 +37,7 @@ def subprocess_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(TESTS), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     env["OMP_NUM_THREADS"] = "1"
+    env["PYTHONFAULTHANDLER"] = "1"  # SIGABRT then prints every thread's stack: see hung_stacks()
     return env
 
 
@@ -44,6 +46,18 @@ def bench_subprocess(args: list[str], **kw: object) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "tactile_zoo.cli", "bench", "--plugin-module", "tiny_zoo", *args]
     return subprocess.Popen(cmd, env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             **kw)
+
+
+def hung_stacks(proc: subprocess.Popen) -> str:
+    """The stacks of every thread of a child that stopped answering (it runs with ``PYTHONFAULTHANDLER``, so SIGABRT
+    makes it print them), for the failure message: an intermittent hang is then diagnosable from one CI log."""
+    proc.send_signal(signal.SIGABRT)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+    return (err or "")[-8000:]
 
 
 def read_board(path: Path, drop_timing: bool = True) -> list[dict[str, str]]:

@@ -5,11 +5,12 @@ from __future__ import annotations
 import os
 import re
 import signal
+import subprocess
 import time
 from pathlib import Path
 
 import pytest
-from conftest import bench_subprocess, read_board, run_cli
+from conftest import bench_subprocess, hung_stacks, read_board, run_cli
 
 from tactile_zoo.bench.config import BenchConfig
 from tactile_zoo.bench.runner import run_bench
@@ -155,7 +156,10 @@ def test_an_interrupted_process_bench_leaves_no_cell_listed_as_running(tmp_path:
         proc.send_signal(signal.SIGINT)
         # Before the fix: not before the worker had trained all 5000 epochs (about 15 min). 150 s leaves room for
         # a run whose two cores are shared with other work (60 s once failed so on a loaded CI-sized machine).
-        proc.communicate(timeout=150)
+        try:
+            proc.communicate(timeout=150)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the run did not exit within 150 s of SIGINT; its threads then:\n{hung_stacks(proc)}")
     finally:
         proc.kill()
         proc.wait(timeout=30)
