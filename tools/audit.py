@@ -5,6 +5,7 @@ final cell's test split read exactly once? A script checks it from committed fil
     python -m tools.audit --final DIR --recipe zoo --tuning DIR
     python -m tools.audit --freeze zoo-biotac zoo-ev   # write tuning/freeze.json from the registered recipes
     python -m tools.audit --plan DIR --plan-recipe full  # only the planned round in DIR (PLAN.md)
+    python -m tools.audit --plan DIR --plan-recipe zoo --plan-file OTHER/PLAN.md  # a plan kept beside its cells
 
 What it reads:
 
@@ -200,10 +201,11 @@ def plan_commit(plan: Path, repo: Path = REPO) -> str | None:
     return out[-1] if out else None
 
 
-def audit_plan(folder: Path, recipe: str, repo: Path = REPO) -> tuple[list[str], list[str]]:
-    """``(report lines, failures)`` of a planned round: ``folder/PLAN.md`` committed before every cell of ``recipe``
-    in ``folder``, each cell trained as planned, its test split read once, all on one CPU type."""
-    plan = folder / "PLAN.md"
+def audit_plan(folder: Path, recipe: str, repo: Path = REPO, plan: Path | None = None) -> tuple[list[str], list[str]]:
+    """``(report lines, failures)`` of a planned round: ``folder/PLAN.md`` (or ``plan``, a round's cells kept apart
+    from its plan, as DeepTactile's of round 4) committed before every cell of ``recipe`` in ``folder``, each cell
+    trained as planned, its test split read once, all on one CPU type."""
+    plan = plan or folder / "PLAN.md"
     lines, failures = [f"## Planned `{recipe}` cells ({folder.name})", ""], []
     commit = plan_commit(plan, repo) if plan.is_file() else None
     if commit is None:
@@ -260,6 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--plan", type=Path, default=RESULTS / "paper-table1-full",
                    help="a planned round's folder (its PLAN.md declares the recipe before any cell)")
     p.add_argument("--plan-recipe", default="full")
+    p.add_argument("--plan-file", type=Path, default=None,
+                   help="the plan when it lives outside --plan's folder (default: --plan/PLAN.md)")
     p.add_argument("--freeze", nargs="+", metavar="FOLDER", default=None,
                    help="write --tuning/freeze.json from the registered --recipe recipes, naming the zoo's trial "
                         "folders (relative to --tuning), and stop; commit the file to freeze")
@@ -268,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {write_freeze(args.tuning, args.recipe, args.freeze)}; commit it to freeze the recipes")
         return 0
     lines, failures = audit(args.tuning, args.final, args.recipe, args.max_trials)
-    plan_lines, plan_failures = audit_plan(args.plan, args.plan_recipe)
+    plan_lines, plan_failures = audit_plan(args.plan, args.plan_recipe, plan=args.plan_file)
     lines, failures = [*lines, "", *plan_lines], [*failures, *plan_failures]
     print("\n".join(lines))
     print("\n## Verdict\n")

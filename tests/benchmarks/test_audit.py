@@ -167,3 +167,20 @@ def test_a_planned_round_needs_its_plan_first_the_planned_recipe_and_one_cpu(tmp
     assert sorted(f.split(":")[0] for f in failures) == ["early", "longer", "selected"]
     _full_cell(round_, "elsewhere", plan, cpu="Xeon")
     assert any("cells on 2 CPU types" in f for f in audit_plan(round_, "full", repo=tmp_path)[1])
+
+
+def test_a_plan_kept_in_another_folder_is_read_with_plan(tmp_path: Path) -> None:
+    """DeepTactile's round-4 cells live in their own folder, under a section of the round's PLAN.md elsewhere."""
+    _git(tmp_path, "init", "-q")
+    cells, other = tmp_path / "cells_here", tmp_path / "round"
+    cells.mkdir()
+    other.mkdir()
+    (other / "PLAN.md").write_text("the plan")
+    plan = _commit(tmp_path, "the plan")
+    _full_cell(cells, "ok", plan)
+    assert audit_plan(cells, "full", repo=tmp_path)[1] == [f"{cells / 'PLAN.md'}: missing; a plan is declared by a "
+                                                           "commit"]
+    lines, failures = audit_plan(cells, "full", repo=tmp_path, plan=other / "PLAN.md")
+    assert failures == [] and f"Plan committed in {plan[:12]}; 1 cell(s) so far." in lines
+    _full_cell(cells, "dirty", plan + "+dirty")
+    assert [f.split(":")[0] for f in audit_plan(cells, "full", repo=tmp_path, plan=other / "PLAN.md")[1]] == ["dirty"]
