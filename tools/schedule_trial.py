@@ -15,12 +15,13 @@ the comparison::
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from tactile_zoo.bench.records import InvalidCell, cell_files, read_record
 
 from .table1_common import cpu_types
 
@@ -98,8 +99,10 @@ def read_arms(folder: Path = FOLDER) -> list[Arm]:
     """Every arm of the trial, each checked complete (seeds 0-2) and on one CPU type."""
     found: dict[tuple[str, str, str], dict[int, dict[str, Any]]] = {}
     records = []
-    for path in sorted((folder / "cells").glob("*.json")):
-        record = json.loads(path.read_text())
+    for path in cell_files(folder):
+        record = read_record(path)
+        if isinstance(record, InvalidCell):
+            raise TrialError(str(record))
         records.append(record)
         key = (record["model"], record["dataset"], _arm_of(record, path.name))
         if record["seed"] in found.setdefault(key, {}):

@@ -20,11 +20,14 @@ def _cell(folder: Path, model: str, dataset: str, seed: int, arm: str, final: fl
     recipe = {"schedule": schedule, "max_epochs": epochs, "patience": None, **recipe_changes}
     curve = [{"epoch": e, "val_accuracy": best if e == 1 else 0.5} for e in range(1, epochs)]
     curve.append({"epoch": epochs, "val_accuracy": final})
-    record = {"model": model, "dataset": dataset, "seed": seed, "status": "ok", "test_reads": 0,
+    config_hash = f"{arm}{len(recipe_changes)}"
+    record = {"cell_id": f"{model}__{dataset}__f0__s{seed}__{config_hash}", "model": model, "dataset": dataset,
+              "fold": 0, "seed": seed, "config_hash": config_hash, "status": "ok", "test_reads": 0,
+              "epochs_run": epochs, "best_epoch": 1, "metrics": {"val": {"accuracy": best}},
               "train_seconds": 360.0, "cpu": cpu, "cpu_isa": {"capability": "AVX512"}, "curve": curve,
               "config": {"recipe": recipe, "evaluation": "tuning", "recipe_name": "zoo"}}
     (folder / "cells").mkdir(parents=True, exist_ok=True)
-    (folder / "cells" / f"{model}__{dataset}__s{seed}__{arm}.json").write_text(json.dumps(record))
+    (folder / "cells" / f"{record['cell_id']}.json").write_text(json.dumps(record))
 
 
 def _trial(folder: Path, gains: dict[tuple[str, str], float]) -> None:
@@ -67,14 +70,14 @@ def test_a_cell_that_trained_something_else_stops_the_tool(tmp_path: Path, chang
 
 def test_missing_seeds_tuning_reads_and_two_cpu_types_are_errors(tmp_path: Path) -> None:
     _trial(tmp_path, {})
-    (tmp_path / "cells" / "sgnet__ev_containers__s2__scaled.json").unlink()
+    (tmp_path / "cells" / "sgnet__ev_containers__f0__s2__scaled0.json").unlink()
     with pytest.raises(st.TrialError, match=r"sgnet x ev_containers, scaled: seeds \[2\] missing"):
         st.read_arms(tmp_path)
     _cell(tmp_path, "sgnet", "ev_containers", 2, "scaled", 0.8, cpu="Intel Xeon")
     with pytest.raises(st.TrialError, match="2 CPU types"):
         st.read_arms(tmp_path)
     _cell(tmp_path, "sgnet", "ev_containers", 2, "scaled", 0.8)
-    path = tmp_path / "cells" / "sgnet__ev_containers__s2__scaled.json"
+    path = tmp_path / "cells" / "sgnet__ev_containers__f0__s2__scaled0.json"
     record = json.loads(path.read_text())
     record["test_reads"] = 1
     path.write_text(json.dumps(record))
