@@ -83,3 +83,12 @@ def test_missing_seeds_tuning_reads_and_two_cpu_types_are_errors(tmp_path: Path)
     path.write_text(json.dumps(record))
     with pytest.raises(st.TrialError, match="not a tuning cell"):
         st.read_arms(tmp_path)
+
+
+def test_a_damaged_cell_file_stops_the_tool_naming_it(tmp_path: Path) -> None:
+    """A truncated cell file is not skipped: an arm would silently lose a seed's number."""
+    _trial(tmp_path, {})
+    path = tmp_path / "cells" / "tacformer__ev_objects__f0__s1__scaled0.json"
+    path.write_text(path.read_text()[:200])
+    with pytest.raises(st.TrialError, match=r"tacformer__ev_objects__f0__s1__scaled0\.json: not valid JSON"):
+        st.read_arms(tmp_path)
