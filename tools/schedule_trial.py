@@ -21,7 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tactile_zoo.bench.records import InvalidCell, cell_files, read_record
+from tactile_zoo.bench.records import run_records
+from tactile_zoo.errors import ResultsError
 
 from .table1_common import cpu_types
 
@@ -98,15 +99,12 @@ def _arm_of(record: Mapping[str, Any], where: str) -> str:
 def read_arms(folder: Path = FOLDER) -> list[Arm]:
     """Every arm of the trial, each checked complete (seeds 0-2) and on one CPU type."""
     found: dict[tuple[str, str, str], dict[int, dict[str, Any]]] = {}
-    records = []
-    for path in cell_files(folder):
-        record = read_record(path)
-        if isinstance(record, InvalidCell):
-            raise TrialError(str(record))
-        records.append(record)
-        key = (record["model"], record["dataset"], _arm_of(record, path.name))
+    records = run_records(folder)  # a damaged cell file raises, naming it, before any arm loses a seed
+    for record in records:
+        name = f"{record['cell_id']}.json"
+        key = (record["model"], record["dataset"], _arm_of(record, name))
         if record["seed"] in found.setdefault(key, {}):
-            raise TrialError(f"{path.name}: a second cell for {key} seed {record['seed']}")
+            raise TrialError(f"{name}: a second cell for {key} seed {record['seed']}")
         found[key][record["seed"]] = record
     types = cpu_types(records)
     if len(types) > 1:
@@ -158,7 +156,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         print(render(read_arms(args.folder)))
-    except TrialError as exc:
+    except (TrialError, ResultsError) as exc:
         parser.exit(2, f"tools.schedule_trial: error: {exc}\n")
     return 0
 

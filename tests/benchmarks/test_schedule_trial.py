@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from tactile_zoo.bench.records import InvalidCellsError
 from tools import schedule_trial as st
 
 
@@ -85,10 +86,13 @@ def test_missing_seeds_tuning_reads_and_two_cpu_types_are_errors(tmp_path: Path)
         st.read_arms(tmp_path)
 
 
-def test_a_damaged_cell_file_stops_the_tool_naming_it(tmp_path: Path) -> None:
+def test_a_damaged_cell_file_stops_the_tool_naming_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A truncated cell file is not skipped: an arm would silently lose a seed's number."""
     _trial(tmp_path, {})
     path = tmp_path / "cells" / "tacformer__ev_objects__f0__s1__scaled0.json"
     path.write_text(path.read_text()[:200])
-    with pytest.raises(st.TrialError, match=r"tacformer__ev_objects__f0__s1__scaled0\.json: not valid JSON"):
+    with pytest.raises(InvalidCellsError, match=r"tacformer__ev_objects__f0__s1__scaled0\.json: not valid JSON"):
         st.read_arms(tmp_path)
+    with pytest.raises(SystemExit) as exited:
+        st.main(["--folder", str(tmp_path)])
+    assert exited.value.code == 2 and "s1__scaled0.json: not valid JSON" in capsys.readouterr().err
