@@ -7,18 +7,24 @@ here), as ``VAR= command`` reads in a shell. Anything else (``TACTILE_ZOO_TUNING
 wrong answer without an error (a "tuning" run that read the test split). Every read goes through :func:`env_flag`;
 the command line calls :func:`check_environment` before any command runs, so a bad value stops it with one line.
 
+One variable here is not the package's own: matplotlib's ``MPLBACKEND``. matplotlib reads it on import and raises on
+a name it does not know, which would end a bench at its plots with a traceback, after every cell had run; the check
+asks matplotlib itself whether it takes the value (no list of backends is kept here) and refuses the value before any
+work. The bench draws its plots with the Agg backend whatever the variable names.
+
 This module sits at the bottom of the package (beside :mod:`.errors`): every layer may read its variables here.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Sequence
 
 from .errors import ConfigError
 
-__all__ = ["env_flag", "env_choice", "check_environment", "BOOLEAN_VARIABLES", "CHOICE_VARIABLES", "TRUE_WORDS",
-           "FALSE_WORDS"]
+__all__ = ["env_flag", "env_choice", "check_environment", "check_matplotlib_backend", "BOOLEAN_VARIABLES",
+           "CHOICE_VARIABLES", "TRUE_WORDS", "FALSE_WORDS", "MATPLOTLIB_BACKEND_VARIABLE"]
 
 TRUE_WORDS = ("1", "true", "yes", "on")
 FALSE_WORDS = ("0", "false", "no", "off")
@@ -36,6 +42,8 @@ BOOLEAN_VARIABLES = {
 CHOICE_VARIABLES = {
     "TACTILE_ZOO_LIF_BACKEND": ("auto", "numba", "torch"),  # the CPU path of the fused LIF (tactile_zoo.nn.lif)
 }
+#: matplotlib's own variable: the plotting backend it starts with (checked by :func:`check_matplotlib_backend`).
+MATPLOTLIB_BACKEND_VARIABLE = "MPLBACKEND"
 
 
 def env_flag(name: str, default: bool = False) -> bool:
@@ -73,9 +81,36 @@ def env_choice(name: str, choices: Sequence[str]) -> str:
     return text
 
 
+def check_matplotlib_backend() -> None:
+    """Refuse an ``MPLBACKEND`` that matplotlib does not take (unset or empty: matplotlib's default, nothing to check).
+
+    matplotlib validates the variable when it is first imported; when it already was (before the variable was set),
+    its own validator is asked. A refused import leaves no half-imported matplotlib behind.
+
+    Raises:
+        ConfigError: naming the variable and its value.
+    """
+    raw = os.environ.get(MATPLOTLIB_BACKEND_VARIABLE)
+    if not raw:  # matplotlib ignores an empty value too
+        return
+    try:
+        from matplotlib import rcsetup  # the first import of matplotlib reads MPLBACKEND: ValueError on a bad name
+
+        rcsetup.validate_backend(raw)
+    except ValueError:
+        for module in [m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib.")]:
+            del sys.modules[module]
+        raise ConfigError(f"environment variable {MATPLOTLIB_BACKEND_VARIABLE}={raw!r} is not a matplotlib backend: "
+                          f"use one matplotlib knows (agg, for instance), or unset it (the bench draws its plots "
+                          f"with agg either way)") from None
+    except ImportError:  # matplotlib is a dependency; without it there is nothing to check
+        return
+
+
 def check_environment() -> None:
-    """Parse every variable of :data:`BOOLEAN_VARIABLES` and :data:`CHOICE_VARIABLES` once, so that a bad value
-    stops a command before it does anything (the CLI and ``bench`` call this first).
+    """Parse every variable of :data:`BOOLEAN_VARIABLES` and :data:`CHOICE_VARIABLES` once, and check matplotlib's
+    ``MPLBACKEND`` (:func:`check_matplotlib_backend`), so that a bad value stops a command before it does anything
+    (the CLI and ``bench`` call this first).
 
     Raises:
         ConfigError: the first variable whose value is refused, named with its value.
@@ -84,3 +119,4 @@ def check_environment() -> None:
         env_flag(name)
     for name, choices in CHOICE_VARIABLES.items():
         env_choice(name, choices)
+    check_matplotlib_backend()
