@@ -108,7 +108,13 @@ def write_plots(run: RunDir, records: list[dict[str, Any]], summary: list[dict[s
             if values and min(values) > 0:
                 ax.set_yscale("log")
         axes[2].set_ylim(0, 1.02)
-        axes[2].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+        # the models' names go beside the accuracy panel; where no cell has a validation accuracy (a final-evaluation
+        # run), into the last panel with lines; none at all when nothing was drawn (matplotlib warns on an empty one)
+        labelled = [ax for ax in axes if ax.get_legend_handles_labels()[0]]
+        if axes[2] in labelled:
+            axes[2].legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+        elif labelled:
+            labelled[-1].legend(fontsize=7, loc="best")
         fig.suptitle(f"{dataset}: training curves (best cell per model)", y=1.04)
         figures["curves"][dataset] = save(fig, f"plots/curves_{safe_name(dataset)}.png")
 
