@@ -31,7 +31,7 @@ from tactile_zoo.registry import (
     model_names,
     read_recipe_file,
 )
-from tactile_zoo.testing import MODEL_RULES, check_model
+from tactile_zoo.testing import MODEL_LEVELS, MODEL_RULES, check_model
 
 pytestmark = pytest.mark.xdist_group("plugin_tcn")  # one worker installs it once
 
@@ -101,13 +101,14 @@ def test_tcn_is_discovered_with_its_metadata(installed):
 def test_tcn_keeps_the_model_contract(installed, readout):
     """The public suite a plugin author runs, on every sensor family: forward, global inputs, batch independence,
     determinism, gradients, causal prefixes, streaming equal to forward on every prefix (after a training pass has
-    moved the input BatchNorm's statistics), state_dict; then on the class itself, before any registration."""
-    report = check_model("tcn", hparams={"hidden": 8, "readout": readout})
+    moved the input BatchNorm's statistics), state_dict, and (the example plugin names its paper) the publication
+    level's metadata completeness; then on the class itself, before any registration, at the default level."""
+    report = check_model("tcn", hparams={"hidden": 8, "readout": readout}, level="publication")
     assert report.subject == "tcn" and sorted(report.rules) == sorted(MODEL_RULES), report
     assert len([where for rule, where in report.passed if rule == "streaming"]) == len(FAMILIES)
     tcn_class = sys.modules["tactile_zoo_tcn"].TCN
     report = check_model(tcn_class, _spec("uskin_allegro", 3, 8), hparams={"hidden": 8, "readout": readout})
-    assert report.subject == "TCN" and sorted(report.rules) == sorted(MODEL_RULES), report
+    assert report.subject == "TCN" and report.rules == list(MODEL_LEVELS["plugin"]), report
 
 
 @pytest.mark.parametrize("sensor, channels, globals_", FAMILIES)

@@ -37,7 +37,12 @@ class ContractError(AssertionError):
 
 
 class Broken(Exception):
-    """Raised inside a rule: what is wrong (the runner turns it into a :class:`ContractError`)."""
+    """Raised inside a rule: what is wrong (the runner turns it into a :class:`ContractError`); ``rule``: the rule
+    it breaks when that is not the rule running (a stochastic model met by another rule's comparison)."""
+
+    def __init__(self, detail: str, rule: str | None = None) -> None:
+        super().__init__(detail)
+        self.rule = rule
 
 
 class Skipped(Exception):  # noqa: N818 - a signal, not an error
@@ -120,7 +125,7 @@ class Runner:
         except (Skipped, ContractError, *self.passthrough):
             raise
         except Broken as exc:
-            raise ContractError(rule, self.report.subject, str(exc), where, self.kind) from None
+            raise ContractError(exc.rule or rule, self.report.subject, str(exc), where, self.kind) from None
         except Exception as exc:  # any error inside a rule is that rule broken, named with its cause
             raise ContractError(rule, self.report.subject, f"{type(exc).__name__}: {exc}", where, self.kind) from exc
 

@@ -1,16 +1,22 @@
 """The model contract as named rules, and :func:`check_model`, which runs them on a registered name or a class.
 
-Every rule but ``metadata`` and ``recipes`` runs once per spec. The rules, in the order they run:
+Every rule but ``metadata``, ``completeness`` and ``recipes`` runs once per spec. The rules, in the order they run:
 
-- ``metadata``: the metadata passes ``register_model``'s checks and is complete (paper, description, tags, and
-  ``causal`` and ``streaming`` declared; streaming needs a causal model).
+- ``metadata``: the metadata (none at all is fine: the harness's defaults) passes ``register_model``'s checks, and
+  ``streaming=True`` comes with ``causal=True``.
+- ``completeness``: the metadata is complete for publication: a paper, a description, tags, and ``causal`` and
+  ``streaming`` declared. Only the ``"publication"`` level runs it (:data:`MODEL_LEVELS`).
 - ``recipes``: every named recipe resolves (each of its per-dataset sections too) and sets only constructor
   keywords the model takes.
 - ``builds``: ``Model(spec)`` with its defaults gives a ``torch.nn.Module`` with trainable parameters (a
   :class:`~tactile_zoo.errors.ModelCannotConsume` skips the spec's other rules, as the harness skips its cells).
 - ``forward``: ``(B, num_classes)`` finite scores of the input's dtype, in training and in eval mode; without global
   features ``g=None`` and the ``(B, T, 0)`` tensor a batch carries give the same scores.
+- ``input_unchanged``: ``forward`` leaves ``x`` and ``g`` as they were, in training and in eval mode (the harness
+  feeds the same tensors again: to the next epoch's prefixes, to the other models of a grid).
 - ``determinism``: two builds after the same seed are equal, and a second forward in eval mode repeats the first.
+  A model whose eval-mode scores change from one forward to the next on the same input is named *stochastic* here,
+  whichever rule's comparison met it first.
 - ``inputs``: a model whose ``inputs`` name ``globals`` reads them: other global features change its scores (or, for
   a spiking model silent before training, a gradient reaches them).
 - ``batch_independence``: in eval mode a sample's scores do not depend on its batch-mates.
@@ -21,6 +27,10 @@ Every rule but ``metadata`` and ``recipes`` runs once per spec. The rules, in th
   ``forward`` on the prefix read so far.
 - ``state_dict``: the ``state_dict`` (after a training pass) survives ``torch.save``/``torch.load(weights_only=True)``
   and makes a model built after another seed compute the same scores.
+
+Levels (:data:`MODEL_LEVELS`): ``"plugin"``, the default, is what the harness needs to run a model (every rule but
+``completeness``: a plugin author's own model needs no paper); ``"publication"`` adds ``completeness``, and is the
+level every built-in model keeps.
 """
 
 from __future__ import annotations
@@ -37,16 +47,19 @@ from ..data.spec import DatasetSpec
 from ..engine.config import resolve_model_recipe
 from ..engine.runtime import seed_everything
 from ..engine.train import compute_loss
-from ..errors import ModelCannotConsume
+from ..errors import ConfigError, ModelCannotConsume
 from ..recipe import DEFAULT_RECIPE
 from ..registry.entries import _check_meta, _normalise_recipes
 from ._contract import Broken, ContractReport, Runner, Skipped, expect, random_batch, tiny_spec
 
-__all__ = ["MODEL_RULES", "check_model"]
+__all__ = ["MODEL_RULES", "MODEL_LEVELS", "check_model"]
 
 #: The model rules, in the order :func:`check_model` runs them (the module docstring says what each checks).
-MODEL_RULES = ("metadata", "recipes", "builds", "forward", "determinism", "inputs", "batch_independence", "gradients",
-               "causal", "streaming", "state_dict")
+MODEL_RULES = ("metadata", "completeness", "recipes", "builds", "forward", "input_unchanged", "determinism", "inputs",
+               "batch_independence", "gradients", "causal", "streaming", "state_dict")
+#: The rules of each level (module docstring): ``"plugin"`` (the default) runs the harness needs, ``"publication"``
+#: all of them.
+MODEL_LEVELS = {"plugin": tuple(r for r in MODEL_RULES if r != "completeness"), "publication": MODEL_RULES}
 #: scores that should be equal may differ by float rounding (a batched matmul sums in another order)
 ATOL, RTOL = 1e-5, 1e-4
 BATCH = 4
@@ -93,15 +106,21 @@ def _diff(a: torch.Tensor, b: torch.Tensor) -> str:
 
 
 def _metadata(subject: _Subject) -> None:
+    meta = _normalise_recipes("model", _check_meta("model", subject.name, subject.meta or {}))
+    expect(meta.get("causal") or not meta.get("streaming"), "streaming=True needs causal=True")
+
+
+def _completeness(subject: _Subject) -> None:
     expect(subject.meta is not None, "it has no metadata: register it with register_model(...) or give the class a "
                                      "zoo_meta dict (the keys register_model accepts)")
-    meta = _normalise_recipes("model", _check_meta("model", subject.name, subject.meta))
+    meta = subject.meta
     for key in ("paper", "description"):
-        expect(isinstance(meta.get(key), str) and meta[key].strip(), f"metadata {key!r} is missing or empty")
+        value = meta.get(key)
+        expect(isinstance(value, str) and value.strip(), f"metadata {key!r} is missing or empty (the publication "
+                                                         f"level wants it; a plugin's own model need not have it)")
     expect(meta.get("tags"), "metadata 'tags' is missing or empty (list_models(tags=...) filters on it)")
     for key in ("causal", "streaming"):
         expect(isinstance(meta.get(key), bool), f"metadata {key!r} must be declared True or False")
-    expect(meta["causal"] or not meta["streaming"], "streaming=True needs causal=True")
 
 
 def _constructor_keywords(factory: Callable[..., Any]) -> set[str] | None:
@@ -138,7 +157,23 @@ def _builds(subject: _Subject, spec: DatasetSpec) -> None:
     expect(trainable > 0, "built with its defaults, it has no trainable parameter")
 
 
-def _forward(model: torch.nn.Module, spec: DatasetSpec, x: torch.Tensor, g: torch.Tensor) -> None:
+def _stochastic(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None, blame: str | None) -> None:
+    """Raise :class:`Broken` naming the model stochastic (under rule ``blame``, when given) if two forwards in eval
+    mode on the same input differ: called where another comparison failed, so that it is not blamed on that one."""
+    model.eval()
+    with torch.no_grad():
+        a, b = model(x, g), model(x, g)
+    if not _close(a, b):
+        raise Broken(_stochastic_text(_diff(a, b)), rule=blame)
+
+
+def _stochastic_text(diff: str) -> str:
+    return (f"it is stochastic: a second forward in eval mode on the same input differs from the first ({diff}): "
+            f"randomness at evaluation (noise, dropout or sampling left on), or state kept between calls")
+
+
+def _forward(model: torch.nn.Module, spec: DatasetSpec, x: torch.Tensor, g: torch.Tensor,
+             blame: str | None = None) -> None:
     for mode in ("train", "eval"):
         model.train(mode == "train")
         with torch.no_grad():
@@ -153,7 +188,26 @@ def _forward(model: torch.nn.Module, spec: DatasetSpec, x: torch.Tensor, g: torc
     if spec.num_globals == 0:  # g may be omitted, or come as the (B, T, 0) tensor collate() builds
         with torch.no_grad():
             a, b = model(x, None), model(x, g)
-        expect(_close(a, b), lambda: f"g=None and an empty (B, T, 0) g give different scores: {_diff(a, b)}")
+        if not _close(a, b):
+            _stochastic(model, x, g, blame)
+            raise Broken(f"g=None and an empty (B, T, 0) g give different scores: {_diff(a, b)}")
+
+
+def _input_unchanged(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor) -> None:
+    for mode in ("train", "eval"):
+        model.train(mode == "train")
+        given = {"x": x.clone(), "g": g.clone()}
+        versions = {name: value._version for name, value in given.items()}  # counts in-place writes, even same values
+        with torch.no_grad():
+            model(given["x"], given["g"])
+        for name, kept in (("x", x), ("g", g)):
+            value = given[name]
+            same = value.shape == kept.shape and torch.equal(value, kept)
+            expect(same and value._version == versions[name],
+                   f"forward in {mode} mode changes its input {name} in place ("
+                   f"{'its values changed' if not same else 'an in-place operation wrote it'}: {name}.clamp_(), "
+                   f"{name}.mul_(), {name}[...] = ...); the harness passes the same tensors again, so work on a copy "
+                   f"({name} = {name}.clamp(...))")
 
 
 def _inputs(model: torch.nn.Module, meta: Mapping[str, Any], spec: DatasetSpec, x: torch.Tensor,
@@ -174,13 +228,14 @@ def _inputs(model: torch.nn.Module, meta: Mapping[str, Any], spec: DatasetSpec, 
            "gradient reaches them")
 
 
-def _batch_independence(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor) -> None:
+def _batch_independence(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor, blame: str | None = None) -> None:
     model.eval()
     with torch.no_grad():
         together = model(x, g)
         for i in (0, x.shape[0] - 1):
             alone = model(x[i:i + 1], g[i:i + 1])
             if not _close(alone[0], together[i]):
+                _stochastic(model, x, g, blame)
                 raise Broken(f"in eval mode sample {i}'s scores alone differ from its scores in a batch of "
                              f"{x.shape[0]} (batch-mates leak in, e.g. through batch statistics): "
                              f"{_diff(alone[0], together[i])}")
@@ -196,8 +251,8 @@ def _determinism(subject: _Subject, spec: DatasetSpec, hparams: Mapping[str, Any
                         f"reach: an unseeded generator, numpy's default_rng(), ...)")
     with torch.no_grad():
         first = a(x, g)
-        expect(torch.equal(first, a(x, g)), "a second forward in eval mode differs from the first (randomness at "
-                                            "evaluation, or state kept between calls)")
+        second = a(x, g)
+        expect(torch.equal(first, second), lambda: _stochastic_text(_diff(first, second)))
         expect(torch.equal(first, b(x, g)), "two builds after the same seed give different scores")
 
 
@@ -279,11 +334,13 @@ def _check_spec(run: Runner, subject: _Subject, spec: DatasetSpec, hparams: Mapp
         return
     meta = subject.meta or {}
     x, g, y = random_batch(spec, BATCH, seed=1)
-    run.run("forward", _forward, model, spec, x, g, where=where)
+    blame = "determinism" if run.wants("determinism") else None  # a stochastic model breaks this rule, named so
+    run.run("forward", _forward, model, spec, x, g, blame, where=where)
+    run.run("input_unchanged", _input_unchanged, model, x, g, where=where)
     # randomness first: it would pass for a global-feature input or fail batch independence, and mislead both
     run.run("determinism", _determinism, subject, spec, hparams, x[:3], g[:3], seed + 7, where=where)
     run.run("inputs", _inputs, model, meta, spec, x, g, where=where)
-    run.run("batch_independence", _batch_independence, model, x, g, where=where)
+    run.run("batch_independence", _batch_independence, model, x, g, blame, where=where)
     run.run("gradients", _gradients, model, subject.recipe(), x, g, y, where=where)
     run.run("causal", _causal, model, meta, spec, x, g, where=where)
     run.run("streaming", _streaming, model, meta, spec, x, g, where=where)
@@ -292,7 +349,8 @@ def _check_spec(run: Runner, subject: _Subject, spec: DatasetSpec, hparams: Mapp
 
 def check_model(model: str | Callable[..., Any], specs: DatasetSpec | Sequence[DatasetSpec] | None = None, *,
                 hparams: Mapping[str, Any] | None = None, meta: Mapping[str, Any] | None = None,
-                rules: Iterable[str] | None = None, skip: Iterable[str] = (), seed: int = 0) -> ContractReport:
+                rules: Iterable[str] | None = None, skip: Iterable[str] = (), seed: int = 0,
+                level: str = "plugin") -> ContractReport:
     """Check a model against the model contract; raise one :class:`~tactile_zoo.testing.ContractError` on the first
     rule it breaks.
 
@@ -304,9 +362,12 @@ def check_model(model: str | Callable[..., Any], specs: DatasetSpec | Sequence[D
         hparams: constructor keywords for every rule but ``builds`` (which builds with the defaults): small sizes
             keep a large model's check fast.
         meta: metadata to check instead of the registered (or ``zoo_meta``) one.
-        rules: run only these rules (default: all of :data:`MODEL_RULES`).
+        rules: run only these rules (default: the rules of ``level``).
         skip: rules not to run.
         seed: the seed every build starts from.
+        level: ``"plugin"`` (default: what the harness needs to run the model; metadata completeness is not
+            asked for) or ``"publication"`` (every rule, ``completeness`` too: what a built-in model keeps);
+            :data:`MODEL_LEVELS`.
 
     Returns:
         The report: every rule that held, and every rule that did not apply, with the spec.
@@ -315,8 +376,12 @@ def check_model(model: str | Callable[..., Any], specs: DatasetSpec | Sequence[D
         ContractError: the rule broken, the model, the spec and what was wrong.
     """
     subject = _Subject(model, meta)
-    run = Runner(subject.name, "model", MODEL_RULES, rules, skip, passthrough=(ModelCannotConsume,))
+    if level not in MODEL_LEVELS:
+        raise ConfigError(f"unknown check_model level {level!r}; known: {', '.join(MODEL_LEVELS)}")
+    run = Runner(subject.name, "model", MODEL_RULES, MODEL_LEVELS[level] if rules is None else rules, skip,
+                 passthrough=(ModelCannotConsume,))
     run.run("metadata", _metadata, subject)
+    run.run("completeness", _completeness, subject)
     run.run("recipes", _recipes, subject)
     if specs is None:
         specs = [tiny_spec(sensor) for sensor in registry.list_sensors()]

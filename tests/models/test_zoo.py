@@ -1,9 +1,10 @@
 """The contract every registered model keeps, on every registered sensor family (timm-style zoo-wide suite).
 
 Parametrised over ``list_models()`` at collection time, so a model (a plugin's too) is tested the moment it registers.
-The contract itself is the public suite :func:`tactile_zoo.testing.check_model` (metadata, recipes, build, forward
-shape and finiteness, global inputs, batch independence, determinism under a seed, gradients on every parameter,
-causal prefixes, streaming equal to forward on every prefix, state_dict round trip), run on a tiny spec per sensor:
+The contract itself is the public suite :func:`tactile_zoo.testing.check_model` at its publication level (metadata
+and its completeness, recipes, build, forward shape and finiteness, the input left unchanged, global inputs, batch
+independence, determinism under a seed, gradients on every parameter, causal prefixes, streaming equal to forward on
+every prefix, state_dict round trip), run on a tiny spec per sensor:
 T = 12 steps, the sensor's taxels and channels, the globals its real datasets carry, 5 classes. On top of it, this
 module overfits a tiny batch with each model's own recipe loss on every sensor.
 """
@@ -39,9 +40,9 @@ STREAMING = [m for m in MODELS if get_model_entry(m).meta.get("streaming")]
 
 NUM_STEPS, NUM_CLASSES = 12, 5
 #: hyper-parameters that keep a large model's contract check fast (the ``builds`` rule still builds the defaults):
-#: the multi-barrel SNN has 28.4 M parameters at full size on NeuTouch
-SMALL = {"multibarrel": {"channels": 8, "kernel_size": 3, "dilation": 1, "readout_channels": 6, "readout_kernel": 2,
-                         "hidden": 5, "gate_hidden": 7}}
+#: each model's own ``test_hparams`` registry metadata (the multi-barrel SNN's: 28.4 M parameters at full size)
+SMALL = {name: dict(get_model_entry(name).meta["test_hparams"]) for name in MODELS
+         if "test_hparams" in get_model_entry(name).meta}
 #: Adam budget to overfit a tiny batch, per recipe loss (never per model): (max steps, learning rate). Recipes' own
 #: learning rates are tuned for epochs over real data, so the test fixes its own. Rate-coded spiking outputs fall
 #: silent (rate 0 everywhere, MSE stuck at 1/K) at 1e-2, so "mse_rate" gets a smaller rate and more steps.
@@ -76,8 +77,9 @@ def recipe_loss(name: str, out: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 @pytest.mark.parametrize("name", MODELS)
 def test_every_model_keeps_the_contract(name: str) -> None:
-    """check_model over every sensor: every rule holds, or (causal, streaming, inputs) does not apply to it."""
-    report = check_model(name, hparams=SMALL.get(name))
+    """check_model over every sensor at the publication level (metadata completeness too): every rule holds, or
+    (causal, streaming, inputs) does not apply to it."""
+    report = check_model(name, hparams=SMALL.get(name), level="publication")
     meta = get_model_entry(name).meta
     ran = set(report.rules)
     assert ran >= set(MODEL_RULES) - {"causal", "streaming", "inputs"}, report
@@ -86,7 +88,11 @@ def test_every_model_keeps_the_contract(name: str) -> None:
 
 
 def test_zoo_is_populated() -> None:
-    assert {"sgnet", "dcnn", "convlstm", "cnn_lstm", "tacformer", "x_tacformer", "deeptactile"} <= set(MODELS), MODELS
+    """Every public module of ``tactile_zoo.models`` registers a model that this suite tests (no list of names)."""
+    modules = {p.stem for p in Path(tz.models.__file__).parent.glob("*.py") if not p.stem.startswith("_")}
+    registered = {get_model_entry(name).obj.__module__.rpartition(".")[2] for name in MODELS}
+    assert modules and modules <= registered, f"model modules registering nothing: {sorted(modules - registered)}"
+    assert len(MODELS) >= 8, MODELS
     assert {"neutouch", "biotac_sp", "optoforce3", "uskin_allegro"} <= set(SENSORS)
 
 

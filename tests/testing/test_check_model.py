@@ -15,7 +15,7 @@ from torch import nn
 import tactile_zoo as tz
 from tactile_zoo.errors import ConfigError, ModelCannotConsume
 from tactile_zoo.registry import _unregister
-from tactile_zoo.testing import MODEL_RULES, ContractError, check_model, tiny_spec
+from tactile_zoo.testing import MODEL_LEVELS, MODEL_RULES, ContractError, check_model, tiny_spec
 
 SPEC = tiny_spec("uskin_allegro")  # 60 taxels, 3 channels, 8 global features: every rule applies
 META = {"paper": "-", "description": "a running mean of per-frame features", "tags": ["example"],
@@ -111,6 +111,19 @@ class NoisyEval(Sound):
         return super().forward(x, g) + 0.1 * torch.randn(x.shape[0], self.head.out_features)
 
 
+class ClampsInput(Sound):
+    def forward(self, x, g=None):  # issue 49: passed; on binary events it even leaves the values as they were
+        x.clamp_(0, 1)
+        return super().forward(x, g)
+
+
+class ScalesGlobals(Sound):
+    def features(self, x, g):
+        if g is not None:
+            g[..., 0] *= 2  # writes into the caller's g through a view
+        return super().features(x, g)
+
+
 class DeadParameter(Sound):
     def __init__(self, spec, hidden: int = 8) -> None:
         super().__init__(spec, hidden)
@@ -156,7 +169,7 @@ class UnsavedProjection(Sound):
 
 
 def test_a_sound_model_passes_every_rule_on_every_sensor() -> None:
-    report = check_model(Sound)
+    report = check_model(Sound, level="publication")
     assert report.subject == "Sound" and report.rules == list(MODEL_RULES)
     sensors = {where.split(" ")[0] for rule, where in report.passed if rule == "forward"}
     assert sensors == {f"synthetic_{s}" for s in tz.list_sensors()}
@@ -176,7 +189,9 @@ def test_a_sound_model_passes_every_rule_on_every_sensor() -> None:
     (IgnoresGlobals, "inputs", "other global features leave its scores unchanged"),
     (BatchStatistics, "batch_independence", "batch-mates leak in"),
     (UnseededInit, "determinism", "randomness the seed does not reach"),
-    (NoisyEval, "determinism", "a second forward in eval mode differs"),
+    (NoisyEval, "determinism", "it is stochastic: a second forward in eval mode on the same input differs"),
+    (ClampsInput, "input_unchanged", "forward in train mode changes its input x in place (an in-place operation"),
+    (ScalesGlobals, "input_unchanged", "changes its input g in place (its values changed"),
     (DeadParameter, "gradients", "parameter 'unused.weight' gets no gradient"),
     (WholeSequence, "causal", "cannot read the prefix of 1 of 12 steps"),
     (ReversedStep, "streaming", "step() and forward on the prefix"),
@@ -194,7 +209,7 @@ def test_a_planted_break_fails_its_rule(model: type, rule: str, detail: str) -> 
     if rule not in ("metadata", "recipes"):
         assert "synthetic_uskin_allegro" in err.where
     # the same model passes once that rule is skipped: the break is confined to it
-    if model not in (WrongShape, NaNScores, NoisyEval):  # their scores break the rules after theirs too
+    if model not in (WrongShape, NaNScores, NoisyEval, ScalesGlobals):  # they break the rules after theirs too
         check_model(model, SPEC, hparams={"hidden": 8}, skip=[rule])
 
 
@@ -212,8 +227,70 @@ def test_metadata_given_by_the_caller_is_what_is_checked() -> None:
         zoo_meta = None
 
     with pytest.raises(ContractError, match="it has no metadata"):
-        check_model(Bare, SPEC, rules=["metadata"])
-    assert check_model(Bare, SPEC, meta=META, rules=["metadata"]).rules == ["metadata"]
+        check_model(Bare, SPEC, rules=["metadata", "completeness"])
+    assert check_model(Bare, SPEC, meta=META, rules=["metadata", "completeness"]).rules == ["metadata",
+                                                                                         "completeness"]
+
+
+class OwnPlugin(Sound):
+    """A plugin author's own model (issue 49, item 14): no paper, no description, no tags; the harness runs it."""
+
+    zoo_meta = {"inputs": ["globals"], "causal": True, "streaming": True}
+
+
+@pytest.mark.parametrize("meta", [OwnPlugin.zoo_meta, None, {}])
+def test_a_plugin_authors_own_model_passes_the_default_level_and_not_the_publication_one(meta) -> None:
+    class Own(OwnPlugin):
+        zoo_meta = meta
+
+    report = check_model(Own, SPEC, hparams={"hidden": 8})  # the default level: "plugin"
+    # no recipe: it trains with the harness's default; without metadata, it is neither causal nor streaming
+    skipped = {"recipes"} | (set() if meta else {"inputs", "causal", "streaming"})
+    assert report.rules == [r for r in MODEL_LEVELS["plugin"] if r not in skipped]
+    assert "completeness" not in report.rules and "completeness" in MODEL_RULES
+    with pytest.raises(ContractError) as info:
+        check_model(Own, SPEC, hparams={"hidden": 8}, level="publication")
+    assert info.value.rule == "completeness", str(info.value)
+    assert ("'paper' is missing or empty" if meta is not None else "it has no metadata") in info.value.detail
+    with pytest.raises(ConfigError, match="unknown check_model level 'strict'; known: plugin, publication"):
+        check_model(Own, SPEC, level="strict")
+
+
+@pytest.mark.parametrize("key", ["paper", "description", "tags", "streaming"])
+def test_the_publication_level_names_each_missing_key(key: str) -> None:
+    class Partial(Sound):
+        zoo_meta = {k: v for k, v in META.items() if k != key}
+
+    with pytest.raises(ContractError, match=f"breaks rule 'completeness': metadata '{key}'"):
+        check_model(Partial, SPEC, level="publication", rules=None, skip=["recipes"])
+
+
+def test_a_stochastic_model_is_named_stochastic_not_blamed_on_g() -> None:
+    """Issue 49, item 13: on a spec without global features the first comparison a noisy model met was g=None
+    against the empty g, and it was reported as "g=None and an empty g give different scores"."""
+    spec = tiny_spec("neutouch")
+    with pytest.raises(ContractError) as info:
+        check_model(NoisyEval, spec, hparams={"hidden": 8})
+    assert info.value.rule == "determinism" and "it is stochastic" in info.value.detail, str(info.value)
+    assert "g=None" not in str(info.value)
+    with pytest.raises(ContractError) as info:  # determinism skipped: the rule that met it says stochastic
+        check_model(NoisyEval, spec, hparams={"hidden": 8}, skip=["determinism"])
+    assert info.value.rule == "forward" and "it is stochastic" in info.value.detail, str(info.value)
+    with pytest.raises(ContractError) as info:  # the same on a spec with globals, where batch independence meets it
+        check_model(NoisyEval, SPEC, hparams={"hidden": 8}, skip=["determinism"])
+    assert info.value.rule == "batch_independence" and "it is stochastic" in info.value.detail, str(info.value)
+
+
+class GNoneDiffers(Sound):
+    zoo_meta = _meta(streaming=False)
+
+    def forward(self, x, g=None):  # deterministic, but an empty g is not the same as none
+        return super().forward(x, g) + (0.0 if g is None else 1.0)
+
+
+def test_a_deterministic_model_whose_g_none_differs_is_still_blamed_on_g() -> None:
+    with pytest.raises(ContractError, match="breaks rule 'forward'.*g=None and an empty"):
+        check_model(GNoneDiffers, tiny_spec("neutouch"), hparams={"hidden": 8})
 
 
 def test_a_model_that_cannot_consume_a_spec_is_skipped_there_not_failed() -> None:
