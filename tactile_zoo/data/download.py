@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import http.client
 import logging
@@ -34,8 +35,8 @@ from tqdm import tqdm
 from .._files import open_temporary
 from ..errors import DatasetError
 
-__all__ = ["fetch", "verify_sha256", "check_zip_member", "check_zip", "open_zip", "safe_extract", "MAX_DOWNLOAD_BYTES",
-           "MAX_MEMBER_BYTES"]
+__all__ = ["fetch", "verify_sha256", "check_zip_member", "check_zip", "open_zip", "safe_extract", "not_a_file",
+           "MAX_DOWNLOAD_BYTES", "MAX_MEMBER_BYTES"]
 
 MAX_DOWNLOAD_BYTES = 2 << 30  # 2 GiB: no release this zoo knows is larger; a server streaming forever is refused
 MAX_MEMBER_BYTES = 512 << 20  # one archive member, uncompressed (the Ev releases' members are ~100 kB)
@@ -58,6 +59,32 @@ def verify_sha256(path: str | os.PathLike, expected: str) -> str:
     return got
 
 
+def not_a_file(path: str | os.PathLike) -> str | None:
+    """What stands at ``path`` when it is neither absent nor a regular file (a symbolic link to one counts as one):
+    "a folder", "a symbolic link loop", "a broken symbolic link (to ...)" or another kind of file; None otherwise.
+
+    A loader that looks for a file and finds a folder of that name should say so, not ask for the file to be placed
+    where something already is."""
+    path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        if not path.is_symlink():
+            return None
+        return f"a broken symbolic link (to {os.readlink(path)}, which does not exist)"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link loop"
+        return f"unreadable ({exc.strerror or exc})"
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    kinds = ((stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"))
+    return next((name for test, name in kinds if test(mode)), "not a regular file")
+
+
 def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60.0,
           max_bytes: int = MAX_DOWNLOAD_BYTES, hint: str = "", retries: int | None = None,
           backoff: float | None = None, progress: bool | None = None) -> Path:
@@ -65,7 +92,8 @@ def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60
 
     The bytes go to a temporary file in ``dest``'s folder and are renamed into place after the checksum matched, so
     ``dest`` is either absent or complete and verified. Network failures, a wrong checksum and oversized responses
-    raise a DatasetError that ends with ``hint`` (what to place where by hand).
+    raise a DatasetError that ends with ``hint`` (what to place where by hand); a ``dest`` that exists but is not a
+    regular file (a folder, a symbolic link loop; see :func:`not_a_file`) is refused before anything is downloaded.
 
     A transient failure (connection reset or dropped, timeout, HTTP 429 or 5xx) is retried up to ``retries`` more
     times (default :data:`RETRIES`), waiting ``backoff`` seconds (default :data:`BACKOFF_SECONDS`), then twice as
@@ -82,6 +110,8 @@ def fetch(url: str, dest: str | os.PathLike, sha256: str, *, timeout: float = 60
     scheme = urllib.parse.urlsplit(url).scheme.lower()
     if scheme not in ("http", "https"):
         raise DatasetError(f"refusing to download {url!r}: only http(s) URLs are fetched.{suffix}")
+    if (what := not_a_file(dest)) is not None:  # checked before the download, not at the rename after it
+        raise DatasetError(f"{dest} is {what}, not a file: move it out of the way, then download again")
     try:
         dest.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = open_temporary(dest, suffix=".part")  # the umask's permissions, not mkstemp's 0o600

@@ -79,9 +79,7 @@ _KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISCHR, "a character device"), (
 
 
 def _not_regular(mode: int) -> str | None:
-    if stat.S_ISREG(mode):
-        return None
-    return next((kind for test, kind in _KINDS if test(mode)), "not a regular file")
+    return None if stat.S_ISREG(mode) else next((kind for test, kind in _KINDS if test(mode)), "not a regular file")
 
 
 class _Capped(io.RawIOBase):
@@ -173,8 +171,7 @@ def is_number(field: str) -> bool:
 
 
 def _looks_numeric(field: str) -> bool:
-    field = field.strip()
-    return is_number(field) or _NUMERIC_LOOKING.fullmatch(field) is not None
+    return is_number(field) or _NUMERIC_LOOKING.fullmatch(field.strip()) is not None
 
 
 def _hint(field: str, delimiter: str = ",") -> str:
@@ -183,13 +180,18 @@ def _hint(field: str, delimiter: str = ",") -> str:
         return "; a decimal comma? write numbers with '.' as the decimal mark"
     if "_" in field and _NUMBER.fullmatch(field.replace("_", "")):
         return "; underscores are not allowed in numbers"
-    for sep, name in _DELIMITERS.items():
-        if sep != delimiter and sep in field:
-            return (f"; it holds a {name}: values separated by a {name} and by a {_DELIMITERS[delimiter]} in other "
-                    f"rows? use one delimiter throughout")
+    if other := _other_delimiter([field], delimiter):
+        return (f"; it holds a {other}: values separated by a {other} and by a {_DELIMITERS[delimiter]} in other "
+                f"rows? use one delimiter throughout")
     if " " in field.strip():
         return "; values separated by spaces? separate them with commas"
     return ""
+
+
+def _other_delimiter(fields: Sequence[str], delimiter: str) -> str | None:
+    """The name of a delimiter other than ``delimiter`` found in ``fields`` (a decimal comma is not one), if any."""
+    return next((name for sep, name in _DELIMITERS.items() if sep != delimiter and any(
+        sep in f and not (sep == "," and _DECIMAL_COMMA.fullmatch(f)) for f in fields)), None)
 
 
 def _not_a_number(path: str | os.PathLike, number: int, col: int, field: str, delimiter: str = ",") -> DatasetError:
@@ -201,8 +203,8 @@ def parse_numeric_rows(rows: Sequence[tuple[int, list[str]]], path: str | os.Pat
                        delimiter: str = ",") -> np.ndarray:
     """Convert ``(line, fields)`` rows into a ``float64 [rows, columns]`` array.
 
-    Raises a DatasetError naming the first ragged row (a truncated line included) or non-numeric cell. ``num_columns``
-    ``None`` means "whatever the first row has".
+    Raises a DatasetError naming the first ragged row (a truncated line, or one separated by another delimiter: the
+    mixed separators are named) or non-numeric cell. ``num_columns`` ``None`` means "whatever the first row has".
     """
     if not rows:
         raise DatasetError(f"{path}: no data rows")
@@ -215,8 +217,10 @@ def parse_numeric_rows(rows: Sequence[tuple[int, list[str]]], path: str | os.Pat
         pass
     for number, fields in rows:
         if len(fields) != width:
-            raise DatasetError(f"{path}: line {number} has {len(fields)} values, expected {width} (ragged or "
-                               f"truncated row)")
+            other = _other_delimiter(fields, delimiter)
+            why = (f"it separates values with a {other} where the file uses a {_DELIMITERS[delimiter]}: mixed "
+                   f"separators, use one delimiter throughout" if other else "ragged or truncated row")
+            raise DatasetError(f"{path}: line {number} has {len(fields)} values, expected {width} ({why})")
         for col, field in enumerate(fields, start=1):
             if not is_number(field):
                 raise _not_a_number(path, number, col, field, delimiter)
@@ -224,8 +228,7 @@ def parse_numeric_rows(rows: Sequence[tuple[int, list[str]]], path: str | os.Pat
 
 
 def _plain(fields: list[str]) -> bool:
-    joined = "".join(fields)
-    return "_" not in joined and joined.isascii()
+    return "_" not in (joined := "".join(fields)) and joined.isascii()
 
 
 class Table(NamedTuple):
@@ -240,12 +243,13 @@ class Table(NamedTuple):
 def _detect_delimiter(sample: list[str]) -> str:
     """The delimiter of a CSV from its first lines: among comma, semicolon and tab, the one that splits every line
     into the same number (> 1) of fields. Semicolon and tab win over comma, which they leave inside fields as a
-    decimal comma (``1,5;2,5``): the numbers are then refused with that hint. One column: comma."""
-    consistent = []
-    for sep in _DELIMITERS:
-        widths = {len(row) for row in csv.reader(sample, delimiter=sep) if row}
-        if len(widths) == 1 and widths.pop() > 1:
-            consistent.append(sep)
+    decimal comma (``1,5;2,5``): the numbers are then refused with that hint. None does (mixed separators): the one
+    that splits the most lines, so that a line separated otherwise is named. One column: comma."""
+    widths = {sep: [len(row) for row in csv.reader(sample, delimiter=sep) if row] for sep in _DELIMITERS}
+    consistent = [sep for sep, found in widths.items() if len(set(found)) == 1 and found[0] > 1]
+    if not consistent:
+        most = max(sum(n > 1 for n in found) for found in widths.values())
+        consistent = [sep for sep, found in widths.items() if most and sum(n > 1 for n in found) == most]
     return next((sep for sep in (";", "\t") if sep in consistent), ",")
 
 
@@ -378,8 +382,7 @@ def _npy_header(fp: BinaryIO, size: int, label: str | os.PathLike) -> tuple[tupl
     dtype, and as many data bytes as the header declares (a lying header must not map or allocate gigabytes)."""
     head = fp.read(len(_NPY_MAGIC))
     if head != _NPY_MAGIC:
-        kind = "a zip/.npz archive" if head.startswith(b"PK") else "a pickle" if head[:1] == b"\x80" else \
-            "random data"
+        kind = "a zip/.npz archive" if head.startswith(b"PK") else "a pickle" if head[:1] == b"\x80" else "random data"
         raise DatasetError(f"{label}: not a .npy file (no NumPy magic string; looks like {kind})")
     fp.seek(0)
     try:
@@ -387,8 +390,7 @@ def _npy_header(fp: BinaryIO, size: int, label: str | os.PathLike) -> tuple[tupl
         if version not in ((1, 0), (2, 0)):  # 3.0 only exists for structured dtypes with non-ASCII field names
             raise DatasetError(f"{label}: .npy format version {version[0]}.{version[1]} is not read (expected 1.0 "
                                f"or 2.0)")
-        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
-            np.lib.format.read_array_header_2_0
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
         shape, fortran, dtype = read_header(fp)
     except ValueError as exc:
         raise DatasetError(f"{label}: truncated or corrupt .npy file ({exc})") from exc
@@ -405,8 +407,7 @@ def _npy_header(fp: BinaryIO, size: int, label: str | os.PathLike) -> tuple[tupl
     if size - offset < need:
         raise DatasetError(f"{label}: truncated .npy file: its header declares shape {tuple(shape)} {dtype} "
                            f"({need} bytes of data), the file holds {size - offset}")
-    if math.prod(max(int(d), 1) for d in shape) * dtype.itemsize >= 2**63:
-        # a zero-size shape whose other sides overflow numpy's size arithmetic
+    if math.prod(max(int(d), 1) for d in shape) * dtype.itemsize >= 2**63:  # zero-size, yet overflowing numpy's sizes
         raise DatasetError(f"{label}: truncated or corrupt .npy file (shape {tuple(shape)} is too large)")
     return tuple(shape), bool(fortran), dtype, offset
 
@@ -444,7 +445,6 @@ def load_npy(source: str | os.PathLike | bytes, name: str | os.PathLike | None =
     fp = io.BytesIO(source)
     shape, fortran, dtype, offset = _npy_header(fp, len(source), label)
     count = int(np.prod(shape, dtype=np.int64))
-    array = np.frombuffer(source, dtype=dtype, count=count, offset=offset).reshape(shape, order="F" if fortran
-                                                                                 else "C")
+    array = np.frombuffer(source, dtype=dtype, count=count, offset=offset).reshape(shape, order="F" if fortran else "C")
     array = array[:max_rows] if array.ndim and max_rows is not None else array
     return array.copy()

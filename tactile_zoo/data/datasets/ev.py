@@ -36,7 +36,7 @@ import torch
 from ...errors import DatasetError
 from ...registry import register_dataset
 from ..base import TactileDataset, TensorData
-from ..download import check_zip, fetch, open_zip, safe_extract, verify_sha256
+from ..download import check_zip, fetch, not_a_file, open_zip, safe_extract, verify_sha256
 from ..sensors import NEUTOUCH
 from ._io import check_finite, load_npy
 
@@ -111,8 +111,12 @@ class EvTouchDataset(TactileDataset):
     @classmethod
     def place_hint(cls, root: str | os.PathLike | None = None) -> str:
         raw = cls.raw_dir_for(root)
-        return (f"Place {cls.archive} (sha256 {cls.sha256}, from the root of {REPOSITORY}) at {raw / cls.archive}, "
-                f"or its extracted folder at {raw / cls.folder}/{{train,test}}/.")
+        what = f"{cls.archive} (sha256 {cls.sha256}, from the root of {REPOSITORY})"
+        if (wrong := not_a_file(raw / cls.archive)) is not None:  # a folder or a link loop of the zip's name
+            where = f"{raw / cls.archive} is {wrong}, not the zip file: move it out of the way and place {what} there"
+        else:
+            where = f"Place {what} at {raw / cls.archive}"
+        return f"{where}, or its extracted folder at {raw / cls.folder}/{{train,test}}/."
 
     def raw_present(self) -> bool:
         return self.locate(self.root) is not None
