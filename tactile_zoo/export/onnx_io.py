@@ -136,11 +136,17 @@ def to_onnx(graph: nn.Module, inputs: tuple[Tensor, ...], path: Path, opset: int
 
 
 def onnx_runner(path: Path) -> Callable[..., list[Tensor]]:
-    """A function running an ONNX file under onnxruntime on one CPU thread, tensors in and out."""
+    """A function running an ONNX file under onnxruntime on one CPU thread, tensors in and out.
+
+    The session logs errors only: onnxruntime's warnings while it optimises a graph ("Could not find a CPU kernel and
+    hence can't constant fold CastLike node", on the multi-barrel SNN) are about its own constant folding, not about
+    the file, whose outputs the export checks against eager PyTorch; printed, they would break the promise of a
+    quiet success."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
     options.intra_op_num_threads = options.inter_op_num_threads = 1
+    options.log_severity_level = 3  # 0 verbose, 1 info, 2 warning, 3 error, 4 fatal
     session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     names = [i.name for i in session.get_inputs()]
 
