@@ -1,5 +1,5 @@
-"""Output folders tactile-zoo owns: one rule for every command that writes a folder (``bench --out``,
-``export --out``), so that no command overwrites a file it did not write.
+"""Output folders and files tactile-zoo owns: one rule for every command that writes a folder (``bench --out``,
+``export --out``) or a file (``train --save``), so that no command overwrites a file it did not write.
 
 - The tool marks a folder it writes with a *marker*, a file only it writes (``run.json`` of a bench folder,
   ``tactile-zoo-export.json`` of an export folder).
@@ -8,6 +8,11 @@
   it holds (:func:`check_folder`). A new or empty folder is taken and marked.
 - In a folder it owns, each command replaces only its own files: bench resumes its cells, export replaces the files
   of one model as one set (:mod:`tactile_zoo.export.folder`).
+- A single output file (:func:`check_file`) follows the same rule, its marker inside the file (a checkpoint's
+  ``format`` key): a path that is free, or a regular file the tool wrote, is taken; an empty path, a symbolic link, a
+  folder, anything that is not a regular file (``/dev/null``, a FIFO) and a regular file without the marker are
+  refused before any work, naming the flag and the path. The file is then replaced atomically
+  (:mod:`tactile_zoo._files`), never written in place.
 
 This module sits just above :mod:`tactile_zoo.errors` and :mod:`tactile_zoo._files` in the import layers, so every
 layer that writes a folder can use it.
@@ -16,6 +21,7 @@ layer that writes a folder can use it.
 from __future__ import annotations
 
 import os
+import stat
 from collections.abc import Callable, Container
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +29,7 @@ from pathlib import Path
 from ._files import open_temporary
 from .errors import ConfigError
 
-__all__ = ["FolderRule", "folder_entries", "check_folder", "make_writable"]
+__all__ = ["FolderRule", "folder_entries", "check_folder", "make_writable", "FileRule", "check_file"]
 
 
 @dataclass(frozen=True)
@@ -97,3 +103,70 @@ def make_writable(folder: str | os.PathLike, rule: FolderRule) -> None:
     except OSError as exc:
         raise ConfigError(f"{rule.flag} {path}: cannot write there ({exc.strerror or exc}); choose a writable "
                           f"folder") from None
+
+
+@dataclass(frozen=True)
+class FileRule:
+    """What a command's output file is, for its messages.
+
+    Attributes:
+        flag: the argument naming the file (``"--save"``).
+        kind: what the tool writes there, as in "not a {kind}" (``"tactile-zoo checkpoint"``).
+        reuse: what an owned file is good for, as in "or {reuse}" (``"a checkpoint `train --save` wrote"``).
+        example: a file name to suggest for an empty path (``"MODEL.pt"``).
+    """
+
+    flag: str
+    kind: str
+    reuse: str
+    example: str
+
+
+def _what(mode: int) -> str:
+    """A non-regular file's kind, in words."""
+    for test, name in ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISLNK, "a symbolic link")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_file(path: str | os.PathLike, rule: FileRule, owned: Callable[[Path], bool]) -> Path:
+    """Refuse the output file ``path`` unless it is free (nothing there) or a regular file ``owned(path)`` says the
+    tool wrote (it carries the marker); then create its folder and prove a file can be created there. Nothing is
+    written at ``path`` itself.
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises:
+        ConfigError: an empty path; a symbolic link, folder, device, FIFO or socket; a regular file without the
+            marker; a folder that cannot be created or written (each naming ``rule.flag`` and the path).
+    """
+    if not os.fspath(path).strip():
+        raise ConfigError(f"{rule.flag}: an empty path names no file; give a file name such as {rule.example}")
+    target = Path(path)
+    try:
+        mode = os.lstat(target).st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as exc:  # a parent that is a file (ENOTDIR), a name too long, no permission to look
+        raise ConfigError(f"{rule.flag} {target}: cannot write there ({exc.strerror or exc}); choose another "
+                          f"file") from None
+    if mode is not None and not stat.S_ISREG(mode):
+        raise ConfigError(f"{rule.flag} {target}: it is {_what(mode)}, not a file tactile-zoo wrote; it is left "
+                          f"alone: choose a new file name, or {rule.reuse}")
+    if mode is not None and not owned(target):
+        raise ConfigError(f"{rule.flag} {target}: the file exists and is not a {rule.kind} (no marker), so it is not "
+                          f"overwritten; choose a new file name, or {rule.reuse}")
+    folder = target.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, probe = open_temporary(target)
+        os.close(fd)
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"{rule.flag} {target}: cannot write in folder {folder} ({exc.strerror or exc}); choose a "
+                          f"writable folder") from None
+    return target

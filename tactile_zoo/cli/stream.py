@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Sequence
 from typing import Any
 
 from .. import registry
@@ -31,7 +32,7 @@ def add_stream(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--file", default=None, metavar="FILE",
                    help="your recording (.csv/.npy: one row per time step, taxels row-major then globals) instead "
                         "of a dataset sample")
-    add_raw_flag(p)
+    add_raw_flag(p, checkpoints=True)
     p.add_argument("--split", default="test", help="split to take the sample from (default test)")
     p.add_argument("--fold", default=None, help="fold (default: the checkpoint's when the dataset is the same)")
     p.add_argument("--every", type=int, default=1, metavar="K", help="print every K-th step (and the last)")
@@ -63,6 +64,30 @@ def _checkpoint_spec(args: argparse.Namespace, config: dict[str, Any]) -> Any:
     return DatasetSpec.from_dict(config["spec"], where=f"checkpoint {args.checkpoint}")
 
 
+def _checkpoint_preprocessing(args: argparse.Namespace, config: dict[str, Any]) -> tuple[Any, str]:
+    """``(the RecordingPreprocessing applied to --file or None, the line saying so)`` for a checkpoint."""
+    from ..weights import checkpoint_preprocessing
+
+    if args.raw:
+        return None, "preprocessing: none (--raw: the values as read)"
+    applied = checkpoint_preprocessing(config, f"checkpoint {args.checkpoint}")
+    if applied is None:
+        return None, f"preprocessing: none ({config['dataset']} feeds recordings as they are)"
+    return applied, f"preprocessing: {applied} (the checkpoint's own, as it was trained; --raw turns it off)"
+
+
+def _top(trace: Any, k: int, names: Sequence[str]) -> tuple[str | None, float]:
+    """The top class name after step ``k`` (``None``: a tie, undecided) and its probability."""
+    pred = trace.predictions[k - 1]
+    first = trace.tied_classes(k)[0] if pred is None else pred
+    return (None if pred is None else names[pred]), float(trace.probabilities[k - 1, first])
+
+
+def _shown_top(trace: Any, k: int, names: Sequence[str]) -> str:
+    name, _ = _top(trace, k, names)
+    return name if name is not None else f"(tie of {len(trace.tied_classes(k))})"
+
+
 def _cmd_stream(args: argparse.Namespace) -> int:
     import torch
 
@@ -92,14 +117,15 @@ def _cmd_stream(args: argparse.Namespace) -> int:
         config, label = blob["config"], args.checkpoint
         name = config["model"]
         check_streaming(name, dict(registry.get_model_entry(name).meta))  # before any data is loaded
-    if args.raw and not (args.file and entry is not None):
-        raise ConfigError("--raw goes with --file and pretrained weights (--pretrained or --weights): a dataset sample "
-                          "or a checkpoint's file is fed as it is")
+    if args.raw and not args.file:
+        raise ConfigError("--raw goes with --file (your recording): a dataset sample is already what its loader "
+                          "made of the raw recording")
     applied = said = None
     if args.file:
         spec = spec if spec is not None else _checkpoint_spec(args, config)
-        if entry is not None:  # pretrained weights carry their preprocessing (a checkpoint is fed the file as read)
-            applied, said = preprocessing_of_files(model, args.raw)
+        # pretrained weights and checkpoints both carry their dataset's preprocessing of a raw recording
+        applied, said = preprocessing_of_files(model, args.raw) if entry is not None else \
+            _checkpoint_preprocessing(args, config)
         # every row: a stream has no fixed length
         recording = read_recording(args.file, spec, length=None, preprocessing=applied)
         x, g, y = recording.x, recording.g, None
@@ -124,7 +150,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     trace = replay(model, x, g, y, frame_period=frame_period, device=device, progress=progress_on(args))
     names, T = spec.class_names, trace.num_steps
     shown = [k for k in range(1, T + 1) if k % args.every == 0 or k == T]
-    probs, preds = trace.probabilities, trace.predictions
+    preds = trace.predictions
     settled, latency = trace.settled, trace.latency_ms()
     known = trace.target is not None
 
@@ -133,8 +159,9 @@ def _cmd_stream(args: argparse.Namespace) -> int:
         return f"{100 * k / T:.1f} % of T" if seconds is None else f"{seconds:.3f} s"
 
     if args.json:
-        steps = [{"step": k, "time_s": trace.time_of(k), "fraction": k / T, "top_class": names[preds[k - 1]],
-                  "probability": float(probs[k - 1, preds[k - 1]]),
+        steps = [{"step": k, "time_s": trace.time_of(k), "fraction": k / T, "top_class": _top(trace, k, names)[0],
+                  "probability": _top(trace, k, names)[1],
+                  "tied_classes": [names[c] for c in trace.tied_classes(k)] if preds[k - 1] is None else None,
                   "correct": preds[k - 1] == trace.target if known else None} for k in shown]
         echo(json.dumps({"checkpoint": None if blob is None else args.checkpoint, "model": name,
                          "weights": None if entry is None else entry.qualified_tag, **source,
@@ -146,7 +173,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
                          "latency_ms": latency, "threads": torch.get_num_threads(), "device": str(device)},
                         indent=2))
         return 0
-    width = max(len("top class"), *(len(n) for n in names))
+    width = max(len("top class"), *(len(n) for n in names), *(len(_shown_top(trace, k, names)) for k in shown))
     echo(f"{name} ({label}) on {what}: {T} steps"
          + ("" if trace.frame_period is None else f" of {1000 * trace.frame_period:g} ms"))
     if said is not None:
@@ -154,17 +181,24 @@ def _cmd_stream(args: argparse.Namespace) -> int:
     echo(f"{'step':>5}  {'time':>12}  {'top class':<{width}}  {'p':>5}" + ("  correct" if known else ""))
     for k in shown:
         pred = preds[k - 1]
-        echo(f"{k:>5}  {when(k):>12}  {names[pred]:<{width}}  {float(probs[k - 1, pred]):.3f}"
-             + (f"  {'yes' if pred == trace.target else 'no'}" if known else ""))
-    final = preds[-1]
+        verdict = "undecided" if pred is None else "yes" if pred == trace.target else "no"
+        echo(f"{k:>5}  {when(k):>12}  {_shown_top(trace, k, names):<{width}}  {_top(trace, k, names)[1]:.3f}"
+             + (f"  {verdict}" if known else ""))
+    name, p = _top(trace, T, names)
+    final = (f"undecided: a tie of {len(trace.tied_classes(T))} classes at p {p:.3f} each" if name is None
+             else f"{name} (p {p:.3f})")
     if known:
-        echo(f"true class: {names[trace.target]}; final prediction: {names[final]} (p {float(probs[-1, final]):.3f})")
+        echo(f"true class: {names[trace.target]}; final prediction: {final}")
         if settled is None:
-            echo("correct and stayed correct: never (the last prediction is wrong)")
+            why = "undecided (a tie)" if preds[-1] is None else "wrong"
+            echo(f"correct and stayed correct: never (the last prediction is {why})")
         else:
             echo(f"correct and stayed correct: from step {settled} of {T} ({when(settled)})")
     else:
-        echo(f"final prediction: {names[final]} (p {float(probs[-1, final]):.3f}); the true class of a file is unknown")
+        echo(f"final prediction: {final}; the true class of a file is unknown")
+    if any(pred is None for pred in preds):
+        echo(f"undecided steps: {sum(pred is None for pred in preds)} of {T} (several classes shared the top score; "
+             f"a tie names no class and is never counted correct)")
     echo(f"per-step latency: median {latency['median']:.3f} ms, mean {latency['mean']:.3f} ms, max "
          f"{latency['max']:.3f} ms (batch 1, {torch.get_num_threads()} thread(s), {device})")
     return 0

@@ -28,7 +28,10 @@ def add_train(sub: argparse._SubParsersAction) -> None:
     p.add_argument("dataset")
     p.add_argument("--seed", default="0", help="seed (default 0)")
     p.add_argument("--fold", default="0", help="fold of a k-fold protocol (default 0)")
-    p.add_argument("--save", default=None, metavar="MODEL.pt", help="write a checkpoint (weights + resolved config)")
+    p.add_argument("--save", default=None, metavar="MODEL.pt",
+                   help="write a checkpoint (weights, resolved config and the data's preprocessing) to a new file, or "
+                        "over a checkpoint it wrote before; any other file, a link or a device is refused before "
+                        "training")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--threads", default="1", help="torch threads (default 1, as bench runs each cell, so the numbers "
                                                   "match the leaderboard's)")
@@ -54,11 +57,14 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from ..engine import save_checkpoint
     from ..engine.build import load_splits
     from ..engine.cell import train_cell
+    from ..engine.checkpoint import check_checkpoint_path
     from ..engine.config import check_model_builds
     from ..engine.malloc import tune_malloc
     from ..engine.runtime import set_threads, versions
     from ..errors import ConfigError
 
+    if args.save is not None:  # the ownership rule (tactile_zoo._owned), checked before any work
+        check_checkpoint_path(args.save, "--save")
     config = _single_config(args)
     tracker = check_tracker(args.tracker)  # a missing extra fails now, not after the training
     registry.import_plugin_modules(config.plugin_modules)
@@ -88,11 +94,16 @@ def _cmd_train(args: argparse.Namespace) -> int:
                "best_epoch": result.best_epoch, "epochs_run": result.epochs_run,
                "train_seconds": round(result.train_seconds, 2), "params": result.params, "device": result.device,
                "accuracy_at": dict(zip((f"{f:g}" for f in prefix["fractions"]), prefix["accuracy"]))}
-    if args.save:
-        blob = {**cell.to_dict(), "fold": fold, "seed": seed, "quick": bool(config.quick),
-                "spec": outcome.spec.to_dict(), "metrics": metrics, "best_epoch": result.best_epoch,
-                "versions": versions()}
-        summary["saved"] = str(save_checkpoint(args.save, result.model, blob))
+    if cell.subset:
+        summary["subset"] = dict(cell.subset)
+    if args.save is not None:
+        from ..weights.manifest import preprocessing_of
+
+        spec = outcome.spec.to_dict()
+        blob = {**cell.to_dict(), "fold": fold, "seed": seed, "quick": bool(config.quick), "spec": spec,
+                "metrics": metrics, "best_epoch": result.best_epoch, "versions": versions(),
+                "preprocessing": preprocessing_of(model, dataset, spec, cell.hparams, cell.dataset_kwargs)}
+        summary["saved"] = str(save_checkpoint(args.save, result.model, blob, flag="--save"))
     if tracker is not None:
         _track(tracker, args.tracker_dir or ".", cell, outcome, summary)
     if args.json:
@@ -101,7 +112,11 @@ def _cmd_train(args: argparse.Namespace) -> int:
         echo(f"{model} on {dataset} (fold {fold}, seed {seed}): test accuracy {metrics['accuracy']:.4f}, "
              f"balanced {metrics['balanced_accuracy']:.4f}, macro-F1 {metrics['macro_f1']:.4f}; best epoch "
              f"{result.best_epoch} of {result.epochs_run}; {result.train_seconds:.1f}s on {result.device}")
-        if args.save:
+        if cell.subset:
+            echo(f"note: {'a --quick' if config.quick else 'a subset'} run: test figures on {metrics['n']} test "
+                 f"samples (at most {cell.subset.get('test', 'all')} per split, class-balanced), after training on at "
+                 f"most {cell.subset.get('train', 'all')}; not comparable with the leaderboard's")
+        if args.save is not None:
             echo(f"saved {summary['saved']}")
     return 0
 

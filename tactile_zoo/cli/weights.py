@@ -173,11 +173,14 @@ def add_predict(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_cmd_predict)
 
 
-def add_raw_flag(p: argparse.ArgumentParser) -> None:
+def add_raw_flag(p: argparse.ArgumentParser, checkpoints: bool = False) -> None:
+    """``--raw``; ``checkpoints``: the command also reads ``train --save`` checkpoints, which carry it too."""
+    whose, where = ("of the weights (or of the checkpoint)", "in their manifest, or in the checkpoint") \
+        if checkpoints else ("of the weights", "in their manifest")
     p.add_argument("--raw", action="store_true",
-                   help="feed the file's values as they are; by default the preprocessing the weights' dataset applies "
-                        "to a raw recording (recorded in their manifest: BioTac-DoS's normalisation, for instance) is "
-                        "applied first, and named in the output")
+                   help=f"feed the file's values as they are; by default the preprocessing the dataset {whose} applies "
+                        f"to a raw recording (recorded {where}: BioTac-DoS's normalisation, for instance) is applied "
+                        f"first, and named in the output")
 
 
 def preprocessing_of_files(model: Any, raw: bool) -> tuple[Any, str]:

@@ -16,9 +16,11 @@ overrides :meth:`split_indices` for a protocol other than the released fixed tra
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +37,9 @@ from .preprocess import RecordingPreprocessing
 from .sensors import Sensor
 from .spec import DatasetSpec, TactileSample
 from .splits import carve_holdout, stratified_group_kfold
+
+#: the errors of a write that found no room: no space, a file size limit, a disk quota
+_FULL_DISK = frozenset({errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC)})
 
 __all__ = ["TactileDataset", "TensorData", "data_home", "cache_home", "file_sha256", "Augmentation"]
 
@@ -296,8 +301,13 @@ class TactileDataset(torch.utils.data.Dataset):
                 with atomic_path(path) as tmp:
                     torch.save({"x": data.x, "g": data.g, "y": data.y, "groups": data.groups,
                                 "partition": list(data.partition)}, tmp)
-            except OSError:  # an unwritable cache costs time, never correctness
-                pass
+            except (OSError, RuntimeError) as exc:  # torch's file writer raises RuntimeError on a full disk
+                # an unwritable cache costs time, never correctness, and its temporary file is gone (atomic_path);
+                # a full disk is said once, in one line (a folder the user cannot write stays silent, as before)
+                if isinstance(exc, RuntimeError) or exc.errno in _FULL_DISK:
+                    why = exc.strerror if isinstance(exc, OSError) else "the disk is full or a file size limit was hit"
+                    warnings.warn(f"{self.name}: could not write the processed cache {path} ({why}); continuing "
+                                  f"without it (the next load processes the raw data again)", stacklevel=2)
         return data
 
     def _pre_transform(self, fn: Callable[[TactileSample], TactileSample]) -> None:

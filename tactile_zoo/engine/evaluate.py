@@ -15,7 +15,14 @@ from typing import Any
 
 import torch
 
-from .metrics import classification_metrics, scores_to_probabilities
+from .metrics import (
+    accuracy,
+    balanced_accuracy,
+    classification_metrics,
+    confusion_matrix,
+    scores_to_probabilities,
+    tied_top,
+)
 from .progress import LOG_SECONDS, Progress
 from .runtime import flush_denormals, resolve_device
 from .tensors import as_split
@@ -141,6 +148,12 @@ def prefix_evaluation(model: torch.nn.Module, dataset: Any, fractions: Sequence[
 
     A causal model just stops reading. A non-causal model gets the prefix as its whole input; if it cannot take a
     shorter sequence (it raises), the unseen rest is zero-filled instead, and ``input`` says ``"zero_padded"``.
+
+    A sample whose top score is tied (:func:`~tactile_zoo.engine.metrics.tied_top`: an SNN that has not fired yet)
+    is undecided at that prefix: it counts as wrong in ``accuracy`` and ``balanced_accuracy``, and ``undecided``
+    holds the fraction of such samples per prefix. (The full-sequence test metrics of :func:`evaluate` keep
+    ``argmax``, so ``accuracy`` at 1.0 can be below the test accuracy: by the tied samples whose true class
+    happened to be argmax's pick, the lowest tied class.)
     """
     split = as_split(dataset)
     loss = loss or model_loss(model)
@@ -150,6 +163,7 @@ def prefix_evaluation(model: torch.nn.Module, dataset: Any, fractions: Sequence[
     mode = "truncated"
     accuracies: list[float] = []
     balanced: list[float] = []
+    undecided: list[float] = []
     for t in steps:
         x, g = split.x[:, :t], split.g[:, :t]  # (S, t, N, C), (S, t, G)
         if mode == "truncated":
@@ -163,12 +177,24 @@ def prefix_evaluation(model: torch.nn.Module, dataset: Any, fractions: Sequence[
             xz, gz = torch.zeros_like(split.x), torch.zeros_like(split.g)
             xz[:, :t], gz[:, :t] = x, g
             scores = predict_scores(model, xz, gz, batch_size, device)
-        res = _result(scores, split.y, split.spec.num_classes, loss)
-        accuracies.append(res.metrics["accuracy"])
-        balanced.append(res.metrics["balanced_accuracy"])
+        acc, bal, tied = _decided_scores(scores, split.y, split.spec.num_classes, loss)
+        accuracies.append(acc)
+        balanced.append(bal)
+        undecided.append(tied)
     full = accuracies[-1]
     return {"causal": bool(causal), "input": "causal" if causal else mode, "fractions": fractions, "steps": steps,
-            "accuracy": accuracies, "balanced_accuracy": balanced, "earliness": earliness(fractions, accuracies, full)}
+            "accuracy": accuracies, "balanced_accuracy": balanced, "earliness": earliness(fractions, accuracies, full),
+            "undecided": undecided}
+
+
+def _decided_scores(scores: torch.Tensor, y: torch.Tensor, num_classes: int, loss: str) -> tuple[float, float, float]:
+    """``(accuracy, balanced accuracy, fraction undecided)`` of one prefix, a tie (:func:`tied_top`) counting as
+    undecided: as a prediction of no class, never correct."""
+    pred = scores.argmax(dim=-1)
+    tied = tied_top(scores, loss)
+    confusion_matrix(y, pred, num_classes)  # the labels' range check, as for the full test metrics
+    pred = torch.where(tied, torch.full_like(pred, num_classes), pred)  # a class no sample has: never a hit
+    return accuracy(y, pred), balanced_accuracy(y, pred), float(tied.float().mean()) if len(y) else 0.0
 
 
 @flush_denormals()

@@ -20,6 +20,12 @@ committed ones included. ``accuracy``, ``balanced_accuracy`` and ``macro_f1`` ar
 Probabilities: ``softmax(scores)`` for a model trained with cross-entropy (``loss="ce"``, scores are logits);
 for spike-rate outputs (``loss="mse_rate"``) the rates are clipped at 0 and normalised to sum 1, a sample whose rates
 are all zero getting the uniform distribution.
+
+Ties (:func:`tied_top`): when two or more classes share the top score (an SNN whose output neurons have not fired
+yet: all rates 0, p = 1/K each), the model has named no class. Early classification
+(:func:`~tactile_zoo.engine.evaluate.prefix_evaluation`) and streaming (:mod:`tactile_zoo.engine.stream`) count such
+a sample as undecided, never as correct. The full-sequence test metrics above keep ``argmax`` (the lowest tied class
+index), as every published cell computed them.
 """
 
 from __future__ import annotations
@@ -38,8 +44,8 @@ import torch
 from ..errors import ConfigError, TactileZooError
 
 __all__ = ["accuracy", "balanced_accuracy", "macro_f1", "confusion_matrix", "classification_metrics",
-           "scores_to_probabilities", "Metric", "MetricError", "MetricInputMissing", "NEEDS", "register_metric",
-           "unregister_metric", "registered_metrics", "metric_value"]
+           "scores_to_probabilities", "tied_top", "Metric", "MetricError", "MetricInputMissing", "NEEDS",
+           "register_metric", "unregister_metric", "registered_metrics", "metric_value"]
 
 ArrayLike = Sequence[int] | np.ndarray | torch.Tensor
 _F = TypeVar("_F", bound=Callable[..., Any])
@@ -250,3 +256,16 @@ def scores_to_probabilities(scores: torch.Tensor, loss: str = "ce") -> torch.Ten
         uniform = torch.full_like(rates, 1.0 / rates.shape[-1])
         return torch.where(total > 0, rates / total.clamp_min(torch.finfo(rates.dtype).tiny), uniform)
     raise ValueError(f"unknown loss {loss!r}; expected 'ce' or 'mse_rate'")
+
+
+def tied_top(scores: torch.Tensor, loss: str = "ce") -> torch.Tensor:
+    """``[B]`` bool: whether the top score of each row of ``scores [B, K]`` is shared by two or more classes (an
+    undecided answer; ``argmax`` would silently pick the lowest tied class). Spike rates (``loss="mse_rate"``) are
+    compared as the probabilities see them, clipped at 0, so all-silent outputs are a tie."""
+    values = scores.float()
+    if loss == "mse_rate":
+        values = values.clamp_min(0)
+    if values.shape[-1] < 2:
+        return torch.zeros(values.shape[:-1], dtype=torch.bool)
+    top = values.max(dim=-1, keepdim=True).values
+    return (values == top).sum(dim=-1) > 1

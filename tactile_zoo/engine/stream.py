@@ -5,6 +5,10 @@ state)``) over one sample at batch size 1 and records, after every frame, the ru
 probabilities (:func:`~tactile_zoo.engine.metrics.scores_to_probabilities`, so spike rates and logits read the same)
 and the wall time of the ``step`` call. :func:`settled_step` answers "from which frame on was the answer right?".
 
+A step whose top score is shared by two or more classes (:func:`~tactile_zoo.engine.metrics.tied_top`: an SNN that
+has not fired yet, all rates 0 and p = 1/K each) names no class: its prediction is ``None`` (undecided), which is
+never correct, so it cannot start or continue a settled run.
+
 Steps are counted from 1: step ``k`` is the state after reading frames ``0 .. k-1``, i.e. after ``k / T`` of the
 recording, at time ``k * frame_period`` seconds when the dataset knows its frame period.
 """
@@ -21,7 +25,7 @@ import torch
 
 from ..errors import ConfigError
 from .evaluate import model_loss
-from .metrics import scores_to_probabilities
+from .metrics import scores_to_probabilities, tied_top
 from .progress import LOG_SECONDS, Progress
 
 __all__ = ["StreamTrace", "replay", "settled_step", "check_streaming"]
@@ -52,8 +56,21 @@ class StreamTrace:
         return int(self.scores.shape[0])
 
     @property
-    def predictions(self) -> list[int]:
-        return self.scores.argmax(dim=-1).tolist()
+    def predictions(self) -> list[int | None]:
+        """The top class after each step, ``None`` where the top score is tied (undecided)."""
+        tied = self.ties
+        return [None if t else int(p) for p, t in zip(self.scores.argmax(dim=-1).tolist(), tied)]
+
+    @property
+    def ties(self) -> list[bool]:
+        """Whether each step's top score is shared by two or more classes (:func:`tied_top`)."""
+        return tied_top(self.scores, self.loss).tolist()
+
+    def tied_classes(self, step: int) -> list[int]:
+        """The classes sharing the top score after ``step`` frames (1-based); one class when there is no tie."""
+        values = self.scores[step - 1].float()
+        values = values.clamp_min(0) if self.loss == "mse_rate" else values
+        return torch.nonzero(values == values.max()).flatten().tolist()
 
     @property
     def settled(self) -> int | None:
@@ -70,11 +87,12 @@ class StreamTrace:
         return {"median": statistics.median(ms), "mean": statistics.fmean(ms), "max": max(ms)}
 
 
-def settled_step(predictions: Sequence[int], target: int) -> int | None:
+def settled_step(predictions: Sequence[int | None], target: int) -> int | None:
     """The first step (1-based) from which every prediction equals ``target``; ``None`` if the last one is wrong.
 
     A prediction that is right early, wrong for a while, then right again settles at the start of its last run of
-    correct steps: only an answer that is not revised afterwards counts.
+    correct steps: only an answer that is not revised afterwards counts. An undecided step (``None``, a tie) is not
+    right.
     """
     settled = None
     for k, pred in enumerate(predictions, start=1):

@@ -32,6 +32,7 @@ from .heads import head_keys, head_name
 from .load import check_fit, load_pretrained, local_weights, resolve_weights
 from .manifest import (
     DEFAULT_LICENCE,
+    checkpoint_preprocessing,
     dataset_options,
     entry_from_record,
     entry_preprocessing,
@@ -58,5 +59,5 @@ __all__ = [
     "weight_sources", "list_weights", "find_weights", "reset_weights", "locate", "weights_cache", "head_name",
     "head_keys", "load_pretrained", "resolve_weights", "local_weights", "check_fit",
     "predict", "iter_predict", "read_recording", "Prediction", "Recording", "Refused", "LENGTHS", "ON_ERROR",
-    "DEFAULT_BATCH", "dataset_options", "entry_preprocessing",
+    "DEFAULT_BATCH", "dataset_options", "entry_preprocessing", "checkpoint_preprocessing",
 ]

@@ -27,7 +27,8 @@ from ..errors import ConfigError, UnknownNameError
 from .entry import MANIFEST_FORMAT, WeightEntry, make_tag, tag_key
 
 __all__ = ["read_manifest", "parse_manifest", "write_manifest", "entry_from_record", "unpublishable",
-           "preprocessing_of", "dataset_options", "entry_preprocessing", "DEFAULT_LICENCE"]
+           "preprocessing_of", "dataset_options", "entry_preprocessing", "checkpoint_preprocessing", "DEFAULT_LICENCE",
+           "CUSTOM_RECIPE", "recipe_changes"]
 
 #: The licence of weights trained by tactile-zoo (the project's own); the data they were trained on keep their terms.
 DEFAULT_LICENCE = "MIT (the weights, like tactile-zoo); the training data keep their own terms (dataset_licence)"
@@ -188,16 +189,80 @@ def entry_preprocessing(entry: WeightEntry) -> RecordingPreprocessing | None:
     Raises:
         ConfigError: the weights' dataset is not installed here, so its preprocessing is unknown.
     """
+    return _dataset_preprocessing(f"weights {entry.qualified_tag}", entry.dataset, entry.dataset_kwargs)
+
+
+def checkpoint_preprocessing(config: Mapping[str, Any], where: str = "the checkpoint"
+                             ) -> RecordingPreprocessing | None:
+    """The preprocessing a ``tactile-zoo train --save`` checkpoint (its ``config``) expects on a raw recording, as
+    :func:`entry_preprocessing` gives a weight entry's: its dataset's transform with the loading options recorded in
+    the checkpoint (``preprocessing.dataset_options``; a checkpoint written before they were recorded: its
+    ``dataset_kwargs`` with today's defaults). ``None``: the dataset feeds recordings as they are.
+
+    Raises:
+        ConfigError: the checkpoint names no dataset, or one not installed here (``where`` names the checkpoint).
+    """
+    dataset = config.get("dataset")
+    if not isinstance(dataset, str) or not dataset:
+        raise ConfigError(f"{where} does not name the dataset it was trained on, so the preprocessing it expects is "
+                          f"unknown: feed values already preprocessed with raw=True (--raw)")
+    recorded = (config.get("preprocessing") or {}).get("dataset_options")
+    return _dataset_preprocessing(where, dataset, config.get("dataset_kwargs") or {},
+                                  recorded if isinstance(recorded, Mapping) else None)
+
+
+def _dataset_preprocessing(what: str, dataset: str, dataset_kwargs: Mapping[str, Any],
+                           options: Mapping[str, Any] | None = None) -> RecordingPreprocessing | None:
+    """Dataset ``dataset``'s transform of one raw recording with ``options`` (default: ``dataset_kwargs`` with every
+    default filled in); ``what`` (weights, a checkpoint) names the trained model in the error."""
     from .. import registry
 
     try:
-        cls = registry.get_dataset_entry(entry.dataset).obj
+        cls = registry.get_dataset_entry(dataset).obj
     except UnknownNameError:
-        raise ConfigError(f"weights {entry.qualified_tag} were trained on dataset {entry.dataset!r}, which is not "
-                          f"installed here, so the preprocessing they expect is unknown: install it, or feed values "
-                          f"already preprocessed with raw=True (--raw)") from None
+        raise ConfigError(f"{what}: trained on dataset {dataset!r}, which is not installed here, so the "
+                          f"preprocessing it expects is unknown: install it, or feed values already preprocessed "
+                          f"with raw=True (--raw)") from None
     hook = getattr(cls, "recording_preprocessing", None)
-    return hook(dataset_options(cls, entry.dataset_kwargs)) if hook is not None and isinstance(cls, type) else None
+    if hook is None or not isinstance(cls, type):
+        return None
+    return hook(dict(options) if options is not None else dataset_options(cls, dataset_kwargs))
+
+
+#: the recipe label (and tag part) of weights whose cell did not run its named recipe as the recipe declares it
+CUSTOM_RECIPE = "custom"
+
+
+def recipe_changes(model: str, dataset: str, config: Mapping[str, Any]) -> str:
+    """What a cell's stored ``config`` changed of its named recipe (``recipe_name``) on ``dataset``: the training keys
+    (``max_epochs`` from ``--epochs``, ``--set``), the evaluation, ``--refit`` and constructor keywords it declares,
+    as ``"max_epochs 1 (the recipe: 15)"``; ``""`` when it ran the recipe as declared, or when the model or dataset
+    is not registered here (nothing to compare with)."""
+    from ..engine.config import resolve_cell
+    from ..recipe import recipe_name_of
+
+    try:
+        declared = resolve_cell(model, dataset, recipe_name=recipe_name_of(config)).to_dict()
+    except Exception:  # noqa: BLE001 - a plugin that is not installed, a recipe renamed since: nothing to compare
+        return ""
+    changes = []
+
+    def compare(what: str, ran: Any, wanted: Any) -> None:
+        if ran != wanted:
+            changes.append(f"{what} {ran!r} (the recipe: {wanted!r})")
+
+    # only what the record stores is compared (a hand-made or older record may leave a part out)
+    if isinstance(config.get("recipe"), Mapping):
+        ran_recipe, wanted_recipe = dict(config["recipe"]), declared["recipe"]
+        for key in sorted(set(ran_recipe) | set(wanted_recipe)):
+            compare(key, ran_recipe.get(key), wanted_recipe.get(key))
+    compare("evaluation", config.get("evaluation", "validation"), declared.get("evaluation", "validation"))
+    compare("refit", bool(config.get("refit")), bool(declared["refit"]))
+    if isinstance(config.get("hparams"), Mapping):
+        ran_hparams, wanted_hparams = dict(config["hparams"]), declared["hparams"]
+        for key in sorted(set(ran_hparams) | set(wanted_hparams)):
+            compare(f"hparam {key}", ran_hparams.get(key), wanted_hparams.get(key))
+    return "; ".join(changes)
 
 
 def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | None = None, *,
@@ -210,6 +275,9 @@ def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | No
         run_dir: the run folder (``--out``); the record's ``weights.file`` is relative to it. ``None``: leave
             ``file`` relative (to be placed next to the manifest).
         tag: default :func:`~tactile_zoo.weights.entry.make_tag` of the cell's model, recipe, dataset, fold, seed.
+            The recipe is the cell's named recipe only if the cell ran it as declared; a cell that changed it
+            (:func:`recipe_changes`: ``--epochs 1``, ``--set lr=...``, ``--hparam``) is tagged and labelled
+            :data:`CUSTOM_RECIPE`, and the note says what changed.
         licence: the weights' licence (default: the project's, :data:`DEFAULT_LICENCE`).
         dataset_licence: the training data's terms (default: the dataset's registry metadata ``licence``).
         note: anything users must know (e.g. that a dataset's class names are unverified).
@@ -237,6 +305,11 @@ def entry_from_record(record: Mapping[str, Any], run_dir: str | os.PathLike | No
     test = (record.get("metrics") or {}).get("test") or {}
     fold, seed = int(record.get("fold", 0)), int(record.get("seed", 0))
     recipe = recipe_name_of(config)  # a record from before named recipes ran what is now the model's registered one
+    changed = recipe_changes(record["model"], record["dataset"], config)
+    if changed:  # the tag names a recipe: weights that did not follow it (--epochs 1, --set) are "custom"
+        note = " ".join(filter(None, [f"Trained with recipe {recipe!r} changed ({changed}), so tagged "
+                                      f"{CUSTOM_RECIPE!r}.", note]))
+        recipe = CUSTOM_RECIPE
     file = Path(weights["file"]) if run_dir is None else Path(run_dir) / weights["file"]
     entry = WeightEntry(
         tag=tag or make_tag(record["model"], record["dataset"], recipe, fold=fold, seed=seed),

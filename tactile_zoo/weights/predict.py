@@ -13,7 +13,8 @@ once cast to float32 (NaN, Inf, ``1e300``), naming the file, line and column.
 Preprocessing. The values are a raw recording, as the sensor (and the weights' dataset's release) gives them; pretrained
 weights' own preprocessing is applied first by default: what their dataset's loader does to one recording with the
 entry's ``dataset_kwargs`` (:func:`~tactile_zoo.weights.manifest.entry_preprocessing`; BioTac-DoS: its ``minmax`` or
-``baseline`` normalisation), named in each answer's ``preprocessing``. ``raw=True`` feeds the values as read: a file of
+``baseline`` normalisation), named in each answer's ``preprocessing``; a model built from a ``train --save`` checkpoint
+applies the checkpoint's the same way. ``raw=True`` feeds the values as read: a file of
 the dataset's own (already preprocessed) test sample, written row by row, then gives exactly
 :func:`tactile_zoo.evaluate`'s prediction for that sample.
 
@@ -51,10 +52,10 @@ from ..data.datasets._io import check_finite, open_npy, read_csv_table
 from ..data.preprocess import RecordingPreprocessing
 from ..errors import ConfigError, DatasetError
 from .load import load_pretrained
-from .manifest import entry_preprocessing
+from .manifest import checkpoint_preprocessing, entry_preprocessing
 
 __all__ = ["LENGTHS", "ON_ERROR", "DEFAULT_BATCH", "Recording", "Prediction", "Refused", "read_recording", "predict",
-           "iter_predict"]
+           "iter_predict", "model_preprocessing"]
 
 #: How a recording of another length is brought to the weights' number of steps (see the module docstring).
 LENGTHS = ("crop", "pad", "resample")
@@ -272,6 +273,17 @@ def read_recording(source: str | os.PathLike | np.ndarray, spec: Any, *, length:
                      preprocessing.name if preprocessing is not None else None)
 
 
+def model_preprocessing(model: nn.Module) -> RecordingPreprocessing | None:
+    """What a raw recording goes through before ``model`` reads it: its pretrained weights' preprocessing
+    (:func:`~tactile_zoo.weights.manifest.entry_preprocessing`), or that of the ``train --save`` checkpoint it was
+    built from (:func:`~tactile_zoo.weights.manifest.checkpoint_preprocessing`); ``None`` for any other model."""
+    entry = getattr(model, "zoo_pretrained", None)
+    if entry is not None:
+        return entry_preprocessing(entry)
+    config = getattr(model, "zoo_checkpoint", None)
+    return checkpoint_preprocessing(config) if config is not None else None
+
+
 def _as_list(inputs: Any) -> list[Any]:
     if isinstance(inputs, str | os.PathLike | np.ndarray | torch.Tensor):
         return [inputs]
@@ -286,6 +298,11 @@ def _spec_of(model: nn.Module, spec: Any) -> Any:
     entry = getattr(model, "zoo_pretrained", None)
     if entry is not None:
         return entry.dataset_spec()
+    trained = (getattr(model, "zoo_checkpoint", None) or {}).get("spec")
+    if trained:
+        from ..data.spec import DatasetSpec
+
+        return DatasetSpec.from_dict(trained, where="the checkpoint")
     if getattr(model, "spec", None) is not None:
         return model.spec
     raise ConfigError(f"predict: pass spec= (the {type(model).__name__} model does not say which data it was built "
@@ -327,8 +344,7 @@ def iter_predict(model: str | nn.Module, inputs: Any, *, pretrained: Any = None,
     model, spec = _prepare(model, pretrained, spec, top_k, on_error, hparams)
     if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
         raise ConfigError(f"batch_size must be a positive integer, got {batch_size!r}")
-    entry = getattr(model, "zoo_pretrained", None)
-    preprocessing = None if raw or entry is None else entry_preprocessing(entry)
+    preprocessing = None if raw else model_preprocessing(model)
     items = _as_list(inputs)
     if not items:
         raise ConfigError("predict: no inputs")
@@ -400,7 +416,8 @@ def predict(model: str | nn.Module, inputs: Any, *, pretrained: Any = None, spec
     """The most probable classes of recorded grasps.
 
     Args:
-        model: a model name (then ``pretrained`` is required) or a built model (a pretrained one knows its spec).
+        model: a model name (then ``pretrained`` is required) or a built model (a pretrained one, or one built from a
+            checkpoint, knows its spec).
         inputs: a ``.csv``/``.npy`` file, a 2-D array ``(T, N * C + G)``, or a list of them.
         pretrained: with a model name: a dataset name, a tag, a local manifest or ``.safetensors`` file, or a
             WeightEntry (see :func:`tactile_zoo.create_model`).
@@ -414,8 +431,10 @@ def predict(model: str | nn.Module, inputs: Any, *, pretrained: Any = None, spec
             content when its batch is read; nothing is returned); ``"report"`` answers every other input and puts a
             :class:`Refused` in its place.
         raw: feed the values as read. By default the pretrained weights' preprocessing
-            (:func:`~tactile_zoo.weights.manifest.entry_preprocessing`: BioTac-DoS's normalisation, for instance) is
-            applied to every input first, and each :class:`Prediction` names it in ``preprocessing``.
+            (:func:`~tactile_zoo.weights.manifest.entry_preprocessing`: BioTac-DoS's normalisation, for instance), or
+            that of the checkpoint a model was built from (:func:`~tactile_zoo.engine.build_from_checkpoint`), is
+            applied to every input first (:func:`model_preprocessing`), and each :class:`Prediction` names it in
+            ``preprocessing``.
         **hparams: constructor overrides, with a model name.
 
     Returns:

@@ -135,7 +135,8 @@ def test_notes_say_what_users_must_know() -> None:
     ev = weights_pack.planned_entry(weights_pack.Source(_record("x_tacformer", "ev_objects"), _record(
         "x_tacformer", "ev_objects") | {"spec": _spec("ev_objects", 250, 39, 2, 36)}, Path("."), Path(".")))
     assert ev.note.startswith("Ev-Objects class names are unverified") and ev.file == f"{ev.tag}.safetensors"
-    record = _record(dataset_kwargs={"window": 10}) | {"spec": _spec("biotac_dos", 10, 24, 1, 7)}
+    # as the full recipe declares it on BioTac-DoS (another evaluation would be tagged custom)
+    record = _record(dataset_kwargs={"window": 10}, evaluation="final") | {"spec": _spec("biotac_dos", 10, 24, 1, 7)}
     biotac = weights_pack.planned_entry(weights_pack.Source(record, record, Path("."), Path(".")))
     assert "windows of 10 BioTac SP readings at 100 Hz, each electrode as (baseline - reading) / 1000" in biotac.note
     assert biotac.tag == "cnn_lstm.full_biotac_dos" and biotac.preprocessing["frame_period_s"] == 0.01

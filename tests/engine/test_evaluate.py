@@ -60,3 +60,32 @@ def test_inference_timing_is_positive(trained: tuple) -> None:
     res, test = trained
     ms = time_inference(res.model, test, samples=3)
     assert ms is not None and ms > 0
+
+
+class _Silent(torch.nn.Module):
+    """Spike rates that are all zero until ``fires`` steps were read, then the true class of every sample: an SNN
+    whose output neurons have not fired yet ties every class (p = 1/K)."""
+
+    def __init__(self, y: torch.Tensor, num_classes: int, fires: int) -> None:
+        super().__init__()
+        self.y, self.k, self.fires = y, num_classes, fires
+        self.anchor = torch.nn.Parameter(torch.zeros(1))
+
+    def forward(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
+        out = torch.zeros(x.shape[0], self.k)
+        if x.shape[1] >= self.fires:
+            out[torch.arange(x.shape[0]), self.y[: x.shape[0]]] = 1.0
+        return out
+
+
+def test_a_tie_at_a_prefix_is_undecided_not_class_0() -> None:
+    """Issue 49 item 6: before the model fires, argmax of the tie would pick class 0 and score every class-0 sample
+    as correct; early classification counts them undecided."""
+    test = tz.load_dataset("tiny_blobs", split="test")
+    _, _, y = test.tensors()
+    assert (y == 0).any() and (y != 0).any()
+    out = prefix_evaluation(_Silent(y, test.spec.num_classes, fires=6), test, [0.25, 0.5], causal=True,
+                            loss="mse_rate")
+    assert out["steps"] == [3, 6, 12]
+    assert out["accuracy"] == [0.0, 1.0, 1.0] and out["balanced_accuracy"] == [0.0, 1.0, 1.0]
+    assert out["undecided"] == [1.0, 0.0, 0.0] and out["earliness"] == 0.5

@@ -7,6 +7,7 @@ import torch
 
 import tactile_zoo as tz
 from tactile_zoo.engine import scores_to_probabilities
+from tactile_zoo.engine.metrics import tied_top
 from tactile_zoo.engine.stream import StreamTrace, check_streaming, replay, settled_step
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.registry import get_model_entry
@@ -44,8 +45,9 @@ def test_replay_gives_the_forward_scores_of_every_prefix(name: str, hparams: dic
     torch.testing.assert_close(trace.probabilities, scores_to_probabilities(prefix, loss))
     assert ((trace.probabilities >= 0) & (trace.probabilities <= 1)).all()
     torch.testing.assert_close(trace.probabilities.sum(-1), torch.ones(T))
-    assert trace.predictions == prefix.argmax(-1).tolist()
-    assert trace.settled == settled_step(prefix.argmax(-1).tolist(), sample.y)
+    decided = [None if tie else p for p, tie in zip(prefix.argmax(-1).tolist(), tied_top(prefix, loss).tolist())]
+    assert trace.predictions == decided  # an untrained SNN is silent at first: a tie, undecided
+    assert trace.settled == settled_step(decided, sample.y)
     latency = trace.latency_ms()
     assert latency["max"] >= latency["median"] > 0 and latency["max"] >= latency["mean"]
 
@@ -109,3 +111,19 @@ def test_replay_feeds_frames_in_order_and_rejects_a_batch_or_an_empty_sample() -
         replay(_Counter(), x[None].expand(2, -1, -1, -1))
     with pytest.raises(ConfigError, match="T >= 1"):
         replay(_Counter(), x[:0])
+
+
+def test_a_tie_is_undecided_never_correct() -> None:
+    """Issue 49 item 6: all-zero output rates (an SNN that never fired, p = 1/K for every class) are not a
+    prediction of class 0; a stream of them never settles on class 0, and a tie breaks a run of correct steps."""
+    silent = torch.zeros(4, 10)
+    trace = StreamTrace(silent, scores_to_probabilities(silent, "mse_rate"), [0.0] * 4, target=0, loss="mse_rate")
+    assert trace.predictions == [None] * 4 and trace.ties == [True] * 4
+    assert trace.settled is None and trace.tied_classes(1) == list(range(10))
+    scores = torch.tensor([[0.0, 3.0, 3.0], [0.0, 3.0, 1.0], [2.0, 2.0, 2.0], [0.0, 3.0, 1.0]])
+    trace = StreamTrace(scores, scores_to_probabilities(scores), [0.0] * 4, target=1)
+    assert trace.predictions == [None, 1, None, 1] and trace.settled == 4
+    assert settled_step([None, None], 0) is None
+    negative = torch.tensor([[-1.0, -2.0]])  # spike rates clipped at 0: a tie, as the probabilities (0.5, 0.5) say
+    assert StreamTrace(negative, scores_to_probabilities(negative, "mse_rate"), [0.0], loss="mse_rate"
+                       ).predictions == [None]

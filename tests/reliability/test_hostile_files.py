@@ -85,12 +85,14 @@ def test_evaluate_refuses_checkpoints_that_carry_code(tmp_path: Path, capsys: py
             assert main(["evaluate", str(path), "tiny_blobs", "--plugin-module", "tiny_zoo"]) == 2
             out, err = capsys.readouterr()
             assert out == "" and err.count("\n") == 1 and "Traceback" not in err
-            assert err.startswith(f"tactile-zoo: error: checkpoint {path} cannot be loaded safely (weights_only")
+            assert err.startswith(f"tactile-zoo: error: checkpoint {path} cannot be loaded safely: it holds Python "
+                                  f"objects other than tensors")
         assert not marker.exists(), f"{name}: the payload ran"
     legacy = tmp_path / "legacy.pkl"  # not a torch zip at all: a bare pickle stream
     legacy.write_bytes(pickle.dumps(Payload(marker)))
     assert main(["evaluate", str(legacy), "tiny_blobs"]) == 2
-    assert "cannot be loaded safely" in capsys.readouterr().err and not marker.exists()
+    err = capsys.readouterr().err
+    assert "is not a tactile-zoo checkpoint: it is not a zip archive" in err and not marker.exists()
 
 
 def test_a_poisoned_processed_cache_is_rebuilt_not_run(tmp_path: Path) -> None:

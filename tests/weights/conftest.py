@@ -6,6 +6,7 @@ manifest built from the cell record."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ import tactile_zoo as tz
 from tactile_zoo.bench import worker as bench_cell
 from tactile_zoo.engine.config import resolve_cell
 from tactile_zoo.engine.evaluate import predict_scores
-from tactile_zoo.weights import entry_from_record, write_manifest
+from tactile_zoo.weights import entry_from_record, make_tag, write_manifest
 
 
 @pytest.fixture(scope="session")
@@ -38,7 +39,11 @@ def trained(tmp_path_factory: pytest.TempPathFactory) -> Trained:
         mp.setattr(bench_cell, "save_weights", keep)
         record = json.loads(json.dumps(bench_cell.run_cell(task)))  # as read back from cells/<id>.json
     assert record["status"] == "ok", record.get("error")
-    entry = entry_from_record(record, run, note="trained by the test suite")
+    honest = entry_from_record(record, run, note="trained by the test suite")  # a 2-epoch run: recipe "custom"
+    # labelled as the model's default recipe, as shipped weights are, so that the default-recipe preference of
+    # discovery can be tested; test_manifest checks the honest label of these 2 epochs
+    entry = dataclasses.replace(honest, tag=make_tag(MODEL, DATASET, "full"), recipe="full",
+                                note="trained by the test suite")
     manifest = write_manifest([entry], run / "manifest.json")
     test = tz.load_dataset(DATASET, split="test", **DATA_ARGS)
     model = captured["model"].eval()

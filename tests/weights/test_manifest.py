@@ -12,6 +12,7 @@ import pytest
 from weights_helpers import CELL_ID, CONFIG_HASH, DATA_ARGS, DATASET, HPARAMS, MODEL, Trained
 
 from tactile_zoo.data.base import file_sha256
+from tactile_zoo.engine.config import resolve_cell
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.weights import (
     DEFAULT_LICENCE,
@@ -25,6 +26,23 @@ from tactile_zoo.weights import (
     read_manifest,
     tag_key,
 )
+from tactile_zoo.weights.manifest import recipe_changes
+
+
+def test_weights_that_did_not_follow_their_recipe_are_tagged_custom(trained: Trained) -> None:
+    """Issue 49 item 8: the tag names a recipe; a cell that changed it (here 2 epochs and --hparam values, as
+    ``--epochs 1`` would) is tagged ``custom`` and its note says what changed; a cell that followed it keeps it."""
+    honest = entry_from_record(trained.record, trained.run, note="trained by the test suite")
+    assert honest.tag == "cnn_lstm.custom_sim_uskin_textures" and honest.recipe == "custom"
+    declared = resolve_cell(MODEL, DATASET)
+    assert honest.note.startswith(f"Trained with recipe 'full' changed (max_epochs 2 (the recipe: "
+                                  f"{declared.recipe.max_epochs}); hparam ")
+    assert honest.note.endswith("so tagged 'custom'. trained by the test suite")
+    assert recipe_changes(MODEL, DATASET, trained.record["config"]) in honest.note
+    followed = {**trained.record["config"], "recipe": declared.recipe.to_dict(), "hparams": dict(declared.hparams)}
+    assert recipe_changes(MODEL, DATASET, followed) == ""
+    entry = entry_from_record({**trained.record, "config": followed}, trained.run, note="n")
+    assert entry.tag == "cnn_lstm.full_sim_uskin_textures" and entry.recipe == "full" and entry.note == "n"
 
 
 def test_tags_follow_model_dot_recipe_dataset() -> None:

@@ -166,10 +166,60 @@ def test_the_cli_says_which_preprocessing_it_applied_and_raw_turns_it_off(tmp_pa
     assert out["preprocessing"] == out["predictions"][0]["preprocessing"] == "biotac_dos normalize='minmax'"
 
 
-def test_stream_takes_raw_only_with_a_file_and_pretrained_weights(trained: Trained,
-                                                                  capsys: pytest.CaptureFixture) -> None:
+def test_stream_takes_raw_only_with_a_file(trained: Trained, capsys: pytest.CaptureFixture) -> None:
     capsys.readouterr()
     assert main(["stream", MODEL, *_local(trained), "--index", "0", "--raw"]) == 2
     assert capsys.readouterr().err.splitlines() == [
-        "tactile-zoo: error: --raw goes with --file and pretrained weights (--pretrained or --weights): a dataset "
-        "sample or a checkpoint's file is fed as it is"]
+        "tactile-zoo: error: --raw goes with --file (your recording): a dataset sample is already what its loader "
+        "made of the raw recording"]
+
+
+def _checkpoint_on_biotac(tmp_path: Path, dataset_kwargs: dict[str, object], window: int, recorded: bool) -> Path:
+    """A ``train --save`` checkpoint of a model trained on BioTac-DoS with ``dataset_kwargs``; ``recorded``: with the
+    ``preprocessing`` that ``train --save`` records (else as a checkpoint from before it did)."""
+    from tactile_zoo.engine import save_checkpoint
+    from tactile_zoo.weights import preprocessing_of
+
+    model = _pretrained_on_biotac(dataset_kwargs, window)
+    spec = model.zoo_pretrained.spec
+    hparams = {"conv_channels": [4, 8], "frame_features": 12, "hidden": 12}
+    config = {"model": "cnn_lstm", "hparams": hparams, "dataset": "biotac_dos", "dataset_kwargs": dataset_kwargs,
+              "fold": 0, "seed": 0, "recipe": {"loss": "ce"}, "spec": dict(spec)}
+    if recorded:
+        config["preprocessing"] = preprocessing_of("cnn_lstm", "biotac_dos", spec, hparams, dataset_kwargs)
+    return save_checkpoint(tmp_path / "biotac.pt", model, config)
+
+
+@pytest.mark.parametrize("recorded", [True, False])
+def test_a_checkpoint_preprocesses_a_raw_recording_as_its_dataset_did(tmp_path: Path, recorded: bool,
+                                                                       capsys: pytest.CaptureFixture) -> None:
+    """Issue 49 item 7: a checkpoint carries its dataset's preprocessing as weights do; ``stream --file`` and
+    ``predict`` apply it, and ``--raw`` / ``raw=True`` turn it off."""
+    from tactile_zoo.engine import build_from_checkpoint, load_checkpoint
+
+    kwargs = {"normalize": "minmax", "window": 10}
+    ckpt = _checkpoint_on_biotac(tmp_path, kwargs, 10, recorded)
+    raw_file = _write_raw(tmp_path / "grasp.csv", _raw_biotac(3))
+    by_hand = normalize_recording(np.loadtxt(raw_file, delimiter=",", skiprows=1), "minmax", 10, 1000.0, "x")
+    done = tmp_path / "done.npy"
+    np.save(done, by_hand)
+    blob = load_checkpoint(ckpt)
+    model = build_from_checkpoint(blob, tz.DatasetSpec.from_dict(blob["config"]["spec"]))
+    answer = tz.predict(model, [raw_file])[0]
+    assert answer.preprocessing == "biotac_dos normalize='minmax'"
+    assert answer.probabilities == pytest.approx(tz.predict(model, [done], raw=True)[0].probabilities, abs=1e-6)
+    assert tz.predict(model, [raw_file], raw=True)[0].preprocessing is None
+
+    def stream(*extra: str) -> dict:
+        assert main(["stream", str(ckpt), "--json", "-q", *extra]) == 0
+        return json.loads(capsys.readouterr().out)
+
+    applied, reference = stream("--file", str(raw_file)), stream("--file", str(done), "--raw")
+    assert applied["preprocessing"] == "biotac_dos normalize='minmax'" and reference["preprocessing"] is None
+    assert applied["final_scores"] == pytest.approx(reference["final_scores"], abs=1e-5)
+    assert stream("--file", str(raw_file), "--raw")["final_scores"] != pytest.approx(applied["final_scores"],
+                                                                                     abs=1e-3)
+    assert main(["stream", str(ckpt), "--file", str(raw_file), "-q"]) == 0
+    assert ("preprocessing: biotac_dos normalize='minmax': each reading scaled by its own range over the 24 "
+            "electrodes, (max E - E) / (max E - min E) (the checkpoint's own, as it was trained; --raw turns it "
+            "off)") in capsys.readouterr().out.splitlines()

@@ -1,0 +1,132 @@
+"""Issue 49, ``tactile-zoo train --save`` and the checkpoints it writes: the output-file ownership rule of
+:mod:`tactile_zoo._owned` (a new file or a checkpoint it wrote; never a user's file, a link, a device, a FIFO or a
+folder; an empty path refused; all before training), a full disk as one line with nothing left behind, ``evaluate``'s
+one-line refusal of files that are not checkpoints, and the test figures of a ``--quick`` run named as a subset's."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tactile_zoo.cli import main
+from tactile_zoo.engine import load_checkpoint
+from tactile_zoo.engine.checkpoint import is_checkpoint
+
+TESTS = Path(__file__).resolve().parent
+TRAIN = ["train", "tiny_mlp", "tiny_blobs", "--plugin-module", "tiny_zoo", "--epochs", "1", "-q"]
+
+
+@pytest.fixture()
+def no_training(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Training fails the test: a refused path must be refused before any work."""
+    from tactile_zoo.engine import cell
+
+    def fail(*args: object, **kwargs: object) -> None:
+        raise AssertionError("trained before the --save path was checked")
+
+    monkeypatch.setattr(cell, "train_cell", fail)
+
+
+def _refused(argv: list[str], capsys: pytest.CaptureFixture) -> str:
+    assert main(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+def test_save_refuses_what_it_does_not_own_before_training(tmp_path: Path, no_training: None,
+                                                           capsys: pytest.CaptureFixture) -> None:
+    mine = tmp_path / "notmine.txt"
+    mine.write_text("a user's notes\n")
+    assert "--save: an empty path names no file" in _refused([*TRAIN, "--save", ""], capsys)
+    err = _refused([*TRAIN, "--save", str(mine)], capsys)
+    assert f"--save {mine}: the file exists and is not a tactile-zoo checkpoint" in err
+    assert mine.read_text() == "a user's notes\n"
+    fifo = tmp_path / "pipe.pt"
+    os.mkfifo(fifo)
+    assert "it is a FIFO" in _refused([*TRAIN, "--save", str(fifo)], capsys)
+    link = tmp_path / "link.pt"
+    link.symlink_to(mine)
+    assert "it is a symbolic link" in _refused([*TRAIN, "--save", str(link)], capsys)
+    assert "it is a folder" in _refused([*TRAIN, "--save", str(tmp_path)], capsys)
+    assert "cannot write there" in _refused([*TRAIN, "--save", str(mine / "x.pt")], capsys)
+    if Path("/dev/null").exists():  # as root, replacing it with a regular file would break the machine
+        assert "--save /dev/null: it is a character device" in _refused([*TRAIN, "--save", "/dev/null"], capsys)
+        assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+    assert mine.read_text() == "a user's notes\n" and stat.S_ISFIFO(os.lstat(fifo).st_mode) and link.is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.pt", "notmine.txt", "pipe.pt"]  # no temporaries
+
+
+def test_save_writes_a_new_file_and_replaces_its_own_checkpoint(tmp_path: Path, capsys: pytest.CaptureFixture
+                                                                ) -> None:
+    path = tmp_path / "sub" / "model.pt"
+    assert main([*TRAIN, "--save", str(path)]) == 0
+    assert is_checkpoint(path) and f"saved {path}" in capsys.readouterr().out
+    first = path.read_bytes()
+    assert main([*TRAIN, "--save", str(path), "--seed", "1"]) == 0  # its own checkpoint: replaced
+    assert path.read_bytes() != first and load_checkpoint(path)["config"]["seed"] == 1
+    assert sorted(p.name for p in path.parent.iterdir()) == ["model.pt"]
+
+
+def _limited(argv: list[str], limit: int) -> subprocess.CompletedProcess:
+    """``argv`` run by ``tactile-zoo`` in a subprocess whose files may not grow beyond ``limit`` bytes (a full disk,
+    as ``ulimit -f`` makes one; Python ignores SIGXFSZ, so a write past it fails with EFBIG)."""
+    code = (f"import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
+            f"from tactile_zoo.cli import main; sys.exit(main({argv!r}))")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")])),
+           "OMP_NUM_THREADS": "1"}
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+
+
+@pytest.mark.skipif(not hasattr(resource, "RLIMIT_FSIZE"), reason="no file size limit on this platform")
+def test_a_full_disk_is_one_line_naming_the_path_and_leaves_nothing(tmp_path: Path) -> None:
+    path = tmp_path / "model.pt"
+    done = _limited([*TRAIN, "--save", str(path)], 4096)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines() == [f"tactile-zoo: error: --save {path}: cannot write the checkpoint (File too "
+                                        f"large); nothing was written there"]
+    assert list(tmp_path.iterdir()) == []
+    assert main([*TRAIN, "--save", str(path)]) == 0
+    before = path.read_bytes()
+    done = _limited([*TRAIN, "--save", str(path), "--seed", "1"], 4096)  # replacing its own checkpoint
+    assert done.returncode == 2 and "cannot write the checkpoint" in done.stderr
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["model.pt"]
+
+
+def test_evaluate_names_a_file_that_is_not_a_checkpoint_in_one_line(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture) -> None:
+    text = tmp_path / "notes.txt"
+    text.write_text("hello\n")
+    array = tmp_path / "grasp.npy"
+    np.save(array, np.zeros((3, 4)))
+    empty = tmp_path / "empty.pt"
+    empty.touch()
+    for path, what in ((text, "it is a text file"), (array, "it is a NumPy .npy array"), (empty, "it is empty")):
+        err = _refused(["evaluate", str(path)], capsys)
+        assert err.startswith(f"tactile-zoo: error: checkpoint {path} is not a tactile-zoo checkpoint: {what}")
+    torch.save({"format": "tactile-zoo-checkpoint/1"}, tmp_path / "cut.pt")
+    cut = tmp_path / "cut.pt"
+    cut.write_bytes(cut.read_bytes()[:-40])  # a truncated zip
+    err = _refused(["evaluate", str(cut)], capsys)
+    assert f"checkpoint {cut} cannot be loaded safely: torch.load refused it" in err and len(err) < 300
+
+
+def test_a_quick_run_says_its_test_figures_are_a_subsets(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    assert main([*TRAIN, "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert ("note: a --quick run: test figures on 24 test samples (at most 64 per split, class-balanced), after "
+            "training on at most 64; not comparable with the leaderboard's") in out
+    assert main([*TRAIN, "--quick", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["subset"] == {"train": 64, "val": 32, "test": 64} and summary["test"]["n"] == 24
+    assert main(TRAIN) == 0
+    assert "subset" not in capsys.readouterr().out
