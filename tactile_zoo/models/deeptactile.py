@@ -93,6 +93,7 @@ class _Transition(nn.Module):
     **recipe_file("tactile_zoo", "deeptactile"),
     causal=True,
     streaming=True,
+    revision=1,  # 1: what it has computed since it was added (the revision its committed cells and outputs carry)
 )
 class DeepTactile(BinnedStreamer):
     """DeepTactile (Guo et al., IEEE TIM): a dense spiking graph network on every frame's taxel graph, then a
