@@ -146,3 +146,16 @@ def test_a_tie_is_reported_undecided_never_correct(tmp_path: Path, capsys: pytes
     assert report["settled_step"] is None
     assert all(s["top_class"] is None and s["correct"] is False and len(s["tied_classes"]) == 10
                for s in report["steps"])
+
+
+def test_a_dataset_arg_keeps_the_checkpoints_own_dataset_options(sgnet_ckpt: str, capsys: pytest.CaptureFixture
+                                                                  ) -> None:
+    """Issue 49 item 7: the data a checkpoint is evaluated or streamed on are loaded with the options (the
+    preprocessing) it was trained with; one ``--dataset-arg`` overrides one key instead of dropping them all (it used
+    to load 100-step default recordings into a model trained on 20 steps)."""
+    capsys.readouterr()
+    assert main(["evaluate", sgnet_ckpt, "--dataset-arg", "seed=1", "--json", "-q"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["n"] == 10  # n_test_per_class=1 of the checkpoint, 10 classes
+    assert main(["stream", sgnet_ckpt, "--index", "0", "--dataset-arg", "seed=1", "--json", "-q"]) == 0
+    assert json.loads(capsys.readouterr().out)["num_steps"] == 20

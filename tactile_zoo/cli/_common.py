@@ -75,14 +75,17 @@ def fold_arg(value: Any) -> int:
 
 def checkpoint_dataset(args: argparse.Namespace, config: dict[str, Any], flag: str) -> tuple[Any, str, int]:
     """The split a checkpoint is evaluated or replayed on: the checkpoint's own dataset (with its fold and keyword
-    arguments) unless ``args.dataset`` names another; ``--dataset-arg`` and ``--fold`` override."""
+    arguments, hence the preprocessing it was trained with) unless ``args.dataset`` names another; ``--dataset-arg``
+    overrides single keywords on top, ``--fold`` the fold."""
     from ..bench.config import parse_assignment
 
     dataset = args.dataset or config.get("dataset")
     if not dataset:
         raise ConfigError(f"{args.checkpoint} does not name its dataset; give {flag}")
     same = registry.normalize_name(dataset) == registry.normalize_name(str(config.get("dataset")))
-    kwargs = dict(config.get("dataset_kwargs") or {}) if same and not args.dataset_args else {}
+    # the checkpoint's own keywords stay under --dataset-arg: dropping them would load the data with another
+    # preprocessing (BioTac-DoS's default normalisation instead of the trained one) without a word
+    kwargs = dict(config.get("dataset_kwargs") or {}) if same else {}
     for text in args.dataset_args:
         _, key, value = parse_assignment("--dataset-arg", text)
         kwargs[key] = value
