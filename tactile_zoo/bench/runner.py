@@ -5,7 +5,8 @@ recomputes); a ``failed`` cell is retried on the next run. A cell is written the
 run killed at any point (SIGKILL included) loses at most the cells that were running.
 
 Exit codes: 0 every cell ok (or skipped), 1 a cell or a dataset failed or a file could not be written, 130
-interrupted (Ctrl-C: running cells are abandoned, finished ones kept, the tables written for them).
+interrupted (Ctrl-C: running cells are abandoned, finished ones kept, the tables written for them), 143 the same
+after SIGTERM.
 
 Progress: every running cell writes its epochs to ``--out/progress/<cell id>.json`` (:mod:`.progress`); the runner
 polls those files (every :data:`POLL_SECONDS`, and after each epoch of a cell it runs itself) and shows a live bar per
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from .. import registry
+from .._signals import Terminated, terminate_as_interrupt
 from ..errors import ResultsError, TactileZooError
 from .config import BenchConfig
 from .environment import environment
@@ -105,7 +107,15 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
     """Run (or with ``dry_run`` only list) the grid ``config`` describes. Raises ConfigError for bad input.
 
     Damaged cell files in the folder (:mod:`.records`) are named on ``err``; those of the grid are moved to
-    ``cells/damaged/`` and recomputed. Either way the exit code is 1 unless ``skip_invalid``."""
+    ``cells/damaged/`` and recomputed. Either way the exit code is 1 unless ``skip_invalid``. SIGTERM stops the run
+    as Ctrl-C does (:mod:`tactile_zoo._signals`), with exit code 143."""
+    with terminate_as_interrupt():
+        return _run_bench(config, dry_run=dry_run, quiet=quiet, out=out, err=err, report=report, plots=plots,
+                          skip_invalid=skip_invalid)
+
+
+def _run_bench(config: BenchConfig, *, dry_run: bool, quiet: bool, out: TextIO | None, err: TextIO | None,
+               report: bool, plots: bool, skip_invalid: bool) -> BenchOutcome:
     out, err = out or sys.stdout, err or sys.stderr
     if os.getcwd() not in sys.path and "" not in sys.path:
         sys.path.append(os.getcwd())  # --plugin-module my_model finds ./my_model.py, as `python -m` would
@@ -152,13 +162,14 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
                 console.error(f"tactile-zoo: error: dataset {name} failed to load: {note}")
             else:
                 console.line(f"skipped dataset {name}: {note}", always=True)
-        status = "finished"
+        status, stop_code = "finished", 130
         try:
             write_error = _Loop(todo, run, config, executor, console, outcome, started, display, existing).run()
-        except KeyboardInterrupt:
-            status = "interrupted"
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
+            status, stop_code = "interrupted", getattr(exc, "exit_code", 130)
             write_error = None
-            console.error(f"tactile-zoo: interrupted; {len(outcome.ran)} cell(s) finished in this run are saved in "
+            why = exc if isinstance(exc, Terminated) else "interrupted"
+            console.error(f"tactile-zoo: {why}; {len(outcome.ran)} cell(s) finished in this run are saved in "
                           f"{out_dir}; rerun the same command to resume")
         finally:
             display.close()
@@ -198,7 +209,7 @@ def run_bench(config: BenchConfig, *, dry_run: bool = False, quiet: bool = False
         if write_error:
             console.error(f"tactile-zoo: error: {write_error}; every cell file written before is intact")
         if status == "interrupted":
-            outcome.exit_code = 130
+            outcome.exit_code = stop_code
         elif write_error or counts["failed"] or counts["pending"] or counts["datasets_failed"]:
             outcome.exit_code = 1
         elif scan.invalid and not skip_invalid:  # never silent: a damaged file is a problem even once repaired

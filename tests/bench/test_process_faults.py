@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -169,3 +170,49 @@ def test_an_interrupted_process_bench_leaves_no_cell_listed_as_running(tmp_path:
     text = capsys.readouterr().out
     assert f"pid {worker} " not in "".join(line for line in text.splitlines() if line.startswith("running"))
     assert "no cell is running" in text
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+def test_sigterm_stops_a_process_bench_as_ctrl_c_does(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """Issue 49, item 12: SIGTERM (``kill``, a batch system's time limit) ended a process-executor bench on the spot:
+    exit 143 by the signal, its progress files left behind and "leaked semaphore" warnings from the pool. Now it
+    stops as after Ctrl-C: the workers stopped, progress removed, the finished cell kept, the tables written, 143."""
+    from tactile_zoo.bench.progress import running_cells
+    from tactile_zoo.cli import main
+
+    out = tmp_path / "run"
+    proc = bench_subprocess(["--models", "tiny_slow,tiny_mlp", "--datasets", "tiny_blobs", "--seeds", "0",
+                             "--threads", "1", "--no-plots", "--executor", "process", "--workers", "2",
+                             "--set", "tiny_slow:max_epochs=5000", "--set", "tiny_slow:patience=null",
+                             "--out", str(out)])
+    try:
+        deadline = time.time() + 240
+        while time.time() < deadline:  # tiny_mlp finished (8 epochs), tiny_slow still training (5000)
+            assert proc.poll() is None, proc.communicate()
+            slow = [state for state in running_cells(out) if state["model"] == "tiny_slow"]
+            if any((out / "cells").glob("tiny_mlp__*.json")) and slow:
+                break
+            time.sleep(0.05)
+        else:
+            pytest.fail("no finished cell beside a running one appeared")
+        worker = slow[0]["pid"]
+        assert _alive(worker)
+        proc.send_signal(signal.SIGTERM)
+        try:
+            _, err = proc.communicate(timeout=150)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the run did not exit within 150 s of SIGTERM; its threads then:\n{hung_stacks(proc)}")
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert proc.returncode == 143, err
+    assert "tactile-zoo: terminated (SIGTERM); 1 cell(s) finished in this run are saved" in err
+    assert "leaked semaphore" not in err and "Traceback" not in err, err
+    assert not _alive(worker)
+    assert not list((out / "progress").glob("*")), "progress files left behind"
+    [record] = [json.loads(p.read_text()) for p in (out / "cells").glob("*.json")]
+    assert (record["model"], record["status"]) == ("tiny_mlp", "ok")
+    assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
+    assert main(["report", str(out), "--running"]) == 0
+    assert "no cell is running" in capsys.readouterr().out
