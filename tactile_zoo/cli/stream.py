@@ -10,7 +10,13 @@ from typing import Any
 
 from .. import registry
 from ._common import add_quiet_flag, checkpoint_dataset, echo, progress_on
-from .weights import add_pretrained_flags, add_raw_flag, preprocessing_of_files, pretrained_model
+from .weights import (
+    add_pretrained_flags,
+    add_raw_flag,
+    preprocessing_of_checkpoint,
+    preprocessing_of_files,
+    pretrained_model,
+)
 
 __all__ = ["add_stream"]
 
@@ -64,18 +70,6 @@ def _checkpoint_spec(args: argparse.Namespace, config: dict[str, Any]) -> Any:
     return DatasetSpec.from_dict(config["spec"], where=f"checkpoint {args.checkpoint}")
 
 
-def _checkpoint_preprocessing(args: argparse.Namespace, config: dict[str, Any]) -> tuple[Any, str]:
-    """``(the RecordingPreprocessing applied to --file or None, the line saying so)`` for a checkpoint."""
-    from ..weights import checkpoint_preprocessing
-
-    if args.raw:
-        return None, "preprocessing: none (--raw: the values as read)"
-    applied = checkpoint_preprocessing(config, f"checkpoint {args.checkpoint}")
-    if applied is None:
-        return None, f"preprocessing: none ({config['dataset']} feeds recordings as they are)"
-    return applied, f"preprocessing: {applied} (the checkpoint's own, as it was trained; --raw turns it off)"
-
-
 def _top(trace: Any, k: int, names: Sequence[str]) -> tuple[str | None, float]:
     """The top class name after step ``k`` (``None``: a tie, undecided) and its probability."""
     pred = trace.predictions[k - 1]
@@ -125,7 +119,7 @@ def _cmd_stream(args: argparse.Namespace) -> int:
         spec = spec if spec is not None else _checkpoint_spec(args, config)
         # pretrained weights and checkpoints both carry their dataset's preprocessing of a raw recording
         applied, said = preprocessing_of_files(model, args.raw) if entry is not None else \
-            _checkpoint_preprocessing(args, config)
+            preprocessing_of_checkpoint(config, f"checkpoint {args.checkpoint}", args.raw)
         # every row: a stream has no fixed length
         recording = read_recording(args.file, spec, length=None, preprocessing=applied)
         x, g, y = recording.x, recording.g, None

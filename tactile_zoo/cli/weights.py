@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ._common import echo
 
 __all__ = ["add_weights", "add_predict", "add_pretrained_flags", "pretrained_model", "add_raw_flag",
-           "preprocessing_of_files"]
+           "preprocessing_of_files", "preprocessing_of_checkpoint"]
 
 logger = logging.getLogger("tactile_zoo.cli")
 
@@ -152,7 +152,8 @@ def _check_weights_file(text: str) -> None:
 
 
 def add_predict(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("predict", help="classify recorded grasps (.csv/.npy files) with pretrained weights",
+    p = sub.add_parser("predict", help="classify recorded grasps (.csv/.npy files) with pretrained weights or a "
+                                       "checkpoint",
                        description="Print the most probable classes of each recording. A file is one grasp in the "
                                    "bring-your-own recordings format: one row per time step, the taxel readings in "
                                    "row-major taxel order (all channels of a taxel together), then the global "
@@ -160,14 +161,16 @@ def add_predict(sub: argparse._SubParsersAction) -> None:
                                    "is cut to the weights' number of steps; --length pad or resample accept shorter "
                                    "ones. A file that cannot be read gets one error line and the others are still "
                                    "answered; the exit status is then 1 (2 when no file could be read).")
-    p.add_argument("model", help="a model name, e.g. x_tacformer")
+    p.add_argument("model", metavar="MODEL|CHECKPOINT",
+                   help="a model name, e.g. x_tacformer (with --pretrained or --weights), or a checkpoint saved by "
+                        "`tactile-zoo train MODEL DATASET --save FILE.pt`")
     p.add_argument("files", nargs="+", metavar="FILE", help=".csv or .npy recordings")
     add_pretrained_flags(p)
     p.add_argument("--top-k", dest="top_k", type=int, default=3, metavar="K", help="classes per file (default 3)")
     p.add_argument("--length", default="crop", choices=["crop", "pad", "resample"],
                    help="a recording of another length: crop (default: cut a longer one, refuse a shorter one), pad "
                         "(zeros after a shorter one), resample (linear interpolation onto the weights' steps)")
-    add_raw_flag(p)
+    add_raw_flag(p, checkpoints=True)
     p.add_argument("--device", default="cpu", help="cpu (default), cuda, auto")
     p.add_argument("--json", action="store_true", help="print the predictions as JSON")
     p.set_defaults(handler=_cmd_predict)
@@ -196,6 +199,49 @@ def preprocessing_of_files(model: Any, raw: bool) -> tuple[Any, str]:
     return applied, f"preprocessing: {applied} (the weights' own, from their manifest; --raw turns it off)"
 
 
+def preprocessing_of_checkpoint(config: dict[str, Any], where: str, raw: bool) -> tuple[Any, str]:
+    """``(the RecordingPreprocessing applied to files or None, the line saying so)`` for a ``train --save``
+    checkpoint's ``config``, as :func:`preprocessing_of_files` for weights."""
+    from ..weights import checkpoint_preprocessing
+
+    if raw:
+        return None, "preprocessing: none (--raw: the values as read)"
+    applied = checkpoint_preprocessing(config, where)
+    if applied is None:
+        return None, f"preprocessing: none ({config['dataset']} feeds recordings as they are)"
+    return applied, f"preprocessing: {applied} (the checkpoint's own, as it was trained; --raw turns it off)"
+
+
+#: suffixes that make predict's MODEL argument a checkpoint file
+_CHECKPOINT_SUFFIXES = (".pt", ".pth", ".ckpt")
+
+
+def _predict_model(args: argparse.Namespace) -> tuple[Any, dict[str, Any], tuple[Any, str]]:
+    """``(model, what the output says of it, (preprocessing, its line))`` for pretrained weights or a checkpoint."""
+    from pathlib import Path
+
+    if not (args.pretrained or args.weights or args.manifest) and Path(args.model).suffix in _CHECKPOINT_SUFFIXES:
+        from ..data.spec import DatasetSpec
+        from ..engine import build_from_checkpoint, load_checkpoint
+
+        blob = load_checkpoint(args.model)
+        config, where = blob["config"], f"checkpoint {args.model}"
+        if not config.get("spec"):
+            raise ConfigError(f"{where} does not record the spec it was trained for, which predict needs")
+        model = build_from_checkpoint(blob, DatasetSpec.from_dict(config["spec"], where=where), where=where)
+        about = {"model": config["model"], "weights": None, "checkpoint": args.model, "dataset": config.get("dataset"),
+                 "test_accuracy": (config.get("metrics") or {}).get("accuracy"), "note": None,
+                 "label": f"checkpoint {args.model}", "classes": config["spec"]["class_names"],
+                 "steps": config["spec"]["num_steps"]}
+        return model, about, preprocessing_of_checkpoint(config, where, args.raw)
+    model = pretrained_model(args.model, args)
+    entry = model.zoo_pretrained
+    about = {"model": entry.model, "weights": entry.qualified_tag, "checkpoint": None, "dataset": entry.dataset,
+             "test_accuracy": entry.accuracy, "note": entry.note or None, "label": f"weights {entry.qualified_tag}",
+             "classes": entry.spec["class_names"], "steps": entry.spec["num_steps"]}
+    return model, about, preprocessing_of_files(model, args.raw)
+
+
 def _cmd_predict(args: argparse.Namespace) -> int:
     """Answer every file that can be read, as the files are read (in bounded batches, so any number of files fits in
     memory); each one that cannot gets one error line (naming it and what is wrong). Exit 0 when all were answered,
@@ -204,15 +250,13 @@ def _cmd_predict(args: argparse.Namespace) -> int:
 
     if args.top_k < 1:
         raise ConfigError(f"--top-k must be a positive integer, got {args.top_k}")
-    model = pretrained_model(args.model, args)
-    entry = model.zoo_pretrained
-    applied, preprocessing = preprocessing_of_files(model, args.raw)
+    model, about, (applied, preprocessing) = _predict_model(args)
     answers = iter_predict(model, args.files, top_k=args.top_k, length=args.length, device=args.device,
                            on_error="report", raw=args.raw)
     results: list[dict[str, Any]] = []  # --json: the small per-file summaries only, never the inputs
     refused: list[Any] = []
     answered = 0
-    width = max(len("class"), *(len(name) for name in entry.spec["class_names"]))
+    width = max(len("class"), *(len(name) for name in about["classes"]))
     for r in answers:
         if isinstance(r, Refused):
             logger.error("%s", r.reason)
@@ -223,19 +267,19 @@ def _cmd_predict(args: argparse.Namespace) -> int:
             results.append({k: v for k, v in r.to_dict().items() if k != "probabilities"})
             continue
         if answered == 1:  # the header with the first answer: nothing on stdout when no file could be read
-            accuracy = "" if entry.accuracy is None else f", test accuracy {entry.accuracy:.4f}"
-            echo(f"{entry.model} with weights {entry.qualified_tag} (trained on {entry.dataset}{accuracy})")
-            if entry.note:
-                echo(f"note: {entry.note}")
+            accuracy = "" if about["test_accuracy"] is None else f", test accuracy {about['test_accuracy']:.4f}"
+            echo(f"{about['model']} with {about['label']} (trained on {about['dataset']}{accuracy})")
+            if about["note"]:
+                echo(f"note: {about['note']}")
             echo(preprocessing)
-        fitted = "" if r.length == "as recorded" else f", {r.length} to {entry.spec['num_steps']}"
+        fitted = "" if r.length == "as recorded" else f", {r.length} to {about['steps']}"
         echo(f"{r.source} ({r.steps_read} steps{fitted})")
         for rank, (name, prob) in enumerate(r.top_k, start=1):
             echo(f"  {rank:>2}  {name:<{width}}  {prob:.3f}")
     code = 2 if not answered else 1 if refused else 0
     if args.json and answered:
-        echo(json.dumps({"model": entry.model, "weights": entry.qualified_tag, "dataset": entry.dataset,
-                         "test_accuracy": entry.accuracy, "note": entry.note or None,
+        echo(json.dumps({**{k: about[k] for k in ("model", "weights", "dataset", "test_accuracy", "note")},
+                         **({"checkpoint": about["checkpoint"]} if about["checkpoint"] else {}),
                          "preprocessing": None if applied is None else applied.name, "predictions": results,
                          "refused": [bad.to_dict() for bad in refused]}, indent=2))
     elif refused and answered:

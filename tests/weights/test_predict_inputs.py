@@ -194,7 +194,7 @@ def _checkpoint_on_biotac(tmp_path: Path, dataset_kwargs: dict[str, object], win
 def test_a_checkpoint_preprocesses_a_raw_recording_as_its_dataset_did(tmp_path: Path, recorded: bool,
                                                                        capsys: pytest.CaptureFixture) -> None:
     """Issue 49 item 7: a checkpoint carries its dataset's preprocessing as weights do; ``stream --file`` and
-    ``predict`` apply it, and ``--raw`` / ``raw=True`` turn it off."""
+    ``predict`` (Python, and the command on a checkpoint file) apply it, and ``--raw`` / ``raw=True`` turn it off."""
     from tactile_zoo.engine import build_from_checkpoint, load_checkpoint
 
     kwargs = {"normalize": "minmax", "window": 10}
@@ -219,6 +219,17 @@ def test_a_checkpoint_preprocesses_a_raw_recording_as_its_dataset_did(tmp_path: 
     assert applied["final_scores"] == pytest.approx(reference["final_scores"], abs=1e-5)
     assert stream("--file", str(raw_file), "--raw")["final_scores"] != pytest.approx(applied["final_scores"],
                                                                                      abs=1e-3)
+    assert main(["predict", str(ckpt), str(raw_file), "--json"]) == 0
+    said = json.loads(capsys.readouterr().out)
+    assert said["checkpoint"] == str(ckpt) and said["model"] == "cnn_lstm" and said["weights"] is None
+    assert said["preprocessing"] == said["predictions"][0]["preprocessing"] == "biotac_dos normalize='minmax'"
+    assert said["predictions"][0]["top_k"][0]["probability"] == pytest.approx(max(answer.probabilities), abs=1e-6)
+    assert main(["predict", str(ckpt), str(done), "--raw", "--json"]) == 0
+    top, expected = json.loads(capsys.readouterr().out)["predictions"][0]["top_k"], said["predictions"][0]["top_k"]
+    assert [t["class"] for t in top] == [t["class"] for t in expected]
+    assert [t["probability"] for t in top] == pytest.approx([t["probability"] for t in expected], abs=1e-6)
+    assert main(["predict", str(ckpt), str(raw_file)]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == f"cnn_lstm with checkpoint {ckpt} (trained on biotac_dos)"
     assert main(["stream", str(ckpt), "--file", str(raw_file), "-q"]) == 0
     assert ("preprocessing: biotac_dos normalize='minmax': each reading scaled by its own range over the 24 "
             "electrodes, (max E - E) / (max E - min E) (the checkpoint's own, as it was trained; --raw turns it "
