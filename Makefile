@@ -49,8 +49,10 @@ benchmarks: install
 	$(BIN)/python -m benchmarks.run $(BENCHMARK_ARGS)
 
 # every generated page, checked by the suite: after committing new cells, the fidelity ledger, Table I (docs/table1.md)
-# and the README's headline; after changing a command's flags, the command-line reference (docs/cli.md)
+# and the README's headline; after changing a command's flags, the command-line reference (docs/cli.md); after adding
+# or changing a model's registry metadata, the model pages (models table, citing, CITATION.cff, API page, counts)
 tables: install
+	$(BIN)/python -m tools.model_pages
 	$(BIN)/python -m tools.fidelity
 	$(BIN)/python -m tools.paper_table1 --readme
 	$(BIN)/python -m tools.table1_full --readme

@@ -30,13 +30,12 @@ from typing import Any
 
 from tactile_zoo.bench.intervals import records_interval
 from tactile_zoo.bench.records import qualifying_cells
+from tools.model_pages import display, zoo_models
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
 LEDGER = REPO / "docs" / "fidelity.md"
 BEGIN, END = "<!-- ledger tables: begin (python -m tools.fidelity) -->", "<!-- ledger tables: end -->"
-NAMES = {"sgnet": "SGnet", "dcnn": "D-CNN", "convlstm": "ConvLSTM", "cnn_lstm": "CNN-LSTM", "tacformer": "Tacformer",
-         "x_tacformer": "X-Tacformer"}
 EV = ("ev_objects", "ev_containers")
 #: Table I of the X-Tacformer paper (test accuracy on the released Ev splits; selection protocol not stated).
 XTAC_PAPER = {"sgnet": (0.8944, 0.6417), "convlstm": (0.8611, 0.7333), "cnn_lstm": (0.8472, 0.7167),
@@ -112,9 +111,9 @@ def tables() -> str:
     lines += ["", "### The zoo's honest protocol (epoch selected on validation, test read once)", "",
               "| model | X-Tacformer paper, Ev-Objects | ours, Ev-Objects | X-Tacformer paper, Ev-Containers | "
               "ours, Ev-Containers |", "|---|---|---|---|---|"]
-    for model, name in NAMES.items():
+    for model in zoo_models():  # every built-in model, from the registry (tools.model_pages)
         paper = XTAC_PAPER.get(model, (None, None))
-        row = [name]
+        row = [display(model)]
         for dataset, value in zip(EV, paper):
             row += ["-" if value is None else f"{value:.4f}", figure(_pick(honest, model, dataset))]
         lines.append("| " + " | ".join(row) + " |")

@@ -66,8 +66,10 @@ class FrameEncoder(nn.Module):
     year=2024,
     description="Per-frame CNN on the sensor image (conv 3x3, max pool, conv 3x3, linear 64) of frames averaged into "
                 "at most 50 bins, LSTM 64 over the frame codes, linear classifier on the last hidden state.",
-    tags=["recurrent", "convolutional"],
+    tags=["recurrent", "convolutional", "table1"],
     inputs=["grid", "globals"],
+    display_name="CNN-LSTM",
+    family="per-frame CNN + LSTM",
     **recipe_file("tactile_zoo", "cnn_lstm"),
     causal=True,
     streaming=True,

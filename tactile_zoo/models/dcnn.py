@@ -149,8 +149,17 @@ class _ConvBlock(nn.Sequential):
     url="https://github.com/philipmaus/Tactile_Object_Classification",
     description="2-D CNN over the time x feature image of a grasp: three conv/ReLU/BN/max-pool blocks (31, 128, 57 "
                 "filters), dense 103 and 138 with BN, linear classifier.",
-    tags=["convolutional"],
+    tags=["convolutional", "table1"],
     inputs=["globals"],
+    display_name="D-CNN",
+    family="2-D CNN over time x features",
+    reference={"type": "article",
+               "title": "Tactile object classification with a three-finger gripper: the D-CNN and the Augment8000 data "
+                        "set",
+               "authors": ["Maus, Philip", "Kim, Jaeseok", "Nocentini, Olivia", "Bashir, Muhammad Zain",
+                           "Cavallo, Filippo"],
+               "notes": "the Augment8000 dataset. Descriptive title: cite the publication named in the source "
+                        "repository"},
     **recipe_file("tactile_zoo", "dcnn"),
     causal=False,
     streaming=False,

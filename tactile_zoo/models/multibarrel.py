@@ -62,6 +62,13 @@ OUTPUT_KINDS = ("logits", "softmax")
                 "a Conv2d read-out over time x taxels, an MLP classifier.",
     tags=["spiking", "graph", "convolutional"],
     inputs=["graph"],
+    display_name="multi-barrel SNN",
+    family="spiking columns per taxel, top-k routing between neighbours",
+    reference={"type": "conference-paper", "authors": ["Zhu, T.", "Hu, D.", "Zhou, J.", "Du, K.", "Li, A."],
+               "conference": {"name": "Advances in Neural Information Processing Systems (NeurIPS)"}},
+    # small sizes for the contract suite (tests/models/test_zoo.py): 28.4 M parameters at full size on NeuTouch
+    test_hparams={"channels": 8, "kernel_size": 3, "dilation": 1, "readout_channels": 6, "readout_kernel": 2,
+                  "hidden": 5, "gate_hidden": 7},
     **recipe_file("tactile_zoo", "multibarrel"),
     causal=False,
     streaming=False,

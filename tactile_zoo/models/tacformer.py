@@ -106,8 +106,12 @@ class SpatialGraphAttention(nn.Module):
     year=2024,
     description="Spatial graph attention of X-Tacformer: per-frame TAGConv over the taxel graph, spiking multi-head "
                 "self-attention (MSA-SNN) over the taxels of each frame, LIF over time, spike-rate read-out.",
-    tags=["spiking", "graph", "attention"],
+    tags=["spiking", "graph", "attention", "table1"],
     inputs=["graph", "globals"],
+    display_name="Tacformer",
+    family="spiking graph attention (spatial)",
+    reference={"type": "article", "authors": [{"name": "The X-Tacformer authors"}],
+               "notes": "the Table I protocol reproduced in benchmarks/results/paper-table1"},
     **recipe_file("tactile_zoo", "tacformer"),
     causal=True,
     streaming=True,

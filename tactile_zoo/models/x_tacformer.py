@@ -60,8 +60,12 @@ _SIGNATURE = _signature()
     description="X-Tacformer: spatial graph attention (TAGConv + spiking multi-head self-attention over the taxels of "
                 "each frame, LIF over time) fused with temporal graph attention (GCN + T-GCN cell, attention over "
                 "frames).",
-    tags=["spiking", "graph", "attention", "recurrent"],
+    tags=["spiking", "graph", "attention", "recurrent", "table1"],
     inputs=["graph", "globals"],
+    display_name="X-Tacformer",
+    family="spatial + temporal graph attention",
+    reference={"type": "article", "authors": [{"name": "The X-Tacformer authors"}],
+               "notes": "the Table I protocol reproduced in benchmarks/results/paper-table1"},
     **recipe_file("tactile_zoo", "x_tacformer"),
     causal=True,
     streaming=True,

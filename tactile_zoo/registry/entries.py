@@ -23,6 +23,8 @@ T = TypeVar("T")
 MODEL_META_KEYS = frozenset({
     "paper", "citation", "year", "url", "description", "tags", "inputs", "recipe", "recipes", "default_recipe",
     "causal", "streaming", "revision",
+    # optional, for the generated pages (python -m tools.model_pages) and the zoo's tests; never part of a cell hash
+    "display_name", "family", "reference", "test_hparams",
 })
 #: Keys ``register_dataset(**meta)`` accepts.
 DATASET_META_KEYS = frozenset({
@@ -169,6 +171,12 @@ def _check_model_meta(name: str, meta: Mapping[str, Any]) -> None:
             raise bad(key, "must be True or False", meta[key])
     if "year" in meta and (not isinstance(meta["year"], int) or isinstance(meta["year"], bool)):
         raise bad("year", "must be an integer", meta["year"])
+    for key in ("display_name", "family"):
+        if key in meta and (not isinstance(meta[key], str) or not meta[key].strip()):
+            raise bad(key, "must be a non-empty string", meta[key])
+    for key in ("reference", "test_hparams"):
+        if key in meta and (not isinstance(meta[key], Mapping) or not all(isinstance(k, str) for k in meta[key])):
+            raise bad(key, "must be a dict with string keys", meta[key])
     if "recipes" in meta or "recipe" in meta:
         _check_recipes(name, meta)
 
