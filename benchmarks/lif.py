@@ -118,11 +118,11 @@ def run(ctx: Context, batch: int = 32, steps: int = 250, nodes: int = 39, featur
 
 
 def _run(ctx: Context, batch: int, steps: int, nodes: int, features: int) -> Path:
+    from tactile_zoo.nn.backend import lif_kernels
     from tactile_zoo.nn.lif import MultiStepLIF
-    from tactile_zoo.nn.lif_compiled import _kernel_module
 
     dev = ctx.device
-    compiled_path = "numba" if dev.type == "cpu" and _kernel_module() is not None else None
+    compiled_path = "numba" if dev.type == "cpu" and lif_kernels() is not None else None
     gen = torch.Generator().manual_seed(0)
     # currents around the threshold, so that neurons fire and reset (about a third of the steps spike)
     x = (0.4 + 0.5 * torch.randn(steps, batch, nodes * features, generator=gen)).to(dev)  # (T, B, N * F)

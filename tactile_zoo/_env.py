@@ -34,13 +34,13 @@ BOOLEAN_VARIABLES = {
     "TACTILE_ZOO_TUNING": "tuning mode: reading a test split raises (tactile_zoo.data.guard)",
     "TACTILE_ZOO_NO_PLUGINS": "no entry-point plugin discovery (--no-plugins)",
     "TACTILE_ZOO_STRICT_PLUGINS": "a plugin that fails to load is an error (--strict-plugins)",
-    "TACTILE_ZOO_NO_HUGEPAGES": "no transparent-huge-page advice for large CPU tensors (tactile_zoo.nn.memory)",
+    "TACTILE_ZOO_NO_HUGEPAGES": "no transparent-huge-page advice for large CPU tensors (tactile_zoo.nn.hugepages)",
     "TACTILE_ZOO_KEEP_DENORMALS": "compute with subnormal floats instead of flushing them to zero",
     "TACTILE_ZOO_DEFAULT_MALLOC": "training processes keep glibc's malloc defaults (tactile_zoo.engine.malloc)",
 }
 #: Every variable that names one of a fixed set of choices, with its choices (the first is the default).
 CHOICE_VARIABLES = {
-    "TACTILE_ZOO_LIF_BACKEND": ("auto", "numba", "torch"),  # the CPU path of the fused LIF (tactile_zoo.nn.lif)
+    "TACTILE_ZOO_LIF_BACKEND": ("auto", "numba", "torch"),  # the fused LIF on CPU: read in tactile_zoo.nn.backend only
 }
 #: matplotlib's own variable: the plotting backend it starts with (checked by :func:`check_matplotlib_backend`).
 MATPLOTLIB_BACKEND_VARIABLE = "MPLBACKEND"

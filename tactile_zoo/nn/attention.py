@@ -39,14 +39,16 @@ from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
 from ..errors import ConfigError
+from . import backend as switch
+from .backend import Attention
 from .lif import LIFConfig
 
 __all__ = ["SpikingSelfAttention", "explicit_attention", "ATTENTION_KINDS"]
 
 MSAState = tuple[Tensor | None, Tensor | None]  # (Q/K/V-chain membrane, output-chain membrane)
 #: the implementations of eq. 8 (see the module docstring): ``"fused"`` (``F.scaled_dot_product_attention``, the
-#: default) and ``"explicit"`` (:func:`explicit_attention`)
-ATTENTION_KINDS = ("fused", "explicit")
+#: default) and ``"explicit"`` (:func:`explicit_attention`); :class:`~tactile_zoo.nn.backend.Attention`
+ATTENTION_KINDS = tuple(choice.value for choice in Attention)
 
 
 class _ExplicitAttention(torch.autograd.Function):
@@ -139,8 +141,7 @@ class SpikingSelfAttention(nn.Module):
         super().__init__()
         if dim < 1 or num_heads < 1 or dim % num_heads:
             raise ConfigError(f"SpikingSelfAttention: dim={dim} must be a positive multiple of num_heads={num_heads}")
-        if attention not in ATTENTION_KINDS:
-            raise ConfigError(f"SpikingSelfAttention: attention must be one of {ATTENTION_KINDS}, got {attention!r}")
+        attention = switch.resolve(Attention, attention, "attention", "SpikingSelfAttention")
         lif = lif or LIFConfig()
         self.dim, self.num_heads, self.attn_dropout, self.attention = dim, num_heads, attn_dropout, attention
         # eq. 7, stage 1 for Q, K and V at once: Linear (dim -> 3 dim), a LayerNorm per branch, LIF
@@ -192,7 +193,7 @@ class SpikingSelfAttention(nn.Module):
         mem_qkv, mem_out = state if state is not None else (None, None)
         drop = self.attn_dropout if self.training else 0.0
         h, dh = self.num_heads, self.dim // self.num_heads
-        if self.attention == "explicit":
+        if self.attention is Attention.EXPLICIT:
             qkv, mem_qkv = self._packed_qkv(x, mem_qkv)
             # one copy to head-major (3, T * prod(*) * H, L, dh); the kernel's packed gradient comes back through
             # it as one copy too (separate Q, K, V would each be copied, and stacked again in the backward)

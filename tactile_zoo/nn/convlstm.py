@@ -36,7 +36,7 @@ recurrence:
     is tested against, and the path for double backward.
 ``"compiled"`` (opt-in)
     the fused loop with each step's work around its one matrix product in one numba call
-    (:mod:`tactile_zoo.nn._convlstm_kernel`, single-threaded, compiled on first use and cached on disk). Forward:
+    (:mod:`tactile_zoo.nn._kernels.convlstm`, single-threaded, compiled on first use and cached on disk). Forward:
     ``addmm`` of the kernel with the im2col matrix of ``h_{t-1}``, then one kernel that activates the gates,
     updates ``c`` and ``h`` and, channel by channel while the new ``h`` row is in cache, writes the im2col matrix for
     step ``t+1`` (each tap one contiguous shifted copy plus zeroed borders: no index array). Backward: one kernel per
@@ -71,6 +71,8 @@ from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
 from ..errors import ConfigError
+from . import backend as switch
+from .backend import ConvLSTMBackend
 from .convlstm_compiled import CompiledRecurrence, compiled_applies, compiled_recurrence
 
 __all__ = ["ConvLSTMCell", "ConvLSTM", "ConvLSTMConfig", "BACKENDS", "INITS"]
@@ -201,7 +203,8 @@ class _FusedRecurrence(torch.autograd.Function):
         return d_z, d_kernel.view_as(weight), d_h.clone(), d_c, None
 
 
-BACKENDS = ("fused", "autograd", "compiled")
+#: The recurrence's implementations (:class:`~tactile_zoo.nn.backend.ConvLSTMBackend`; module docstring).
+BACKENDS = tuple(choice.value for choice in ConvLSTMBackend)
 INITS = ("keras", "torch")
 
 
@@ -229,8 +232,7 @@ class ConvLSTMCell(nn.Module):
             raise ConfigError(f"ConvLSTM kernel_size must be a positive odd integer, got {kernel_size}")
         if in_channels < 1 or hidden_channels < 1:
             raise ConfigError(f"ConvLSTM channels must be positive, got in={in_channels}, hidden={hidden_channels}")
-        if backend not in BACKENDS:
-            raise ConfigError(f"ConvLSTM backend must be one of {BACKENDS}, got {backend!r}")
+        backend = switch.resolve(ConvLSTMBackend, backend, "backend", "ConvLSTM")
         if init not in INITS:
             raise ConfigError(f"ConvLSTM init must be one of {INITS}, got {init!r}")
         self.hidden_channels, self.backend, self.padding = hidden_channels, backend, kernel_size // 2
@@ -261,7 +263,7 @@ class ConvLSTMCell(nn.Module):
         frames = x.flatten(0, 1).contiguous(memory_format=torch.channels_last)  # (T*B, C_in, H, W)
         xz = self.input_conv(frames).unflatten(0, (steps, b))  # (T, B, 4*hidden, H, W)
         weight = self.hidden_conv.weight
-        if self.backend in ("fused", "compiled"):
+        if self.backend is not ConvLSTMBackend.AUTOGRAD:
             height, width = xz.shape[-2:]
             # channel-major for the fused loop: (T, 4h, B*H*W), and the states (h, B*H*W)
             # The fused loop takes these views as they come (a channels-last xz is a strided view here): a copy would
@@ -269,7 +271,7 @@ class ConvLSTMCell(nn.Module):
             xz_cm = xz.transpose(1, 2).reshape(steps, xz.shape[2], -1)
             h_cm, c_cm = (v.transpose(0, 1).reshape(self.hidden_channels, -1) for v in (h, c))
             train = torch.is_grad_enabled() and any(v.requires_grad for v in (xz, weight, h, c))
-            if self.backend == "compiled" and compiled_applies(xz_cm, weight, h_cm, c_cm):
+            if self.backend is ConvLSTMBackend.COMPILED and compiled_applies(xz_cm, weight, h_cm, c_cm):
                 xz_cm, h_cm, c_cm = xz_cm.contiguous(), h_cm.contiguous(), c_cm.contiguous()  # numba reads raw rows
                 grid = (b, height, width)
                 if train:

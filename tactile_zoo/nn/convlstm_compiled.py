@@ -1,5 +1,5 @@
 """ConvLSTM's ``"compiled"`` recurrence backend: the fused time loop of :mod:`tactile_zoo.nn.convlstm` with each step's
-gather, gate arithmetic and scatter-add in numba kernels (:mod:`tactile_zoo.nn._convlstm_kernel`) around one
+gather, gate arithmetic and scatter-add in numba kernels (:mod:`tactile_zoo.nn._kernels.convlstm`) around one
 ``addmm``. Opt-in (``ConvLSTMCell(backend="compiled")``): its sigmoid and tanh are the kernel module's own, so results
 differ from the fused loop's in the last bits. Kept apart from the layer so that the layer file stays one operator.
 """
@@ -10,6 +10,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
+
+from . import backend
 
 __all__ = ["CompiledRecurrence", "compiled_applies", "compiled_recurrence"]
 
@@ -25,13 +27,6 @@ def compiled_applies(*tensors: Tensor) -> bool:
         type(v) in (Tensor, nn.Parameter) and v.device.type == "cpu" and v.dtype == dtype for v in tensors)
 
 
-def _kernels() -> Any:
-    """The numba kernels of the ``"compiled"`` backend (imported on first use: numba's import takes a while)."""
-    from . import _convlstm_kernel
-
-    return _convlstm_kernel
-
-
 def compiled_recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, grid: tuple[int, int, int], keep: bool
                          ) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor, Tensor] | None]:
     """The fused loop (``tactile_zoo.nn.convlstm._recurrence``) with the step's element-wise work in one compiled
@@ -39,10 +34,10 @@ def compiled_recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, grid
     ``h0``) and ``c_T (h, N)``, plus with ``keep`` the activated gates, cell states and ``tanh(c)`` of every step.
 
     A step is one ``addmm`` (the kernel times the im2col matrix of ``h_{t-1}``, added to ``xz_t``) and one call of
-    :func:`~tactile_zoo.nn._convlstm_kernel.forward_step`, which activates the gates, updates ``c`` and ``h`` and
+    ``forward_step`` of :mod:`tactile_zoo.nn._kernels.convlstm`, which activates the gates, updates ``c`` and ``h`` and
     writes the im2col matrix of ``h_t`` for the next step.
     """
-    kern = _kernels()
+    kern = backend.convlstm_kernels()
     steps, four_h, cols_n = xz.shape
     hid, k = four_h // 4, weight.shape[-1]
     kernel = weight.detach().reshape(four_h, -1)  # (4h, h*k*k)
@@ -88,7 +83,7 @@ class CompiledRecurrence(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, d_hs: Tensor, d_c_last: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, None]:
-        kern = _kernels()
+        kern = backend.convlstm_kernels()
         weight, hbuf, gates, cs, tcs = ctx.saved_tensors
         grid = ctx.grid
         steps, four_h, cols_n = gates.shape

@@ -23,6 +23,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from .backend import GraphBackend
 from .event_linear import event_linear, uses_events
 from .graph import FrameGraphConv
 
@@ -34,7 +35,7 @@ def effective_matrix(conv: FrameGraphConv, dtype: torch.dtype) -> Tensor:
     W_k[g, f]`` for the dense-backend TAGConv or GCNConv ``conv`` (differentiable in the weights)."""
     prop = conv.propagator.to(dtype)  # (H, N, N)
     hops, n = prop.shape[0], conv.num_nodes
-    weight = torch.stack(conv._weights(), dim=0)  # (H, F_out, F_in)
+    weight = torch.stack(conv.hop_weights(), dim=0)  # (H, F_out, F_in)
     if weight.shape[0] != hops:  # GCNConv: one weight, applied after its single hop
         weight = weight.expand(hops, -1, -1)
     return torch.einsum("kij,kgf->igjf", prop, weight).reshape(n * conv.out_channels, n * conv.in_channels)
@@ -50,8 +51,8 @@ def event_graph_conv(conv: FrameGraphConv, x: Tensor) -> Tensor:
     Shapes:
         ``x (*, N, F_in)`` -> ``(*, N, F_out)``.
     """
-    if conv.backend != "dense" or x.dim() < 2 or x.shape[-2:] != (conv.num_nodes, conv.in_channels) \
-            or not uses_events(x, conv._weights()[0]):
+    if conv.backend is not GraphBackend.DENSE or x.dim() < 2 or x.shape[-2:] != (conv.num_nodes, conv.in_channels) \
+            or not uses_events(x, conv.hop_weights()[0]):
         return conv(x)  # the dense path: also where it raises on a wrong shape
     lead, n = x.shape[:-2], conv.num_nodes
     matrix = effective_matrix(conv, x.dtype)  # (N * F_out, N * F_in)

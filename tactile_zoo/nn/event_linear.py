@@ -28,13 +28,13 @@ dense path for it).
 
 from __future__ import annotations
 
-import functools
-from types import ModuleType
 from typing import Any, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
+
+from . import backend
 
 __all__ = ["EventList", "event_linear", "events_from_rows", "events_of", "uses_events"]
 
@@ -68,10 +68,10 @@ def _offsets(index: Tensor, size: int) -> Tensor:
 def events_of(x: Tensor) -> EventList:
     """The event list of ``x (R, C)``: its nonzero entries, with their values unless all of them are 1.
 
-    One compiled scan where numba is installed (:mod:`._event_kernel`), else ``torch.nonzero``; both give the same
-    lists."""
+    One compiled scan where numba is installed (:func:`~tactile_zoo.nn.backend.event_kernels`), else
+    ``torch.nonzero``; both give the same lists."""
     rows_n, cols_n = x.shape
-    kernel = _kernel()
+    kernel = backend.event_kernels()
     if kernel is not None and x.is_contiguous() and type(x) is Tensor:
         # room for every entry: untouched pages of an empty tensor cost nothing, and the lists are cut to length
         cols, values = torch.empty(x.numel(), dtype=torch.int64), torch.empty(x.numel(), dtype=x.dtype)
@@ -94,7 +94,7 @@ def events_from_rows(cols: Tensor, row_offsets: Tensor, num_cols: int, values: T
     Adds the column-major half the weight gradient reads (a counting sort: rows stay ascending within a column)."""
     counts = torch.bincount(cols, minlength=num_cols)
     col_offsets = torch.cumsum(counts, 0) - counts
-    kernel = _kernel()
+    kernel = backend.event_kernels()
     if kernel is not None:
         rows_by_col = torch.empty(len(cols), dtype=torch.int64)
         values_by_col = torch.empty(0 if values is None else len(cols), dtype=values.dtype if values is not None
@@ -106,15 +106,6 @@ def events_from_rows(cols: Tensor, row_offsets: Tensor, num_cols: int, values: T
     rows = torch.repeat_interleave(torch.arange(len(row_offsets)), row_counts)
     order = torch.sort(cols, stable=True).indices  # column-major order, rows ascending within a column
     return EventList(cols, row_offsets, rows[order], col_offsets, values, None if values is None else values[order])
-
-
-@functools.cache
-def _kernel() -> ModuleType | None:
-    try:
-        from . import _event_kernel
-    except ImportError:
-        return None
-    return _event_kernel
 
 
 #: Tensor types the event path reads; a tracer's subclasses (fake, functional tensors) take the dense path.

@@ -40,12 +40,12 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ..errors import ConfigError
+from . import backend as switch
+from .backend import GraphBackend, WeightGrad
 
 __all__ = ["FrameGraphConv", "dense_propagator"]
 
 _KINDS = ("tag", "gcn")
-_BACKENDS = ("dense", "pyg")
-_WEIGHT_GRADS = ("autograd", "fast")
 
 
 def dense_propagator(conv: nn.Module, edge_index: Tensor, num_nodes: int, edge_weight: Tensor | None = None
@@ -114,8 +114,7 @@ class FrameGraphConv(nn.Module):
 
         if kind not in _KINDS:
             raise ConfigError(f"FrameGraphConv kind must be one of {_KINDS}, got {kind!r}")
-        if backend not in _BACKENDS:
-            raise ConfigError(f"FrameGraphConv backend must be one of {_BACKENDS}, got {backend!r}")
+        backend = switch.resolve(GraphBackend, backend, "backend", "FrameGraphConv")
         for name, value in (("in_channels", in_channels), ("out_channels", out_channels), ("num_nodes", num_nodes)):
             if not isinstance(value, int) or value < 1:
                 raise ConfigError(f"FrameGraphConv {name} must be a positive int, got {value!r}")
@@ -130,9 +129,10 @@ class FrameGraphConv(nn.Module):
         if edge_weight is not None and tuple(edge_weight.shape) != (edge_index.shape[1],):
             raise ConfigError(f"edge_weight must have shape [{edge_index.shape[1]}], got {tuple(edge_weight.shape)}")
         self.in_channels, self.out_channels, self.num_nodes = in_channels, out_channels, num_nodes
-        if weight_grad not in _WEIGHT_GRADS or (weight_grad != "autograd" and backend != "dense"):
-            raise ConfigError(f"FrameGraphConv weight_grad must be one of {_WEIGHT_GRADS} ('fast' with the dense "
-                              f"backend only), got {weight_grad!r} with backend {backend!r}")
+        weight_grad = switch.resolve(WeightGrad, weight_grad, "weight_grad", "FrameGraphConv")
+        if weight_grad is not WeightGrad.AUTOGRAD and backend is not GraphBackend.DENSE:
+            raise ConfigError(f"FrameGraphConv: weight_grad={weight_grad.value!r} needs the dense backend, got "
+                              f"backend={backend.value!r}")
         self.kind, self.backend, self.weight_grad = kind, backend, weight_grad
         try:
             if kind == "tag":
@@ -145,14 +145,15 @@ class FrameGraphConv(nn.Module):
         # graph buffers follow .to(device) but stay out of the state_dict, which matches a bare PyG module's
         self.register_buffer("edge_index", edge_index, persistent=False)
         self.register_buffer("edge_weight", None if edge_weight is None else edge_weight.float(), persistent=False)
-        propagator = dense_propagator(self.conv, edge_index, num_nodes, edge_weight) if backend == "dense" else None
+        dense = backend is GraphBackend.DENSE
+        propagator = dense_propagator(self.conv, edge_index, num_nodes, edge_weight) if dense else None
         # kept in float64 (cast per call, it is tiny) so a float64 module matches PyG to float64 rounding
         self.register_buffer("propagator", propagator, persistent=False)
 
     def extra_repr(self) -> str:
         return f"kind={self.kind}, num_nodes={self.num_nodes}, backend={self.backend}"
 
-    def _weights(self) -> list[Tensor]:
+    def hop_weights(self) -> list[Tensor]:
         """The PyG module's weight matrices ``[F_out, F_in]``, one per hop."""
         lins = self.conv.lins if self.kind == "tag" else [self.conv.lin]
         return [lin.weight for lin in lins]
@@ -163,7 +164,7 @@ class FrameGraphConv(nn.Module):
                               f"got {tuple(x.shape)}")
         lead = x.shape[:-2]
         frames = x.reshape(-1, self.num_nodes, self.in_channels)  # (M, N, F_in), M = prod(lead)
-        if self.backend == "pyg":
+        if self.backend is GraphBackend.PYG:
             out = self.conv(frames, self.edge_index, self.edge_weight)
         else:
             out = self._dense(frames)
@@ -173,7 +174,7 @@ class FrameGraphConv(nn.Module):
         prop = self.propagator  # (H, N, N) hop matrices A^k, float64: cast only where used (_kron caches its cast)
         hops, n, m = prop.shape[0], self.num_nodes, x.shape[0]
         f_in, f_out = self.in_channels, self.out_channels
-        weights = self._weights()
+        weights = self.hop_weights()
         if f_in <= f_out:
             # hops first, on the narrow input: Z[m, i, k, f] = sum_j A^k[i, j] x[m, j, f]
             z = _hop(x, prop, self._kron(f_in, x.dtype, adjoint=False))  # (M, N, H, F_in)
@@ -236,7 +237,7 @@ class _TallLinear(torch.autograd.Function):
             grad_x = torch.mm(g, weight).view(x.shape)
         if ctx.needs_input_grad[1]:
             rows = x.reshape(-1, x.shape[-1])  # (R, F_in)
-            if ctx.weight_grad == "fast":  # (x^T g)^T: BLAS's quick path as is, another summation order
+            if ctx.weight_grad == WeightGrad.FAST:  # (x^T g)^T: BLAS's quick path as is, another summation order
                 grad_w = torch.mm(rows.t(), g).t()
             else:  # autograd's grad^T x, with grad^T copied: the same MKL sums, without its slow strided path
                 grad_w = torch.mm(g.t().contiguous(), rows)
@@ -245,7 +246,7 @@ class _TallLinear(torch.autograd.Function):
         return grad_x, grad_w, grad_b, None
 
 
-def _tall_linear(x: Tensor, weight: Tensor, bias: Tensor | None, weight_grad: str = "autograd") -> Tensor:
+def _tall_linear(x: Tensor, weight: Tensor, bias: Tensor | None, weight_grad: str = WeightGrad.AUTOGRAD) -> Tensor:
     """``F.linear(x, weight, bias)`` for ``x (..., F_in)``; backward as :class:`_TallLinear` where that helps.
 
     Plain ``F.linear`` (autograd's backward) without gradients, off CPU (the layout of the weight gradient's product
@@ -254,7 +255,7 @@ def _tall_linear(x: Tensor, weight: Tensor, bias: Tensor | None, weight_grad: st
     if x.device.type != "cpu" or not torch.is_grad_enabled() or not (weight.requires_grad or x.requires_grad or (
             bias is not None and bias.requires_grad)):
         return F.linear(x, weight, bias)
-    if weight_grad == "autograd" and (x.numel() < TALL_ROWS * x.shape[-1] or min(weight.shape) < 2):
+    if weight_grad == WeightGrad.AUTOGRAD and (x.numel() < TALL_ROWS * x.shape[-1] or min(weight.shape) < 2):
         return F.linear(x, weight, bias)
     return _TallLinear.apply(x, weight, bias, weight_grad)
 

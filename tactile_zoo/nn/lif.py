@@ -28,16 +28,16 @@ float rounding (tests/nn/test_lif.py); on GPU a fused multiply-add may round a m
 the threshold differently. Surrogates: :mod:`tactile_zoo.nn.surrogate`.
 
 On CPU the fused backend runs as a compiled kernel where it can (:mod:`tactile_zoo.nn.lif_compiled`; its torch
-implementation is :mod:`tactile_zoo.nn.lif_fused`): the forward and the backward time loop are one numba-compiled
-call per sequence each, parallel over blocks of neurons on ``torch.get_num_threads()`` threads, with spikes,
-membranes and gradients bit-identical to the torch implementation (tests/nn/test_lif_kernel.py). It applies to
-float32 CPU tensors with the ``rect`` or ``atan`` surrogate on x86-64 (ATen's AVX2/AVX512 kernels), numba installed;
-everything else, the GPU included, runs the torch implementation. The environment variable
-``TACTILE_ZOO_LIF_BACKEND`` (:data:`~tactile_zoo.nn.lif_compiled.KERNEL_ENV`) chooses per call: ``auto`` (default),
-``torch`` (never the kernel) or ``numba`` (the kernel, and an error where it is unavailable). The kernel multiplies
-the input by ``input_scale`` inside its loops (the same float32 multiplies as a separate pass), and in training both
-paths write their spikes and input gradient into reused storages (:func:`tactile_zoo.nn.memory.reusable`).
-``return_active=True`` adds the active neurons of every step (:mod:`tactile_zoo.nn.lif_active`) for event-driven
+implementation is :mod:`tactile_zoo.nn.lif_fused`; where each runs is decided in :mod:`tactile_zoo.nn.backend`): the
+forward and the backward time loop are one numba-compiled call per sequence each, parallel over blocks of neurons on
+``torch.get_num_threads()`` threads, with spikes, membranes and gradients bit-identical to the torch implementation
+(tests/nn/test_lif_kernel.py). It applies to float32 CPU tensors with the ``rect`` or ``atan`` surrogate on x86-64
+(ATen's AVX2/AVX512 kernels), numba installed; everything else, the GPU included, runs the torch implementation. The
+environment variable ``TACTILE_ZOO_LIF_BACKEND`` (:data:`KERNEL_ENV`) chooses per call: ``auto`` (default), ``torch``
+(never the kernel) or ``numba`` (the kernel, and an error where it is unavailable). The kernel multiplies the input by
+``input_scale`` inside its loops (the same float32 multiplies as a separate pass), and in training both paths write
+their spikes and input gradient into reused storages (:func:`tactile_zoo.nn.storage_pool.reusable`).
+``return_active=True`` adds the active neurons of every step (:mod:`tactile_zoo.nn.active_neurons`) for event-driven
 layers.
 """
 
@@ -51,16 +51,21 @@ import torch
 from torch import Tensor, nn
 
 from ..errors import ConfigError
-from .lif_active import active_spikes
-from .lif_compiled import KERNEL_ENV, _CompiledLIF, _kernel_for, _kernel_forward
-from .lif_fused import _FusedLIF, _run
+from . import backend as switch
+from .active_neurons import active_spikes
+from .backend import LIFBackend
+from .lif_compiled import CompiledLIF, compiled_forward
+from .lif_fused import FusedLIF, run_forward
 from .surrogate import make_surrogate
 
 # the surrogates live in .surrogate, the fused and compiled paths in .lif_fused and .lif_compiled
 __all__ = ["MultiStepLIF", "LIFConfig", "KERNEL_ENV"]
 
+#: Environment variable choosing how the fused backend runs on CPU (:data:`tactile_zoo.nn.backend.LIF_KERNEL_ENV`):
+#: ``auto`` (default: the compiled kernel where it applies, else torch), ``numba`` (the same, but an error where
+#: numba is missing) or ``torch`` (never the kernel).
+KERNEL_ENV = switch.LIF_KERNEL_ENV
 _RESETS = ("zero", "subtract")
-_BACKENDS = ("fused", "snntorch")
 
 
 @functools.cache
@@ -89,14 +94,14 @@ class MultiStepLIF(nn.Module):
         detach_reset: ``True`` detaches the reset from the graph (snnTorch); ``False`` back-propagates through it
             (TactileSGNet).
         backend: ``"fused"`` (one autograd node for the whole loop; on CPU the compiled kernel where it applies,
-            see :data:`~tactile_zoo.nn.lif_compiled.KERNEL_ENV`) or ``"snntorch"`` (steps ``snntorch.Leaky``).
+            see :data:`KERNEL_ENV`) or ``"snntorch"`` (steps ``snntorch.Leaky``); :class:`~.backend.LIFBackend`.
         input_scale: the input is multiplied by it first (``1/tau`` for the paper's neuron).
 
     Shapes:
         - input ``x``: ``(T, *)`` time-major, any trailing shape; ``mem``: ``(*)`` or ``None`` (zeros).
         - output: spikes ``(T, *)`` as 0/1 floats; with ``return_mem=True`` also the last membrane ``(*)``, which
           continues the sequence when passed back as ``mem``; with ``return_active=True`` (last) the active neurons
-          as :class:`~tactile_zoo.nn.lif_active.ActiveSpikes`.
+          as :class:`~tactile_zoo.nn.active_neurons.ActiveSpikes`.
     """
 
     def __init__(self, beta: float = 0.2, threshold: float = 0.5, reset: str = "zero",
@@ -108,11 +113,10 @@ class MultiStepLIF(nn.Module):
             raise ConfigError(f"LIF beta must lie in [0, 1], got {beta}")
         if reset not in _RESETS:
             raise ConfigError(f"LIF reset must be one of {_RESETS}, got {reset!r}")
-        if backend not in _BACKENDS:
-            raise ConfigError(f"LIF backend must be one of {_BACKENDS}, got {backend!r}")
+        self.backend = switch.resolve(LIFBackend, backend, "backend", "MultiStepLIF")
         self.beta, self.threshold, self.reset = float(beta), float(threshold), reset
         self.surrogate = make_surrogate(surrogate, surrogate_width, surrogate_alpha, surrogate_slope)
-        self.detach_reset, self.backend, self.input_scale = bool(detach_reset), backend, float(input_scale)
+        self.detach_reset, self.input_scale = bool(detach_reset), float(input_scale)
         self._leaky: dict[tuple, nn.Module] = {}  # snnTorch neurons, built on first use; kept out of the state_dict
 
     @classmethod
@@ -134,7 +138,7 @@ class MultiStepLIF(nn.Module):
     def forward(self, x: Tensor, mem: Tensor | None = None, return_mem: bool = False, return_active: bool = False
                 ) -> Tensor | tuple:
         """Spikes ``(T, *)``; with ``return_mem`` also the last membrane, with ``return_active`` also the active
-        neurons of every step as :class:`~tactile_zoo.nn.lif_active.ActiveSpikes` (rows ``(t, b)``, columns the
+        neurons of every step as :class:`~tactile_zoo.nn.active_neurons.ActiveSpikes` (rows ``(t, b)``, columns the
         last dimension), in that order. ``return_active`` costs one pass over the spikes; without it, nothing."""
         if x.dim() < 1 or x.shape[0] < 1:
             raise ConfigError(f"MultiStepLIF expects a time-major input (T >= 1, ...), got shape {tuple(x.shape)}")
@@ -144,22 +148,23 @@ class MultiStepLIF(nn.Module):
             raise ConfigError(f"MultiStepLIF: mem has shape {tuple(mem.shape)}, the input's step shape is "
                               f"{tuple(x.shape[1:])}")
         subtract = self.reset == "subtract"
-        kernels = _kernel_for(x, mem, self.surrogate) if self.backend == "fused" else None
+        fused = self.backend is LIFBackend.FUSED
+        kernels = switch.lif_kernels_for(x, mem, self.surrogate) if fused else None
         scale = self.input_scale
         if kernels is None and scale != 1.0:
             x = x * scale  # the compiled kernel multiplies inside its loops instead, with the same rounding
         grad = torch.is_grad_enabled() and (x.requires_grad or mem.requires_grad)
         if kernels is not None and grad:
-            spikes, last = _CompiledLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
+            spikes, last = CompiledLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
                                               self.surrogate, kernels, scale)
         elif kernels is not None:  # nothing to differentiate: the compiled loop without the autograd node
-            spikes, last, _ = _kernel_forward(kernels, x.contiguous(), mem.contiguous(), self.beta, self.threshold,
+            spikes, last, _ = compiled_forward(kernels, x.contiguous(), mem.contiguous(), self.beta, self.threshold,
                                               subtract, input_scale=scale)
-        elif self.backend == "fused" and grad:
-            spikes, last = _FusedLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
+        elif fused and grad:
+            spikes, last = FusedLIF.apply(x, mem, self.beta, self.threshold, subtract, self.detach_reset,
                                            self.surrogate)
-        elif self.backend == "fused":  # nothing to differentiate: the same loop without the autograd node
-            spikes, last, _, _ = _run(x, mem, self.beta, self.threshold, subtract, False)
+        elif fused:  # nothing to differentiate: the same loop without the autograd node
+            spikes, last, _, _ = run_forward(x, mem, self.beta, self.threshold, subtract, False)
         else:
             spikes, last = self._snntorch_loop(x, mem)
         out = (spikes, last) if return_mem else (spikes,)

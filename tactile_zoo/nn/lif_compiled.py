@@ -1,64 +1,21 @@
 """The compiled LIF path: the forward and the backward time loops as one numba call per sequence each
-(:mod:`._lif_kernel`), bit-identical to the fused torch path (:mod:`.lif_fused`), which it falls back to where it
-does not apply. :data:`KERNEL_ENV` chooses between them."""
+(:mod:`tactile_zoo.nn._kernels.lif`), bit-identical to the fused torch path (:mod:`.lif_fused`), which it falls back
+to where it does not apply. Where it runs is decided in :func:`tactile_zoo.nn.backend.lif_kernels_for` (the
+``TACTILE_ZOO_LIF_BACKEND`` override included)."""
 
 from __future__ import annotations
 
-import functools
 import math
-import platform
 import threading
 from types import ModuleType
 
 import torch
 from torch import Tensor
 
-from .._env import CHOICE_VARIABLES, env_choice
-from ..errors import ConfigError
-from . import lif_fused, memory
-from .lif_fused import _next_up
+from . import hugepages, lif_fused, storage_pool
 from .surrogate import Surrogate
 
-#: Environment variable choosing how the fused backend runs on CPU: ``auto`` (default: the compiled kernel where it
-#: applies, else torch), ``numba`` (the same, but an error where numba is missing) or ``torch`` (never the kernel).
-KERNEL_ENV = "TACTILE_ZOO_LIF_BACKEND"
-_KERNEL_CHOICES = CHOICE_VARIABLES[KERNEL_ENV]
-
-
-@functools.cache
-def _kernel_module() -> ModuleType | None:
-    """:mod:`tactile_zoo.nn._lif_kernel` where it reproduces the fused path bit for bit, else ``None``.
-
-    That is x86-64 with ATen's AVX2 or AVX512 kernels (their FMAs are the ones the kernel copies; the
-    ``ATEN_CPU_CAPABILITY=default`` build rounds without them, and other CPUs were not checked) and numba installed.
-    """
-    if platform.machine().lower() not in ("x86_64", "amd64"):
-        return None
-    if torch.backends.cpu.get_cpu_capability() not in ("AVX2", "AVX512"):
-        return None
-    try:
-        from . import _lif_kernel
-    except ImportError:
-        return None
-    return _lif_kernel
-
-
-def _kernel_for(x: Tensor, mem: Tensor, surrogate: Surrogate) -> ModuleType | None:
-    """The compiled kernel module if it runs this call (see :data:`KERNEL_ENV`), else ``None`` (the torch path)."""
-    choice = env_choice(KERNEL_ENV, _KERNEL_CHOICES)
-    if choice == "torch" or x.device.type != "cpu" or mem.device.type != "cpu":
-        return None
-    # a tracer's tensors (torch.export's fake and functional tensors, torch.compile's) hold no memory numba can read:
-    # traced graphs record the torch path, which computes the same numbers
-    if type(x) is not torch.Tensor or type(mem) is not torch.Tensor or torch.compiler.is_compiling():
-        return None
-    if x.dtype != torch.float32 or mem.dtype != torch.float32 or surrogate.kind not in ("rect", "atan"):
-        return None  # float64, and surrogates evaluated by other ATen kernels (sigmoid's exp, custom), stay in torch
-    kernels = _kernel_module()
-    if kernels is None and choice == "numba":
-        raise ConfigError(f"{KERNEL_ENV}=numba, but the compiled LIF kernel is unavailable here (it needs numba, "
-                          f"x86-64 and ATen's AVX2 or AVX512 kernels)")
-    return kernels
+__all__ = ["CompiledLIF", "compiled_forward"]
 
 
 def _kernel_threads(kernels: ModuleType) -> None:
@@ -106,22 +63,22 @@ def _forward_chunk(kernels: ModuleType, n: int) -> int:
     return max(16, -(-per_item // 16) * 16)
 
 
-def _kernel_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
+def compiled_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, threshold: float,
                     subtract: bool, checkpoints: bool = False, input_scale: float = 1.0, reuse: bool = False
                     ) -> tuple[Tensor, Tensor, Tensor | None]:
     """Spikes ``[T, ...]``, the last membrane and, with ``checkpoints``, the membrane checkpoints the compiled backward
     recomputes from (``(rows, N)``), from the compiled forward loop (contiguous float32 CPU inputs); the input current
-    is ``x * input_scale``. With ``reuse`` the spikes come from :func:`tactile_zoo.nn.memory.reusable`."""
+    is ``x * input_scale``. With ``reuse`` the spikes come from :func:`tactile_zoo.nn.storage_pool.reusable`."""
     import numpy as np
 
     steps = x.shape[0]
-    spikes = memory.reusable(x.shape, x) if reuse else memory.empty(x.shape, x)
+    spikes = storage_pool.reusable(x.shape, x) if reuse else hugepages.empty(x.shape, x)
     last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
     ckpt = torch.empty(kernels.checkpoint_rows(steps), mem0.numel(), dtype=torch.float32) if checkpoints else None
     _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
             spikes.view(steps, -1).numpy(), last.view(-1).numpy(),
             np.zeros((1, 1), np.float32) if ckpt is None else ckpt.numpy(), checkpoints, *_f32(beta, threshold),
-            _f32(_next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, int(mem0.numel())),
+            _f32(lif_fused.next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, int(mem0.numel())),
             *_f32(input_scale), input_scale != 1.0)
     return spikes, last, ckpt
 
@@ -133,22 +90,22 @@ def _f32(*values: float) -> tuple:
     return tuple(np.float32(v) for v in values)
 
 
-class _CompiledLIF(torch.autograd.Function):
-    """:class:`_FusedLIF` as two compiled calls per sequence (:mod:`tactile_zoo.nn._lif_kernel`): the forward loop,
-    which also keeps a membrane checkpoint every few steps, and a backward that recomputes the membranes between
-    checkpoints instead of saving them all (the fused path's history would be as large as the input). The same
-    inputs, outputs and bit-identical values; with ``input_scale`` the input current is ``x * input_scale``, folded
-    into both loops (the same float32 multiplies as the separate ``x * input_scale`` and its backward, so the same
-    bits, without the two extra passes over tensors as large as ``x``).
+class CompiledLIF(torch.autograd.Function):
+    """:class:`~tactile_zoo.nn.lif_fused.FusedLIF` as two compiled calls per sequence (:mod:`._kernels.lif`): the
+    forward loop, which also keeps a membrane checkpoint every few steps, and a backward that recomputes the
+    membranes between checkpoints instead of saving them all (the fused path's history would be as large as the
+    input). The same inputs, outputs and bit-identical values; with ``input_scale`` the input current is ``x *
+    input_scale``, folded into both loops (the same float32 multiplies as the separate ``x * input_scale`` and its
+    backward, so the same bits, without the two extra passes over tensors as large as ``x``).
 
-    Spikes and input gradient come from :func:`tactile_zoo.nn.memory.reusable`: storages of earlier calls that
+    Spikes and input gradient come from :func:`tactile_zoo.nn.storage_pool.reusable`: storages of earlier calls that
     nothing refers to any more, so that training does not page-fault on fresh outputs every batch."""
 
     @staticmethod
     def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
                 surrogate: Surrogate, kernels: ModuleType, input_scale: float = 1.0) -> tuple[Tensor, Tensor]:
         x, mem0 = x.contiguous(), mem0.contiguous()
-        spikes, last, ckpt = _kernel_forward(kernels, x, mem0, beta, threshold, subtract, checkpoints=True,
+        spikes, last, ckpt = compiled_forward(kernels, x, mem0, beta, threshold, subtract, checkpoints=True,
                                              input_scale=input_scale, reuse=True)
         ctx.save_for_backward(x, ckpt)
         ctx.mem_shape = mem0.shape
@@ -166,7 +123,7 @@ class _CompiledLIF(torch.autograd.Function):
         steps, n = x.shape[0], ckpt.shape[1]
         # the fused path's block of steps: its gradient crosses block boundaries with a different rounding
         block = max(1, min(steps, lif_fused.BLOCK_BYTES // max(1, n * x.element_size())))
-        grad_x = memory.reusable(x.shape, x)
+        grad_x = storage_pool.reusable(x.shape, x)
         grad_mem0 = x.new_empty(ctx.mem_shape)
         no_rows, no_row = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)  # stand-ins for absent gradients
         gs = no_rows if grad_spikes is None else grad_spikes.contiguous().view(steps, -1).numpy()
@@ -178,8 +135,8 @@ class _CompiledLIF(torch.autograd.Function):
             kind, lo, hi, c1, c2 = kernels.ATAN, *_f32(0.0, 0.0), *_f32(math.pi / 2 * p, p / 2)
         _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), ckpt.numpy(), gs,
                 grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
-                grad_mem0.view(-1).numpy(), *_f32(beta, th, _next_up(th, torch.float32)), subtract, detach_reset,
-                kind, lo, hi, c1, c2, block, kernels.CHUNK, *_f32(input_scale), input_scale != 1.0)
+                grad_mem0.view(-1).numpy(), *_f32(beta, th, lif_fused.next_up(th, torch.float32)), subtract,
+                detach_reset, kind, lo, hi, c1, c2, block, kernels.CHUNK, *_f32(input_scale), input_scale != 1.0)
         return grad_x, (grad_mem0 if ctx.needs_input_grad[1] else None), None, None, None, None, None, None, None
 
 

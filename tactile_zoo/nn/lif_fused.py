@@ -1,5 +1,5 @@
 """The fused LIF path in plain torch: the whole sequence's membrane updates in a few ATen calls per step, with a
-hand-written backward (:class:`_FusedLIF`). It runs wherever the compiled kernel (:mod:`.lif_compiled`) does not: on
+hand-written backward (:class:`FusedLIF`). It runs wherever the compiled kernel (:mod:`.lif_compiled`) does not: on
 the GPU, in float64, with surrogates the kernel does not mirror. :class:`~tactile_zoo.nn.lif.MultiStepLIF` chooses."""
 
 from __future__ import annotations
@@ -10,8 +10,10 @@ import math
 import torch
 from torch import Tensor
 
-from . import memory
+from . import hugepages, storage_pool
 from .surrogate import Surrogate, open_interval_mask
+
+__all__ = ["FusedLIF", "run_forward", "next_up", "SAVE_LIMIT_BYTES", "BLOCK_BYTES"]
 
 #: Sequences whose membrane history is at most this large keep it for the backward pass; longer ones keep one
 #: checkpoint per block and recompute the block (two kernels per step) instead of allocating, and page-faulting in,
@@ -22,15 +24,15 @@ BLOCK_BYTES = 2 << 20
 
 
 @functools.lru_cache(maxsize=64)
-def _next_up(level: float, dtype: torch.dtype) -> float:
-    """The smallest value of ``dtype`` above ``level``: ``u <= level`` is ``u < _next_up(level)`` exactly."""
+def next_up(level: float, dtype: torch.dtype) -> float:
+    """The smallest value of ``dtype`` above ``level``: ``u <= level`` is ``u < next_up(level)`` exactly."""
     return torch.nextafter(torch.tensor(level, dtype=dtype), torch.tensor(math.inf, dtype=dtype)).item()
 
 
 def _advance(x_t: Tensor, prev: Tensor, out: Tensor, flag: Tensor, ones: Tensor, beta: float, threshold: float,
              th_up: float, subtract: bool) -> Tensor:
     """One LIF step from membrane ``prev`` into ``out``. ``flag`` is scratch for the previous step's reset, ``ones``
-    an all-ones tensor of the step's shape (may be expanded), ``th_up = _next_up(threshold)``."""
+    an all-ones tensor of the step's shape (may be expanded), ``th_up = next_up(threshold)``."""
     if subtract:
         # R[t] = (U > U_thr) as 0/1 in one kernel; it misses U = +inf, whose next membrane is +inf either way
         open_interval_mask(prev, threshold, math.inf, out=flag, ones=ones)
@@ -43,18 +45,18 @@ def _advance(x_t: Tensor, prev: Tensor, out: Tensor, flag: Tensor, ones: Tensor,
     return torch.addcmul(x_t, prev, flag, value=beta, out=out)
 
 
-def _run(x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, for_backward: bool
-         ) -> tuple[Tensor, Tensor, Tensor | None, tuple[int, bool, list[int]]]:
+def run_forward(x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, for_backward: bool
+                ) -> tuple[Tensor, Tensor, Tensor | None, tuple[int, bool, list[int]]]:
     """The forward time loop: spikes ``[T, ...]``, the last membrane, what the backward pass needs (the membrane
     history with ``mem0`` as row 0 when small, else the membrane entering each block) and the block layout."""
     steps, step_bytes = x.shape[0], max(1, mem0.numel() * x.element_size())
     block = max(1, min(steps, BLOCK_BYTES // step_bytes))
     keep_all = for_backward and (steps + 1) * step_bytes <= SAVE_LIMIT_BYTES
     # huge pages when large (its first write would page-fault), and for training a storage of an earlier call that
-    # nothing refers to any more (memory.reusable), whose pages are already mapped
-    spikes = memory.reusable(x.shape, x) if for_backward else memory.empty(x.shape, x)
+    # nothing refers to any more (storage_pool.reusable), whose pages are already mapped
+    spikes = storage_pool.reusable(x.shape, x) if for_backward else hugepages.empty(x.shape, x)
     flag, ones = torch.empty_like(mem0), mem0.new_ones(()).expand_as(mem0)
-    th_up = _next_up(threshold, x.dtype)
+    th_up = next_up(threshold, x.dtype)
     hist = x.new_empty((steps + 1 if keep_all else block + 1, *mem0.shape))  # row 0: the membrane entering
     hist[0] = mem0
     starts = list(range(0, steps, block))
@@ -76,7 +78,7 @@ def _run(x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool,
     return spikes, prev.clone(), (hist if keep_all else ckpts), (block, keep_all, starts)
 
 
-class _FusedLIF(torch.autograd.Function):
+class FusedLIF(torch.autograd.Function):
     """The whole LIF time loop as one autograd node. Inputs ``x [T, ...]``, ``mem0 [...]``; outputs spikes
     ``[T, ...]`` and the last membrane potential ``[...]``.
 
@@ -86,17 +88,17 @@ class _FusedLIF(torch.autograd.Function):
     factors ``dU[t]/dU[t-1]`` for the whole block at once, then one multiply-add per step carries dL/dU back.
     Large temporaries are avoided on purpose: on CPU each fresh tensor as large as the input costs about as much in
     page faults as the whole loop. The two that cannot be avoided, the spikes and the input gradient, ask for
-    transparent huge pages (:func:`tactile_zoo.nn.memory.empty`): at SGnet's shapes (78 MB each) that took the fused
+    transparent huge pages (:func:`tactile_zoo.nn.hugepages.empty`): at SGnet's shapes (78 MB each) that took the fused
     forward + backward from 2.1-2.2x to 3.3-3.9x the speed of stepping ``snntorch.Leaky`` (detached reset;
     benchmarks/lif.py on 1 thread, side by side, on a loaded 2-core machine where huge pages come on request).
     On CPU they also come from a pool of storages reused once nothing refers to them any more
-    (:func:`tactile_zoo.nn.memory.reusable`), whose pages are already mapped.
+    (:func:`tactile_zoo.nn.storage_pool.reusable`), whose pages are already mapped.
     """
 
     @staticmethod
     def forward(ctx, x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract: bool, detach_reset: bool,
                 surrogate: Surrogate) -> tuple[Tensor, Tensor]:
-        spikes, last, saved, layout = _run(x, mem0, beta, threshold, subtract, for_backward=True)
+        spikes, last, saved, layout = run_forward(x, mem0, beta, threshold, subtract, for_backward=True)
         ctx.save_for_backward(saved, x)
         ctx.cfg = (beta, threshold, subtract, detach_reset, surrogate, *layout)
         ctx.set_materialize_grads(False)  # an unused output needs no zero-filled gradient
@@ -108,11 +110,11 @@ class _FusedLIF(torch.autograd.Function):
         saved, x = ctx.saved_tensors
         beta, th, subtract, detach_reset, surrogate, block, keep_all, starts = ctx.cfg
         steps, shape = x.shape[0], saved.shape[1:]
-        grad = memory.reusable((steps, *shape), saved)
+        grad = storage_pool.reusable((steps, *shape), saved)
         # per-block workspaces, reused (fresh temporaries this size would page-fault on every block)
         u_buf, sg_buf = saved.new_empty((block + 1, *shape)), saved.new_empty((block + 1, *shape))
         decay_buf = saved.new_empty((block, *shape))
-        ones, th_up = saved.new_ones(()).expand(block + 1, *shape), _next_up(th, saved.dtype)
+        ones, th_up = saved.new_ones(()).expand(block + 1, *shape), next_up(th, saved.dtype)
         if not keep_all:
             rows_buf = saved.new_empty((block + 1, *shape))
             xs = x.unbind(0)

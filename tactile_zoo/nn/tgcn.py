@@ -43,6 +43,8 @@ import torch
 from torch import Tensor, nn
 
 from ..errors import ConfigError
+from . import backend as switch
+from .backend import TemporalBackend
 from .graph import FrameGraphConv
 
 __all__ = ["TGCNCell", "TGCN2Cell", "TemporalAttention", "TemporalGraphAttention", "load_tgcn2", "TGT_INSTALL"]
@@ -236,14 +238,12 @@ class TemporalGraphAttention(nn.Module):
                  pool: str = "mean", attn_dim: int = 32, temporal_backend: str = "native",
                  graph_backend: str = "dense") -> None:
         super().__init__()
-        cells = {"native": TGCNCell, "tgt": TGCN2Cell}
-        if temporal_backend not in cells:
-            raise ConfigError(f"temporal_backend must be 'native' or 'tgt', got {temporal_backend!r}")
+        temporal = switch.resolve(TemporalBackend, temporal_backend, "temporal_backend", "TemporalGraphAttention")
+        cell = TGCN2Cell if temporal is TemporalBackend.TGT else TGCNCell
         if pool not in ("mean", "flatten"):
             raise ConfigError(f"pool must be 'mean' or 'flatten', got {pool!r}")
         self.pool = pool
-        self.cell = cells[temporal_backend](in_channels, hidden_channels, edge_index, num_nodes,
-                                            graph_backend=graph_backend)
+        self.cell = cell(in_channels, hidden_channels, edge_index, num_nodes, graph_backend=graph_backend)
         self.out_features = hidden_channels * (num_nodes if pool == "flatten" else 1)
         self.attention = TemporalAttention(self.out_features, attn_dim)
 

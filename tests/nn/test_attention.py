@@ -219,5 +219,5 @@ def test_the_block_applies_attention_dropout_only_in_training_for_both_kinds() -
 
 
 def test_a_bad_attention_kind_is_a_config_error_naming_the_argument() -> None:
-    with pytest.raises(ConfigError, match=r"attention must be one of \('fused', 'explicit'\), got 'flash'"):
+    with pytest.raises(ConfigError, match=r"attention must be one of 'fused', 'explicit', got 'flash'"):
         SpikingSelfAttention(16, 4, attention="flash")

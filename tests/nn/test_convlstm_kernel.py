@@ -12,7 +12,7 @@ from tactile_zoo.nn.convlstm import ConvLSTM, ConvLSTMCell, ConvLSTMConfig, _tap
 from tactile_zoo.nn.convlstm_compiled import CompiledRecurrence
 
 pytest.importorskip("numba")
-from tactile_zoo.nn import _convlstm_kernel as kern  # noqa: E402  (after the skip: it imports numba)
+from tactile_zoo.nn._kernels import convlstm as kern  # noqa: E402  (after the skip: it imports numba)
 
 # (batch, in channels, hidden, height, width, kernel)
 SHAPES = [(3, 2, 4, 4, 5, 3), (2, 3, 5, 1, 3, 1), (2, 2, 3, 1, 3, 3), (2, 1, 4, 3, 4, 5), (4, 2, 16, 9, 13, 3)]

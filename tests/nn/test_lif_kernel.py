@@ -1,4 +1,4 @@
-"""The compiled LIF kernel (tactile_zoo.nn._lif_kernel) against the fused torch path it replaces on CPU: spikes,
+"""The compiled LIF kernel (tactile_zoo.nn._kernels.lif) against the fused torch path it replaces on CPU: spikes,
 membranes and every gradient bit-identical (torch.equal), over the module's options; and when each path runs."""
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ import tactile_zoo.nn.lif as lif_module
 import tactile_zoo.nn.lif_compiled as compiled
 import tactile_zoo.nn.lif_fused as fused
 from tactile_zoo.errors import ConfigError
+from tactile_zoo.nn import backend
 from tactile_zoo.nn.lif import KERNEL_ENV, MultiStepLIF
 
-pytestmark = pytest.mark.skipif(compiled._kernel_module() is None,
+pytestmark = pytest.mark.skipif(backend.lif_kernels() is None,
                                 reason="the compiled LIF kernel needs numba on x86-64 with ATen AVX2/AVX512 kernels")
 
 
@@ -29,14 +30,14 @@ def small_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
     """Chunks of 256 neurons instead of the kernel's 8192 (and forward rows of at most 400 instead of whole rows), so
     that small shapes span several chunks, cut differently forward and backward, and reach the parallel builds (the
     chunk is an argument of each call; the checkpoint interval is compiled in)."""
-    monkeypatch.setattr(compiled._kernel_module(), "CHUNK", 256)
-    monkeypatch.setattr(compiled._kernel_module(), "FORWARD_CHUNK", 400)
+    monkeypatch.setattr(backend.lif_kernels(), "CHUNK", 256)
+    monkeypatch.setattr(backend.lif_kernels(), "FORWARD_CHUNK", 400)
 
 
 @pytest.fixture
 def calls(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     """Counts the compiled forward and backward calls (so a comparison cannot pass by running torch twice)."""
-    kernels, counts = compiled._kernel_module(), {"forward": 0, "backward": 0}
+    kernels, counts = backend.lif_kernels(), {"forward": 0, "backward": 0}
     parallel = [0]  # launches of the parallel builds (the others run the serial ones)
     monkeypatch.setattr(lif_module, "_parallel_launches", parallel, raising=False)
     for name, build in itertools.product(("forward", "backward"), ("", "_serial")):
@@ -199,7 +200,7 @@ def test_backend_variable(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(ConfigError, match=KERNEL_ENV):
         MultiStepLIF()(torch.randn(3, 2))
     monkeypatch.setenv(KERNEL_ENV, "numba")
-    monkeypatch.setattr(compiled, "_kernel_module", lambda: None)  # as where numba is not installed
+    monkeypatch.setattr(backend, "lif_kernels", lambda: None)  # as where numba is not installed
     with pytest.raises(ConfigError, match="unavailable"):
         MultiStepLIF()(torch.randn(3, 2))
     monkeypatch.setenv(KERNEL_ENV, "auto")  # auto falls back to torch quietly
@@ -209,7 +210,7 @@ def test_backend_variable(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_threads_follow_torch(monkeypatch: pytest.MonkeyPatch) -> None:
     import numba
 
-    kernels, before = compiled._kernel_module(), torch.get_num_threads()
+    kernels, before = backend.lif_kernels(), torch.get_num_threads()
     try:
         torch.set_num_threads(1)
         compiled._kernel_threads(kernels)
@@ -248,11 +249,13 @@ def test_read_only_install_compiles_in_memory(tmp_path: Path) -> None:
     """No cache folder can be made (beside the module, nor a per-user one): the kernel still compiles, in memory.
     Blocked by files where the folders would go, which stops root as well as anyone else."""
     pkg, blocker = tmp_path / "pkg", tmp_path / "not-a-folder"
-    pkg.mkdir()
-    (pkg / "_lif_kernel.py").write_text(Path(compiled.__file__).with_name("_lif_kernel.py").read_text())
-    (pkg / "__pycache__").write_text("")
+    kernels = pkg / "_kernels"  # the kernel package's files that the LIF kernels need, as a top-level package
+    kernels.mkdir(parents=True)
+    for name in ("__init__.py", "jit.py", "lif.py"):
+        (kernels / name).write_text((Path(backend.__file__).parent / "_kernels" / name).read_text())
+    (kernels / "__pycache__").write_text("")
     blocker.write_text("")
-    script = ("import numpy as np, _lif_kernel as k\n"
+    script = ("import numpy as np, _kernels.lif as k\n"
               "x = np.full((3, 2), 0.7, np.float32); s = np.empty_like(x); m = np.empty(2, np.float32)\n"
               "k.lif_forward(x, np.zeros(2, np.float32), s, m, np.zeros((1, 1), np.float32), False,\n"
               "              *map(np.float32, (0.2, 0.5, 0.50000006)), False, 256, np.float32(1), False)\n"

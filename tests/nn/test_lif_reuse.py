@@ -1,4 +1,4 @@
-"""Issue 40's LIF paths: reused output storages (tactile_zoo.nn.memory.reusable), the time-major forward, the
+"""Issue 40's LIF paths: reused output storages (tactile_zoo.nn.storage_pool.reusable), the time-major forward, the
 input scale folded into the kernel, and the active-neuron CSR -- each bit-identical (torch.equal) to the fused torch
 path, and a live output never overwritten."""
 
@@ -10,55 +10,55 @@ import pytest
 import torch
 
 import tactile_zoo.nn.lif_compiled as compiled
-from tactile_zoo.nn import memory
+from tactile_zoo.nn import backend, storage_pool
 from tactile_zoo.nn.lif import KERNEL_ENV, LIFConfig, MultiStepLIF, active_spikes
 
-needs_kernel = pytest.mark.skipif(compiled._kernel_module() is None, reason="the compiled LIF kernel needs numba on "
+needs_kernel = pytest.mark.skipif(backend.lif_kernels() is None, reason="the compiled LIF kernel needs numba on "
                                   "x86-64 with ATen AVX2/AVX512 kernels")
 
 
 @pytest.fixture(autouse=True)
 def fresh_pool(monkeypatch: pytest.MonkeyPatch) -> None:
     """An empty pool that pools small tensors too (these tests' outputs are kilobytes)."""
-    memory.clear_pool()
-    monkeypatch.setattr(memory, "POOL_MIN_BYTES", 1)
+    storage_pool.clear_pool()
+    monkeypatch.setattr(storage_pool, "POOL_MIN_BYTES", 1)
     yield
-    memory.clear_pool()
+    storage_pool.clear_pool()
 
 
 # ------------------------------------------------------------------------------------------------------ the pool
 def test_a_storage_is_handed_out_again_only_when_nothing_refers_to_it() -> None:
     like = torch.zeros(1)
-    a = memory.reusable((10, 30), like)
+    a = storage_pool.reusable((10, 30), like)
     ptr = a.data_ptr()
     for hold in (lambda t: t[2:5], lambda t: t.numpy(), lambda t: t.untyped_storage(), lambda t: t.t()):
         held = hold(a)  # a view, a numpy array, the storage itself, a transposed view
         del a
-        b = memory.reusable((30, 10), like)
+        b = storage_pool.reusable((30, 10), like)
         assert b.data_ptr() != ptr  # something still reaches the first storage
         del b, held
-        a = memory.reusable((10, 30), like)
+        a = storage_pool.reusable((10, 30), like)
         assert a.data_ptr() == ptr  # let go: handed out again
     del a
-    memory.clear_pool()
-    c = memory.reusable((30, 10), like)
+    storage_pool.clear_pool()
+    c = storage_pool.reusable((30, 10), like)
     ptr = c.data_ptr()
     saved = torch.ones(30, 10, requires_grad=True) * c  # c saved for backward by the multiplication
     del c
-    assert memory.reusable((30, 10), like).data_ptr() != ptr
+    assert storage_pool.reusable((30, 10), like).data_ptr() != ptr
     del saved
-    d = memory.reusable((300,), like)  # same size in bytes, another shape
+    d = storage_pool.reusable((300,), like)  # same size in bytes, another shape
     assert d.data_ptr() == ptr and d.shape == (300,) and d.dtype == torch.float32
 
 
 def test_the_pool_is_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(memory, "POOL_BYTES", 3 * 400)
+    monkeypatch.setattr(storage_pool, "POOL_BYTES", 3 * 400)
     like = torch.zeros(1)
-    live = [memory.reusable((100,), like) for _ in range(5)]  # 400 bytes each: three pooled, two beyond the limit
-    assert memory.pool_stats()["bytes"] == 1200 and memory.pool_stats()["storages"] == 3
+    live = [storage_pool.reusable((100,), like) for _ in range(5)]  # 400 bytes each: three pooled, two beyond the limit
+    assert storage_pool.pool_stats()["bytes"] == 1200 and storage_pool.pool_stats()["storages"] == 3
     del live
-    other = memory.reusable((50,), like)  # another size: an idle storage is evicted to make room
-    stats = memory.pool_stats()
+    other = storage_pool.reusable((50,), like)  # another size: an idle storage is evicted to make room
+    stats = storage_pool.pool_stats()
     assert stats["bytes"] <= 1200 and stats["storages"] == 3 and other.shape == (50,)
 
 
@@ -67,7 +67,7 @@ def test_concurrent_takers_never_share_a_storage() -> None:
 
     def work() -> None:
         for _ in range(200):
-            a, b = memory.reusable((64,), like), memory.reusable((64,), like)
+            a, b = storage_pool.reusable((64,), like), storage_pool.reusable((64,), like)
             with lock:
                 seen.append(a.data_ptr() != b.data_ptr())
             a.fill_(1.0)
@@ -76,7 +76,7 @@ def test_concurrent_takers_never_share_a_storage() -> None:
     threads = [threading.Thread(target=work) for _ in range(4)]
     [t.start() for t in threads]
     [t.join() for t in threads]
-    assert len(seen) == 800 and all(seen) and memory.pool_stats()["storages"] <= 16  # 4 alive per thread at most
+    assert len(seen) == 800 and all(seen) and storage_pool.pool_stats()["storages"] <= 16  # 4 alive per thread at most
 
 
 # ------------------------------------------------------------------------------------ the LIF through the pool
@@ -87,7 +87,7 @@ def test_live_outputs_survive_later_calls(monkeypatch: pytest.MonkeyPatch, detac
     """Spikes and input gradients kept from earlier forward/backward calls are never overwritten by later calls,
     while the outputs that were let go are reused (so the reuse path is exercised); the compiled kernel and the
     fused torch path."""
-    if path == "numba" and compiled._kernel_module() is None:
+    if path == "numba" and backend.lif_kernels() is None:
         pytest.skip("no compiled kernel")
     monkeypatch.setenv(KERNEL_ENV, path)
     lif = MultiStepLIF(surrogate="rect", reset=reset, detach_reset=detach_reset)
@@ -102,7 +102,7 @@ def test_live_outputs_survive_later_calls(monkeypatch: pytest.MonkeyPatch, detac
             copies.append((spikes.clone(), x.grad.clone()))
     for (spikes, x), (s_copy, g_copy) in zip(kept, copies):
         assert torch.equal(spikes, s_copy) and torch.equal(x.grad, g_copy)
-    assert memory.pool_stats()["reused"] >= 3
+    assert storage_pool.pool_stats()["reused"] >= 3
 
 
 @needs_kernel
@@ -113,8 +113,8 @@ def test_reused_outputs_equal_fresh_ones(monkeypatch: pytest.MonkeyPatch) -> Non
     w = torch.randn(x.shape, generator=gen)
     lif = MultiStepLIF(surrogate="atan", reset="zero")
     out = []
-    for pool_bytes in (0, memory.POOL_BYTES, memory.POOL_BYTES):  # fresh, pooled fresh, reused
-        monkeypatch.setattr(memory, "POOL_BYTES", pool_bytes)
+    for pool_bytes in (0, storage_pool.POOL_BYTES, storage_pool.POOL_BYTES):  # fresh, pooled fresh, reused
+        monkeypatch.setattr(storage_pool, "POOL_BYTES", pool_bytes)
         leaf = x.clone().requires_grad_(True)
         spikes = lif(leaf)
         (grad,) = torch.autograd.grad((spikes * w).sum(), leaf)
@@ -122,7 +122,7 @@ def test_reused_outputs_equal_fresh_ones(monkeypatch: pytest.MonkeyPatch) -> Non
         spikes.fill_(float("nan"))  # poison the storages before they go back to the pool
         grad.fill_(float("nan"))
         del spikes, grad
-    assert memory.pool_stats()["reused"] >= 2
+    assert storage_pool.pool_stats()["reused"] >= 2
     for spikes, grad in out[1:]:
         assert torch.equal(spikes, out[0][0]) and torch.equal(grad, out[0][1])
 
@@ -160,7 +160,7 @@ SGNET = dict(beta=0.2, threshold=0.5, reset="zero", surrogate="rect", detach_res
 def test_models_neurons_match_the_torch_path(monkeypatch: pytest.MonkeyPatch, name: str, lif: MultiStepLIF,
                                              shape: tuple[int, ...], threads: int, forward_chunk: int | None) -> None:
     """Whole rows per step (time-major, the default), rows cut into pieces, and two threads."""
-    kernels = compiled._kernel_module()
+    kernels = backend.lif_kernels()
     monkeypatch.setattr(kernels, "CHUNK", 256)  # the backward's chunks (and the parallel builds at these sizes)
     if forward_chunk:
         monkeypatch.setattr(kernels, "FORWARD_CHUNK", forward_chunk)
@@ -177,20 +177,20 @@ def test_input_scale_runs_inside_the_kernel(monkeypatch: pytest.MonkeyPatch) -> 
     """No separate ``x * input_scale`` pass on the compiled path: the kernel receives the unscaled input."""
     monkeypatch.setenv(KERNEL_ENV, "numba")
     seen = []
-    real = compiled._kernel_forward
+    real = compiled.compiled_forward
 
     def spy(kernels, x, *args, **kw):  # noqa: ANN001, ANN002, ANN003, ANN202
         seen.append((x, kw.get("input_scale")))
         return real(kernels, x, *args, **kw)
 
-    monkeypatch.setattr(compiled, "_kernel_forward", spy)
+    monkeypatch.setattr(compiled, "compiled_forward", spy)
     x = torch.randn(5, 3, requires_grad=True)
     LIFConfig().build()(x)
     assert seen[0][0].data_ptr() == x.data_ptr() and seen[0][1] == 0.5
 
 
 def test_forward_chunks() -> None:
-    kernels = compiled._kernel_module()
+    kernels = backend.lif_kernels()
     if kernels is None:
         pytest.skip("no compiled kernel")
     before = torch.get_num_threads()
@@ -220,7 +220,7 @@ def test_active_spikes(monkeypatch: pytest.MonkeyPatch, shape: tuple[int, ...]) 
     assert torch.equal(act.to_dense(), spikes)
     other = active_spikes(1.0 - spikes)  # another call while the first result is alive: its storage is kept
     assert torch.equal(act.to_dense(), spikes) and torch.equal(other.to_dense(), 1.0 - spikes)
-    monkeypatch.setattr(compiled, "_kernel_module", lambda: None)  # the torch fallback gives the same arrays
+    monkeypatch.setattr(backend, "event_kernels", lambda: None)  # the torch fallback gives the same arrays
     other = active_spikes(spikes)
     assert torch.equal(other.indptr, act.indptr) and torch.equal(other.indices, act.indices)
 

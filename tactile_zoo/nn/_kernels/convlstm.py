@@ -1,9 +1,10 @@
 """Per-step ConvLSTM kernels for CPU, compiled by numba: the work of a time step around its one matrix product.
 
-Imported lazily by :mod:`tactile_zoo.nn.convlstm` (backend ``"compiled"``); nothing here is public. Arrays are
-channel-major as in the fused backend: a state is ``(h, N)`` with ``N = B*H*W`` (sample-major, then the cells of the
-grid row by row), the pre-activations ``(4h, N)`` in gate order i, f, o, g, and the im2col matrix of a state
-``(h*k*k, N)``, row ``j*k*k + dr*k + dc`` holding tap ``(dr, dc)`` of channel ``j`` around every cell.
+Loaded lazily (:func:`tactile_zoo.nn.backend.convlstm_kernels`) for ConvLSTM's ``backend="compiled"``
+(:mod:`tactile_zoo.nn.convlstm_compiled`); nothing here is public. Arrays are channel-major as in the fused backend:
+a state is ``(h, N)`` with ``N = B*H*W`` (sample-major, then the cells of the grid row by row), the pre-activations
+``(4h, N)`` in gate order i, f, o, g, and the im2col matrix of a state ``(h*k*k, N)``, row ``j*k*k + dr*k + dc``
+holding tap ``(dr, dc)`` of channel ``j`` around every cell.
 
 Within one sample's grid, tap ``(dr, dc)`` of the im2col matrix is the state row shifted by ``dr*W + dc``: each im2col
 row is one contiguous shifted copy, after which the positions outside the grid ("same" zero padding, where the shift
@@ -35,7 +36,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic, overload
 
-from ._lif_kernel import _fma, _jit
+from .jit import fma, jit
 
 __all__ = ["forward_step", "backward_step", "im2col", "col2im"]
 
@@ -62,12 +63,12 @@ def _bits_to_float(typingctx: object, n: types.Type) -> tuple | None:
 def _exp32(x: np.float32) -> np.float32:  # pragma: no cover - compiled
     """``exp(x)`` in float32 for ``x`` clamped to [-87, 88] (so ``2^n`` stays a normal number)."""
     x = min(max(x, _F(-87.0)), _F(88.0))
-    n = np.floor(_fma(x, _F(1.44269504088896341), _F(0.5)))  # round(x / ln 2); float32 (math.floor gives int64)
-    x = _fma(n, _F(-0.693359375), x)  # minus n ln 2, ln 2 in two parts: the first times n is exact
-    x = _fma(n, _F(2.12194440e-4), x)
-    p = _fma(_fma(_fma(_fma(_fma(_F(1.9875691500e-4), x, _F(1.3981999507e-3)), x, _F(8.3334519073e-3)), x,
+    n = np.floor(fma(x, _F(1.44269504088896341), _F(0.5)))  # round(x / ln 2); float32 (math.floor gives int64)
+    x = fma(n, _F(-0.693359375), x)  # minus n ln 2, ln 2 in two parts: the first times n is exact
+    x = fma(n, _F(2.12194440e-4), x)
+    p = fma(fma(fma(fma(fma(_F(1.9875691500e-4), x, _F(1.3981999507e-3)), x, _F(8.3334519073e-3)), x,
                         _F(4.1665795894e-2)), x, _F(1.6666665459e-1)), x, _F(5.0000001201e-1))
-    p = _fma(p, x * x, x) + _F(1.0)
+    p = fma(p, x * x, x) + _F(1.0)
     return p * _bits_to_float((np.int32(n) + 127) << 23)  # times 2^n, built from its exponent bits
 
 
@@ -76,7 +77,7 @@ _exp32 = njit(inline="always", error_model="numpy")(_exp32)
 
 def _tanh32(x: np.float32) -> np.float32:  # pragma: no cover - compiled
     z = x * x
-    small = _fma(_fma(_fma(_fma(_fma(_F(-5.70498872745e-3), z, _F(2.06390887954e-2)), z, _F(-5.37397155531e-2)), z,
+    small = fma(fma(fma(fma(fma(_F(-5.70498872745e-3), z, _F(2.06390887954e-2)), z, _F(-5.37397155531e-2)), z,
                           _F(1.33314422036e-1)), z, _F(-3.33332819422e-1)) * z, x, x)
     large = _F(1.0) - _F(2.0) / (_exp32(_F(2.0) * x) + _F(1.0))
     return small if abs(x) < _F(0.625) else large  # both computed: a select, no branch in the vector loop
@@ -114,7 +115,7 @@ def _tanh_impl(x):  # type: ignore[no-untyped-def]
     return None
 
 
-@_jit
+@jit
 def _shift_copy(dst: np.ndarray, src: np.ndarray, shift: int) -> None:  # pragma: no cover - compiled
     """``dst[n] = src[n + shift]`` wherever both exist: one long contiguous run, which vectorises (over slices: in
     ``src[p + shift]`` a possibly negative index costs numba's wrap-around test per element, and the vector loop)."""
@@ -126,7 +127,7 @@ def _shift_copy(dst: np.ndarray, src: np.ndarray, shift: int) -> None:  # pragma
             d[p] = s[p]
 
 
-@_jit
+@jit
 def _shift_add(dst: np.ndarray, src: np.ndarray, shift: int) -> None:  # pragma: no cover - compiled
     """``dst[n + shift] += src[n]`` wherever both exist."""
     n = dst.shape[0]
@@ -137,7 +138,7 @@ def _shift_add(dst: np.ndarray, src: np.ndarray, shift: int) -> None:  # pragma:
             d[p] = d[p] + s[p]
 
 
-@_jit
+@jit
 def _zero_outside(row: np.ndarray, batch: int, height: int, width: int, dr: int,
                   dc: int) -> None:  # pragma: no cover - compiled
     """Zero the positions of an im2col row whose tap ``(dr, dc)`` (offsets from the centre) falls outside the grid:
@@ -192,34 +193,34 @@ def col2im(d_cols: np.ndarray, out: np.ndarray, channel: int, batch: int, height
             _shift_add(out, src, (a - pad) * width + (b - pad))
 
 
-im2col = _jit(im2col)
-col2im = _jit(col2im)
+im2col = jit(im2col)
+col2im = jit(col2im)
 
 
 # Row helpers: each is one loop over a row of N values that reads at most three rows and writes at most two, so
 # that LLVM's runtime alias checks between them stay few and it vectorises the loop (one loop over all eight rows of
 # a channel does not vectorise and runs several times slower).
 
-@_jit
+@jit
 def _sigmoid_row(z: np.ndarray) -> None:  # pragma: no cover - compiled
     for p in range(z.shape[0]):
         z[p] = _sigmoid(z[p])
 
 
-@_jit
+@jit
 def _tanh_row(z: np.ndarray) -> None:  # pragma: no cover - compiled
     for p in range(z.shape[0]):
         z[p] = _tanh(z[p])
 
 
-@_jit
+@jit
 def _cell_row(i: np.ndarray, f: np.ndarray, g: np.ndarray, c_prev: np.ndarray, out: np.ndarray
               ) -> None:  # pragma: no cover - compiled
     for p in range(out.shape[0]):
         out[p] = f[p] * c_prev[p] + i[p] * g[p]
 
 
-@_jit
+@jit
 def _hidden_row(c_tc: np.ndarray, o: np.ndarray, c: np.ndarray, h: np.ndarray) -> None:  # pragma: no cover
     """``c_tc`` holds ``c_t``: it goes to ``c``, its tanh replaces it, and ``h = o tanh(c_t)``."""
     for p in range(h.shape[0]):
@@ -252,13 +253,13 @@ def forward_step(z: np.ndarray, c_prev: np.ndarray, c_out: np.ndarray, tc_out: n
             im2col(h_out[j], cols, j, batch, height, width, kernel)
 
 
-@_jit
+@jit
 def _add_row(acc: np.ndarray, x: np.ndarray) -> None:  # pragma: no cover - compiled
     for p in range(acc.shape[0]):
         acc[p] = acc[p] + x[p]
 
 
-@_jit
+@jit
 def _d_out_row(dh: np.ndarray, o: np.ndarray, tc: np.ndarray, d_o: np.ndarray) -> None:  # pragma: no cover
     """``dL/dz_o = dh tanh(c) o (1 - o)``."""
     for p in range(d_o.shape[0]):
@@ -266,7 +267,7 @@ def _d_out_row(dh: np.ndarray, o: np.ndarray, tc: np.ndarray, d_o: np.ndarray) -
         d_o[p] = dh[p] * tc[p] * (v - v * v)
 
 
-@_jit
+@jit
 def _d_cell_row(dh: np.ndarray, o: np.ndarray, tc: np.ndarray, dc: np.ndarray) -> None:  # pragma: no cover
     """``dc += dh o (1 - tanh(c)^2)``: the gradient of ``c_t`` from later steps plus its path through ``h_t``."""
     for p in range(dc.shape[0]):
@@ -275,7 +276,7 @@ def _d_cell_row(dh: np.ndarray, o: np.ndarray, tc: np.ndarray, dc: np.ndarray) -
         dc[p] = dc[p] + d_t - d_t * t * t
 
 
-@_jit
+@jit
 def _d_input_row(dc: np.ndarray, i: np.ndarray, g: np.ndarray, d_i: np.ndarray) -> None:  # pragma: no cover
     """``dL/dz_i = dc g i (1 - i)``."""
     for p in range(d_i.shape[0]):
@@ -283,7 +284,7 @@ def _d_input_row(dc: np.ndarray, i: np.ndarray, g: np.ndarray, d_i: np.ndarray) 
         d_i[p] = dc[p] * g[p] * (v - v * v)
 
 
-@_jit
+@jit
 def _d_candidate_row(dc: np.ndarray, i: np.ndarray, g: np.ndarray, d_g: np.ndarray) -> None:  # pragma: no cover
     """``dL/dz_g = dc i (1 - g^2)``."""
     for p in range(d_g.shape[0]):
@@ -292,7 +293,7 @@ def _d_candidate_row(dc: np.ndarray, i: np.ndarray, g: np.ndarray, d_g: np.ndarr
         d_g[p] = u - u * v * v
 
 
-@_jit
+@jit
 def _d_forget_row(dc: np.ndarray, f: np.ndarray, c_prev: np.ndarray, d_f: np.ndarray) -> None:  # pragma: no cover
     """``dL/dz_f = dc c_{t-1} f (1 - f)``, and ``dc`` becomes ``dL/dc_{t-1} = dc f``."""
     for p in range(d_f.shape[0]):
@@ -332,5 +333,5 @@ def backward_step(gates: np.ndarray, c_prev: np.ndarray, tcs: np.ndarray, d_hs: 
             im2col(h_prev[j], cols, j, batch, height, width, kernel)
 
 
-forward_step = _jit(forward_step)
-backward_step = _jit(backward_step)
+forward_step = jit(forward_step)
+backward_step = jit(backward_step)

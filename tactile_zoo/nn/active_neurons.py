@@ -2,9 +2,9 @@
 spikes that fired only (an event-driven linear layer gathers the weight rows of its active inputs).
 
 ``MultiStepLIF(...)(x, return_active=True)`` returns them with the spikes; :func:`active_spikes` computes them from
-any spike tensor. On CPU for float32 spikes one compiled pass does it (:func:`tactile_zoo.nn._lif_kernel.active_csr`,
-into a reused storage with room for every neuron: :func:`tactile_zoo.nn.memory.reusable`), elsewhere torch's
-``nonzero``; both give the same arrays.
+any spike tensor. On CPU for float32 spikes one compiled pass does it (``active_csr`` of the event kernels,
+:func:`tactile_zoo.nn.backend.event_kernels`, into a reused storage with room for every neuron:
+:func:`tactile_zoo.nn.storage_pool.reusable`), elsewhere torch's ``nonzero``; both give the same arrays.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from . import memory
+from . import backend, storage_pool
 
 __all__ = ["ActiveSpikes", "active_spikes"]
 
@@ -65,15 +65,13 @@ def active_spikes(spikes: Tensor) -> ActiveSpikes:
     shape = tuple(spikes.shape)
     flat = spikes.detach().reshape(-1, shape[-1] if shape else 1)
     if flat.device.type == "cpu" and flat.dtype == torch.float32:
-        from .lif_compiled import _kernel_module
-
-        kernels = _kernel_module()
+        kernels = backend.event_kernels()
         if kernels is not None:
             flat = flat.contiguous()
             indptr = torch.empty(flat.shape[0] + 1, dtype=torch.int64)
             # room for every neuron firing, from the pool of reused storages (a fresh tensor this large would cost
             # more in page faults than the pass itself); the indices are a view of it, which keeps it in use
-            room = memory.reusable((flat.numel() + 1,), _INT32)
+            room = storage_pool.reusable((flat.numel() + 1,), _INT32)
             count = kernels.active_csr(flat.numpy(), indptr.numpy(), room.numpy())
             return ActiveSpikes(indptr, room[:count], shape)
     nonzero = flat != 0

@@ -1,14 +1,15 @@
 """Whole-sequence LIF kernels for CPU, compiled by numba: one call runs the forward (or backward) time loop of every
 neuron, in parallel over blocks of neurons.
 
-Imported lazily by :mod:`tactile_zoo.nn.lif` (numba's import and first compilation cost seconds); nothing here is
-public. The kernels reproduce the fused torch path of :class:`tactile_zoo.nn.lif_fused._FusedLIF` operation for
-operation in float32, so that spikes, membranes and gradients are bit-identical to it. What that takes, from the ATen
-CPU kernels the fused path calls (checked on x86-64 builds, AVX2 and AVX512 capability; tests/nn/test_lif.py compares):
+Loaded lazily (:func:`tactile_zoo.nn.backend.lif_kernels`; numba's import and first compilation cost seconds) and run
+by :mod:`tactile_zoo.nn.lif_compiled`; nothing here is public. The kernels reproduce the fused torch path of
+:class:`tactile_zoo.nn.lif_fused.FusedLIF` operation for operation in float32, so that spikes, membranes and
+gradients are bit-identical to it. What that takes, from the ATen CPU kernels the fused path calls (checked on
+x86-64 builds, AVX2 and AVX512 capability; tests/nn/test_lif.py compares):
 
 - ``a.add_(b, alpha=c)`` is ``fma(b, c, a)`` and ``a.addcmul_(b, d, value=c)`` is ``fma(c * b, d, a)``: ATen's
   vector code calls ``fmadd`` and GCC contracts its scalar tails into the same FMA. Plain ``mul``/``add``/``sub``
-  calls round once each. :func:`_fma` emits ``llvm.fma`` where torch fuses; nothing else is contracted, because
+  calls round once each. :func:`~.jit.fma` emits ``llvm.fma`` where torch fuses; nothing else is contracted, because
   numba does not allow LLVM to fuse separate multiplies and adds without ``fastmath`` (not used here).
 - Python scalars are rounded to float32 before use; masks are ``lo < u < hi`` (so ``-inf`` or ``+inf`` never pass).
 - The fused backward carries the gradient between blocks of ``block`` steps as ``(g * decay) * scale`` added to the
@@ -26,24 +27,18 @@ L2 at this width. So the forward writes the membrane every :data:`EVERY` steps (
 backward recomputes one :data:`EVERY`-step window at a time from its checkpoint, then sweeps that window in reverse.
 The arithmetic per element is unchanged, so the results stay bit-identical.
 
-The compiled code is cached on disk (``cache=True``): in ``__pycache__`` beside this file when writable, else in
-numba's per-user cache directory (``NUMBA_CACHE_DIR`` overrides both); where neither is writable the kernels are
-compiled in memory on first use instead.
+The compiled code is cached on disk where it can be (:func:`~.jit.jit`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from types import FunctionType
-
 import numpy as np
-from llvmlite import ir
-from numba import njit, prange, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+from numba import prange
 
-__all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "active_csr", "RECT", "ATAN",
-           "CHUNK", "FORWARD_CHUNK", "EVERY", "SERIAL_BELOW", "checkpoint_rows"]
+from .jit import CSR_MODE, fma, get_csr, jit, serial_copy, set_csr
+
+__all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "RECT", "ATAN", "CHUNK",
+           "FORWARD_CHUNK", "EVERY", "SERIAL_BELOW", "checkpoint_rows"]
 
 #: Surrogate kinds the kernels evaluate themselves (others stay on the torch path).
 RECT, ATAN = 0, 1
@@ -58,80 +53,12 @@ EVERY = 16
 #: Sequences with fewer elements (steps x neurons) than this run the serial builds even with several threads.
 SERIAL_BELOW = 1 << 16
 _PLAIN, _SUB, _ZERO_DETACHED, _ZERO = 0, 1, 2, 3  # how dU[t]/dU[t-1] is formed (lif_backward's reset modes)
-_MODE = np.uint32(0xFFFFFFC0)  # MXCSR without its sticky exception flags (bits 0-5): the mode to copy
-
-
-@intrinsic
-def _fma(typingctx: object, a: types.Type, b: types.Type, c: types.Type) -> tuple | None:
-    """``a * b + c`` rounded once (``llvm.fma.f32``): what ATen's ``fmadd`` and GCC's contraction compute."""
-    if not (a == b == c == types.float32):
-        return None
-
-    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
-        flt = ir.FloatType()
-        fn = builder.module.declare_intrinsic("llvm.fma", [flt], ir.FunctionType(flt, [flt, flt, flt]))
-        return builder.call(fn, args)
-
-    return types.float32(types.float32, types.float32, types.float32), codegen
-
-
-def _csr_fn(builder: ir.IRBuilder, name: str) -> tuple[ir.Function, ir.Type]:
-    ptr = ir.IntType(8).as_pointer()
-    return cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [ptr]), name), ptr
-
-
-@intrinsic
-def _get_csr(typingctx: object) -> tuple:
-    """The calling thread's MXCSR (x86 SSE control and status register)."""
-
-    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
-        slot = cgutils.alloca_once(builder, ir.IntType(32))
-        fn, ptr = _csr_fn(builder, "llvm.x86.sse.stmxcsr")
-        builder.call(fn, [builder.bitcast(slot, ptr)])
-        return builder.load(slot)
-
-    return types.uint32(), codegen
-
-
-@intrinsic
-def _set_csr(typingctx: object, value: types.Type) -> tuple | None:
-    """Load ``value`` (an integer, truncated to 32 bits) into the calling thread's MXCSR."""
-    if not isinstance(value, types.Integer):
-        return None
-
-    def codegen(context: object, builder: ir.IRBuilder, signature: object, args: list) -> ir.Value:
-        slot = cgutils.alloca_once(builder, ir.IntType(32))
-        builder.store(context.cast(builder, args[0], value, types.uint32), slot)
-        fn, ptr = _csr_fn(builder, "llvm.x86.sse.ldmxcsr")
-        builder.call(fn, [builder.bitcast(slot, ptr)])
-        return context.get_dummy_value()
-
-    return types.void(value), codegen
-
-
-def _jit(fn: Callable, parallel: bool = False) -> Callable:
-    """``njit`` with an on-disk cache where one can be written (see the module docstring), in memory otherwise.
-
-    ``error_model="numpy"``: a float division by zero gives inf as in torch, never a Python exception."""
-    opts = dict(nogil=True, error_model="numpy", parallel=parallel)
-    try:
-        return njit(cache=True, **opts)(fn)
-    except RuntimeError:  # "cannot cache function ...: no locator available" (read-only install and home)
-        return njit(cache=False, **opts)(fn)
-
-
-def _serial_copy(fn: Callable) -> Callable:
-    """``fn`` under the name ``<name>_serial``: compiled without ``parallel``, its ``prange`` is a plain loop. The
-    cache files are named after the function, so the serial build needs a name of its own."""
-    copy = FunctionType(fn.__code__, fn.__globals__, f"{fn.__name__}_serial", fn.__defaults__)
-    copy.__qualname__ = f"{fn.__qualname__}_serial"
-    return _jit(copy)
 
 
 # Row helpers: each is one loop over a chunk's neurons with no branch left inside it (the mode tests sit outside),
 # so that LLVM vectorises it; the conditional expressions become selects.
 
-@_jit
+@jit
 def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, hi: np.float32, c1: np.float32,
                    c2: np.float32, out: np.ndarray) -> None:
     """``out = S'(mem - thr)`` as :meth:`tactile_zoo.nn.surrogate.Surrogate.grad` computes it in float32: the
@@ -149,7 +76,7 @@ def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, 
             out[j] = (one / (t + one)) * c2
 
 
-@_jit
+@jit
 def _carry_row(gs: np.ndarray, sg: np.ndarray, decay: np.ndarray, g_next: np.ndarray, g: np.ndarray,
                u_prev: np.ndarray, beta: np.float32, scale: np.float32, thr: np.float32, th_up: np.float32,
                mode: int, kind: int, lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32) -> None:
@@ -160,9 +87,9 @@ def _carry_row(gs: np.ndarray, sg: np.ndarray, decay: np.ndarray, g_next: np.nda
     one, zero, ninf, nthr = np.float32(1.0), np.float32(0.0), np.float32(-np.inf), -thr
     for j in range(g.shape[0]):
         if mode == _PLAIN:
-            g[j] = _fma(g_next[j], beta, gs[j] * sg[j])
+            g[j] = fma(g_next[j], beta, gs[j] * sg[j])
         else:
-            g[j] = _fma(scale * g_next[j], decay[j], gs[j] * sg[j])
+            g[j] = fma(scale * g_next[j], decay[j], gs[j] * sg[j])
         m = u_prev[j]
         if kind == RECT:
             u = m - thr
@@ -177,10 +104,10 @@ def _carry_row(gs: np.ndarray, sg: np.ndarray, decay: np.ndarray, g_next: np.nda
         elif mode == _ZERO_DETACHED:
             decay[j] = one if (ninf < m) & (m < th_up) else zero
         elif mode == _ZERO:
-            decay[j] = _fma(-m, v, one if (ninf < m) & (m < th_up) else zero)
+            decay[j] = fma(-m, v, one if (ninf < m) & (m < th_up) else zero)
 
 
-@_jit
+@jit
 def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.float32, thr: np.float32,
                  th_up: np.float32, subtract: bool, scale: np.float32, scaled: bool) -> None:
     """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif_fused._advance``;
@@ -192,27 +119,27 @@ def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.floa
             for j in range(out.shape[0]):
                 p = prev[j]
                 r = one if (thr < p) & (p < inf) else zero
-                out[j] = _fma(r, nthr, _fma(beta * p, one, x[j] * scale))
+                out[j] = fma(r, nthr, fma(beta * p, one, x[j] * scale))
         else:
             for j in range(out.shape[0]):
                 p = prev[j]
                 r = one if (thr < p) & (p < inf) else zero  # R = (U > thr)
-                out[j] = _fma(r, nthr, _fma(beta * p, one, x[j]))
+                out[j] = fma(r, nthr, fma(beta * p, one, x[j]))
     else:  # addcmul(x, U, 1 - R, value=beta): fma(beta * U, 1 - R, x)
         ninf = np.float32(-np.inf)
         if scaled:
             for j in range(out.shape[0]):
                 p = prev[j]
                 keep = one if (ninf < p) & (p < th_up) else zero
-                out[j] = _fma(beta * p, keep, x[j] * scale)
+                out[j] = fma(beta * p, keep, x[j] * scale)
         else:
             for j in range(out.shape[0]):
                 p = prev[j]
                 keep = one if (ninf < p) & (p < th_up) else zero  # 1 - R = (U <= thr)
-                out[j] = _fma(beta * p, keep, x[j])
+                out[j] = fma(beta * p, keep, x[j])
 
 
-@_jit
+@jit
 def _step_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, spikes: np.ndarray, beta: np.float32,
               thr: np.float32, th_up: np.float32, subtract: bool, scale: np.float32, scaled: bool) -> None:
     """:func:`_advance_row` and the spikes in one loop: the forward's step reads ``prev`` and ``x`` once and writes
@@ -223,30 +150,30 @@ def _step_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, spikes: np.ndarr
     if subtract and scaled:
         for j in range(out.shape[0]):
             p = prev[j]
-            u = _fma(one if (thr < p) & (p < inf) else zero, nthr, _fma(beta * p, one, x[j] * scale))
+            u = fma(one if (thr < p) & (p < inf) else zero, nthr, fma(beta * p, one, x[j] * scale))
             out[j] = u
             spikes[j] = one if (thr < u) & (u < inf) else zero
     elif subtract:
         for j in range(out.shape[0]):
             p = prev[j]
-            u = _fma(one if (thr < p) & (p < inf) else zero, nthr, _fma(beta * p, one, x[j]))
+            u = fma(one if (thr < p) & (p < inf) else zero, nthr, fma(beta * p, one, x[j]))
             out[j] = u
             spikes[j] = one if (thr < u) & (u < inf) else zero
     elif scaled:
         for j in range(out.shape[0]):
             p = prev[j]
-            u = _fma(beta * p, one if (ninf < p) & (p < th_up) else zero, x[j] * scale)
+            u = fma(beta * p, one if (ninf < p) & (p < th_up) else zero, x[j] * scale)
             out[j] = u
             spikes[j] = one if (thr < u) & (u < inf) else zero
     else:
         for j in range(out.shape[0]):
             p = prev[j]
-            u = _fma(beta * p, one if (ninf < p) & (p < th_up) else zero, x[j])
+            u = fma(beta * p, one if (ninf < p) & (p < th_up) else zero, x[j])
             out[j] = u
             spikes[j] = one if (thr < u) & (u < inf) else zero
 
 
-@_jit
+@jit
 def _scale_row(row: np.ndarray, scale: np.float32) -> None:
     """``row *= scale``, one rounding each (``mul`` by a float32 scalar)."""
     for j in range(row.shape[0]):
@@ -268,10 +195,10 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
     Time-major: each work item sweeps its ``chunk`` neurons (the caller passes the whole row, up to
     :data:`FORWARD_CHUNK`) step after step, so its two membrane rows stay in L2 while ``x`` and the spikes stream."""
     steps, n = x.shape
-    csr = _get_csr() & _MODE
+    csr = get_csr() & CSR_MODE
     for c in prange((n + chunk - 1) // chunk):
-        own = _get_csr()
-        _set_csr(csr)  # the caller's denormal and rounding modes
+        own = get_csr()
+        set_csr(csr)  # the caller's denormal and rounding modes
         n0 = c * chunk
         n1 = min(n, n0 + chunk)
         # two membrane rows, swapped every step: updating one row in place would make LLVM's overlap check send the
@@ -283,7 +210,7 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
             _step_row(mem, x[s, n0:n1], nxt, spikes[s, n0:n1], beta, thr, th_up, subtract, in_scale, scaled)
             mem, nxt = nxt, mem
         last[n0:n1] = mem
-        _set_csr(own)
+        set_csr(own)
 
 
 def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_grad_spikes: bool,
@@ -293,13 +220,13 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
                  in_scale: np.float32, scaled: bool) -> None:
     """Backward time loop. Recomputes the membranes of each :data:`EVERY`-step window, last window first, from the
     forward's checkpoints ``ckpt`` and from ``x``, then carries dL/dU back through the window as
-    :meth:`tactile_zoo.nn.lif_fused._FusedLIF.backward` does, its ``block`` boundaries included. ``grad_spikes
+    :meth:`tactile_zoo.nn.lif_fused.FusedLIF.backward` does, its ``block`` boundaries included. ``grad_spikes
     (T, N)`` and ``grad_last (N,)`` are read only where their ``has_`` flag is set; writes ``grad_x (T, N)`` and
     ``grad_mem0 (N,)``. With ``scaled`` the forward's input was ``x * in_scale``: the membranes are recomputed from
     it, and each row of ``grad_x`` is multiplied by ``in_scale`` once the recurrence has read it (``MulBackward``'s
     ``grad * in_scale``, one rounding)."""
     steps, n = x.shape
-    csr = _get_csr() & _MODE
+    csr = get_csr() & CSR_MODE
     one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
     # dU[t]/dU[t-1] is applied as fma(scale * g, decay, .); with a detached subtractive reset it is beta itself,
     # applied as fma(g, beta, .) (add_(g, alpha=beta)) -- a different rounding, hence its own branches below
@@ -308,8 +235,8 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
     scale = one if subtract else beta
     nthr = -thr
     for c in prange((n + chunk - 1) // chunk):
-        own = _get_csr()
-        _set_csr(csr)
+        own = get_csr()
+        set_csr(csr)
         n0 = c * chunk
         n1 = min(n, n0 + chunk)
         width = n1 - n0
@@ -356,10 +283,10 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
                         g[j] = g[j] + (g_next[j] * decay[j]) * scale
             elif plain:  # add_(g[s+1], alpha=beta)
                 for j in range(width):
-                    g[j] = _fma(g_next[j], beta, g[j])
+                    g[j] = fma(g_next[j], beta, g[j])
             else:  # addcmul_(g[s+1], decay[s+1], value=scale)
                 for j in range(width):
-                    g[j] = _fma(scale * g_next[j], decay[j], g[j])
+                    g[j] = fma(scale * g_next[j], decay[j], g[j])
             _surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
             if subtract and not plain:  # mul(S'(U[s-1]), -thr).add_(beta): two roundings
                 for j in range(width):
@@ -372,7 +299,7 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
                 else:
                     for j in range(width):
                         m = u_prev[j]
-                        decay[j] = _fma(-m, sg[j], one if (ninf < m) & (m < th_up) else zero)
+                        decay[j] = fma(-m, sg[j], one if (ninf < m) & (m < th_up) else zero)
             if scaled and s + 1 < steps:  # dL/dU[s + 1] has been read for the last time: make it dL/dx[s + 1]
                 _scale_row(g_next, in_scale)
             g_next = g
@@ -381,31 +308,13 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
             gm[j] = g_next[j] * beta if plain else (g_next[j] * decay[j]) * scale
         if scaled:
             _scale_row(g_next, in_scale)
-        _set_csr(own)
-
-
-@_jit
-def active_csr(spikes: np.ndarray, indptr: np.ndarray, out: np.ndarray) -> int:
-    """The nonzero columns of each row of ``spikes (R, F)`` in CSR form, in one pass: fills ``indptr (R + 1,)``
-    (int64) and ``out`` (int32, room for ``R * F + 1``) so that the columns of row ``r`` are
-    ``out[indptr[r]:indptr[r + 1]]``, ascending; returns the count. The fill has no branch: every column is written
-    and the position advances where the spike is nonzero (hence the spare slot)."""
-    rows, cols = spikes.shape
-    indptr[0] = 0
-    k = 0
-    for r in range(rows):
-        row = spikes[r]
-        for j in range(cols):
-            out[k] = j
-            k += row[j] != 0
-        indptr[r + 1] = k
-    return k
+        set_csr(own)
 
 
 # Launching a parallel region wakes numba's worker threads, which costs tens of microseconds on a quiet machine and
 # can wait milliseconds for a time slice on a busy one: one-thread calls and small sequences (streaming steps) take
 # the serial builds instead.
-lif_forward_serial = _serial_copy(lif_forward)
-lif_backward_serial = _serial_copy(lif_backward)
-lif_forward = _jit(lif_forward, parallel=True)
-lif_backward = _jit(lif_backward, parallel=True)
+lif_forward_serial = serial_copy(lif_forward)
+lif_backward_serial = serial_copy(lif_backward)
+lif_forward = jit(lif_forward, parallel=True)
+lif_backward = jit(lif_backward, parallel=True)
