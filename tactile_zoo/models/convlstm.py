@@ -24,6 +24,8 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
+from ..nn import backend as switch
+from ..nn.backend import ConvLSTMBackend
 from ..nn.convlstm import ConvLSTM, ConvLSTMConfig
 from ..registry import recipe_file, register_model
 from ._binned import BinnedStreamer, bins_for
@@ -106,6 +108,7 @@ class ConvLSTMNet(BinnedStreamer):
             raise ConfigError(f"convlstm: readout must be one of {READOUTS}, got {readout!r}")
         if not 0.0 <= dropout < 1.0:
             raise ConfigError(f"convlstm: dropout must be in [0, 1), got {dropout!r}")
+        backend = switch.resolve(ConvLSTMBackend, backend, "backend", "convlstm")
         self.frame_norm, self.readout = frame_norm, readout
         self.name, self.spec, self.bin_size = "convlstm", spec, bins_for("convlstm", spec.num_steps, max_frames)
         self.grid = sensor_grid(spec, fill_passes)

@@ -33,7 +33,7 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
-from ..nn import memory
+from ..nn import hugepages
 from ..nn.classifier import ClassifierMixin
 from ..registry import recipe_file, register_model
 from ._inputs import check_inputs
@@ -108,10 +108,10 @@ class _IndexOnlyMaxPool(torch.autograd.Function):
         (idx,) = ctx.saved_tensors
         shape, dtype, device, layout = ctx.input_meta
         if layout == torch.channels_last:  # (N, H, W, C) in memory, seen as (N, C, H, W): channels-last strides
-            grad_in = memory.empty((shape[0], shape[2], shape[3], shape[1]), grad).permute(0, 3, 1, 2)
+            grad_in = hugepages.empty((shape[0], shape[2], shape[3], shape[1]), grad).permute(0, 3, 1, 2)
         else:
-            grad_in = memory.empty(shape, grad)  # (N, C, H, W)
-        # huge pages when large (memory.empty): the kernel zero-fills all of grad_in first, and on fresh 4 KiB pages
+            grad_in = hugepages.empty(shape, grad)  # (N, C, H, W)
+        # huge pages when large (hugepages.empty): the kernel zero-fills all of grad_in first, and on fresh 4 KiB pages
         # that fill faulted once per page (Ev-Objects, block 2: (128, 128, 125, 39), 312 MiB per step)
         # the kernel takes the input only for its shape and layout: the buffer stands in for it (it is zeroed first)
         return torch.ops.aten.max_pool2d_with_indices_backward.grad_input(

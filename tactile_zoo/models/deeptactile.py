@@ -29,6 +29,8 @@ from torch import Tensor, nn
 from ..data.sensors import NEUTOUCH, NEUTOUCH_HAND_EDGES
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
+from ..nn import backend as switch
+from ..nn.backend import GraphBackend, LIFBackend
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import MultiStepLIF
 from ..nn.tdbn import TdBatchNorm
@@ -161,6 +163,8 @@ class DeepTactile(BinnedStreamer):
                               f"{compression} and {dropout}")
         if bin_size < 1:
             raise ConfigError(f"deeptactile: bin_size must be >= 1, got {bin_size}")
+        lif_backend = switch.resolve(LIFBackend, lif_backend, "lif_backend", "deeptactile")
+        graph_backend = switch.resolve(GraphBackend, graph_backend, "graph_backend", "deeptactile")
         self.name, self.spec, self.bin_size, self.init = "deeptactile", spec, int(bin_size), init
         n = spec.num_nodes
         if graph is None:  # the source's: its hand-made graph where it has one (NeuTouch), else the sensor's own

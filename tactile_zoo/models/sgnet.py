@@ -21,6 +21,8 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
+from ..nn import backend as switch
+from ..nn.backend import Compute, GraphBackend, LIFBackend, WeightGrad
 from ..nn.classifier import ClassifierMixin
 from ..nn.event_graph_conv import event_graph_conv
 from ..nn.event_linear import event_linear
@@ -30,10 +32,6 @@ from ..registry import recipe_file, register_model
 from ._inputs import check_inputs
 
 __all__ = ["SGNet", "SGNetState"]
-
-#: ``compute``: the dense products (default) or the event-driven ones (opt-in, CPU)
-_COMPUTES = ("dense", "event")
-
 
 @dataclass
 class SGNetState:
@@ -113,9 +111,10 @@ class SGNet(ClassifierMixin, nn.Module):
         super().__init__()
         if init not in ("he", "default"):
             raise ConfigError(f"sgnet: init must be 'he' or 'default', got {init!r}")
-        if compute not in _COMPUTES or (compute == "event" and graph_backend != "dense"):
-            raise ConfigError(f"sgnet: compute must be one of {_COMPUTES} ('event' with graph_backend='dense'), got "
-                              f"{compute!r} with graph_backend {graph_backend!r}")
+        compute = switch.resolve_compute(compute, graph_backend, "sgnet")  # the compute paths, checked up front
+        lif_backend = switch.resolve(LIFBackend, lif_backend, "lif_backend", "sgnet")
+        graph_backend = switch.resolve(GraphBackend, graph_backend, "graph_backend", "sgnet")
+        graph_weight_grad = switch.resolve(WeightGrad, graph_weight_grad, "graph_weight_grad", "sgnet")
         hidden = tuple(int(h) for h in hidden)
         if not hidden or min(hidden) < 1 or graph_channels < 1:
             raise ConfigError(f"sgnet: widths must be positive, got graph_channels={graph_channels}, hidden={hidden}")
@@ -148,12 +147,12 @@ class SGNet(ClassifierMixin, nn.Module):
 
     def _conv(self, x: Tensor) -> Tensor:
         """The graph convolution, over the input events with ``compute="event"``."""
-        return event_graph_conv(self.gc, x) if self.compute == "event" else self.gc(x)
+        return event_graph_conv(self.gc, x) if self.compute is Compute.EVENT else self.gc(x)
 
     def _first(self, s: Tensor) -> Tensor:
         """The first linear layer, over the first LIF's spikes with ``compute="event"``."""
         fc = self.fcs[0]
-        return event_linear(s, fc.weight, fc.bias) if self.compute == "event" else fc(s)
+        return event_linear(s, fc.weight, fc.bias) if self.compute is Compute.EVENT else fc(s)
 
     def _rates(self, s: Tensor) -> Tensor:
         """The spiking classifier: the last layer and its LIF on ``s (T, B, width)``, then the output spike rates."""

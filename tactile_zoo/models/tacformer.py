@@ -27,7 +27,9 @@ from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
-from ..nn.attention import ATTENTION_KINDS, SpikingSelfAttention
+from ..nn import backend as switch
+from ..nn.attention import SpikingSelfAttention
+from ..nn.backend import Attention, GraphBackend, LIFBackend
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import LIFConfig
 from ..registry import recipe_file, register_model
@@ -68,8 +70,8 @@ class SpatialGraphAttention(nn.Module):
         super().__init__()
         if pool not in ("mean", "flatten"):
             raise ConfigError(f"pool must be 'mean' or 'flatten', got {pool!r}")
-        if attention not in ATTENTION_KINDS:  # checked here too: depth = 0 builds no attention block to check it
-            raise ConfigError(f"attention must be one of {ATTENTION_KINDS}, got {attention!r}")
+        # checked here too: depth = 0 builds no attention block to check it
+        attention = switch.resolve(Attention, attention, "attention", "SpatialGraphAttention")
         self.gc = FrameGraphConv(in_channels, dim, edge_index, num_nodes, kind="tag", K=hops, backend=graph_backend)
         self.embed = nn.Parameter(torch.randn(num_nodes, dim) * 0.02) if taxel_embedding else None
         self.attn = nn.ModuleList([SpikingSelfAttention(dim, heads, lif, attn_dropout, attention)
@@ -161,6 +163,10 @@ class Tacformer(BinnedStreamer):
         super().__init__()
         if bin_size < 1:
             raise ConfigError(f"{type(self).__name__}: bin_size must be >= 1, got {bin_size}")
+        owner = type(self).__name__  # the compute paths, checked before anything is built
+        attention = switch.resolve(Attention, attention, "attention", owner)
+        graph_backend = switch.resolve(GraphBackend, graph_backend, "graph_backend", owner)
+        lif_backend = switch.resolve(LIFBackend, lif_backend, "lif_backend", owner)
         self.name, self.spec, self.bin_size = "tacformer", spec, int(bin_size)
         self.lif_config = LIFConfig(tau, v_th, surrogate, detach_reset, lif_backend)
         self.spatial = SpatialGraphAttention(

@@ -26,6 +26,8 @@ import torch
 from torch import Tensor, nn
 
 from ..data.spec import DatasetSpec
+from ..nn import backend as switch
+from ..nn.backend import TemporalBackend
 from ..nn.tgcn import TemporalGraphAttention
 from ..registry import recipe_file, register_model
 from .tacformer import PAPER, Tacformer
@@ -104,6 +106,7 @@ class XTacformer(Tacformer):
         bound.apply_defaults()
         spatial = {k: v for k, v in bound.arguments.items() if k != "self" and k not in _TEMPORAL_DEFAULTS}
         hidden, temporal_pool, attn_dim, temporal_backend = (bound.arguments[k] for k in _TEMPORAL_DEFAULTS)
+        temporal_backend = switch.resolve(TemporalBackend, temporal_backend, "temporal_backend", type(self).__name__)
         graph, graph_backend = spatial["graph"], spatial["graph_backend"]
         super().__init__(**spatial)  # the spatial branch first: its parameters are drawn first, as they always were
         self.name = "x_tacformer"
