@@ -130,3 +130,29 @@ def test_a_quick_run_says_its_test_figures_are_a_subsets(tmp_path: Path, capsys:
     assert summary["subset"] == {"train": 64, "val": 32, "test": 64} and summary["test"]["n"] == 24
     assert main(TRAIN) == 0
     assert "subset" not in capsys.readouterr().out
+
+
+def test_a_train_says_how_many_test_samples_were_ties(monkeypatch: pytest.MonkeyPatch,
+                                                      capsys: pytest.CaptureFixture) -> None:
+    """Issue 49 item 6: a model that names no class (all rates 0 after one quick epoch: p 1/K each) got "test
+    accuracy 0.1094" without a word; the figure stays argmax's (as published cells), and the output says so."""
+    from tactile_zoo.engine import cell
+
+    real = cell.train_cell
+
+    def silent(*args: object, **kwargs: object) -> object:
+        outcome = real(*args, **kwargs)
+        test = outcome.tests["test"]
+        k = len(test.probabilities[0])
+        test.probabilities = [[1.0 / k] * k for _ in test.probabilities[:5]] + test.probabilities[5:]
+        return outcome
+
+    monkeypatch.setattr(cell, "train_cell", silent)
+    assert main(TRAIN) == 0
+    assert ("note: 5 of 24 test samples are ties (several classes share the top score: the model named no class); "
+            "the test figures count each as argmax's pick") in capsys.readouterr().out
+    assert main([*TRAIN, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["test_ties"] == 5
+    monkeypatch.setattr(cell, "train_cell", real)
+    assert main(TRAIN) == 0
+    assert "ties" not in capsys.readouterr().out

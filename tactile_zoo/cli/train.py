@@ -96,6 +96,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
                "accuracy_at": dict(zip((f"{f:g}" for f in prefix["fractions"]), prefix["accuracy"]))}
     if cell.subset:
         summary["subset"] = dict(cell.subset)
+    ties = _test_ties(outcome)
+    if ties:
+        summary["test_ties"] = ties
     if args.save is not None:
         from ..weights.manifest import preprocessing_of
 
@@ -116,9 +119,23 @@ def _cmd_train(args: argparse.Namespace) -> int:
             echo(f"note: {'a --quick' if config.quick else 'a subset'} run: test figures on {metrics['n']} test "
                  f"samples (at most {cell.subset.get('test', 'all')} per split, class-balanced), after training on at "
                  f"most {cell.subset.get('train', 'all')}; not comparable with the leaderboard's")
+        if ties:
+            echo(f"note: {ties} of {metrics['n']} test samples are ties (several classes share the top score: the "
+                 f"model named no class); the test figures count each as argmax's pick, the lowest tied class, as "
+                 f"every published cell does; accuracy_at counts them undecided")
         if args.save is not None:
             echo(f"saved {summary['saved']}")
     return 0
+
+
+def _test_ties(outcome: Any) -> int:
+    """How many test samples have a tied top class probability (:func:`tactile_zoo.engine.metrics.tied_top`)."""
+    import torch
+
+    from ..engine.metrics import tied_top
+
+    probabilities = outcome.tests["test"].probabilities if "test" in outcome.tests else []
+    return int(tied_top(torch.tensor(probabilities)).sum()) if len(probabilities) else 0
 
 
 def _track(tracker: str, folder: str, cell: Any, outcome: Any, summary: dict[str, Any]) -> None:
