@@ -42,8 +42,9 @@ model's settings beside the training keys, because a recipe tuned for a dataset 
 :func:`named_recipe_for` resolves a named recipe on one dataset into its three parts; settings given by the user
 (``--set``, ``--hparam``, ``--dataset-arg``) still win over the recipe's.
 
-This module is the one place the schema is written. It imports nothing but the errors (no torch), so the registry
-validates a model's ``recipe`` metadata with it at registration time and the engine trains with the same object.
+The keys' types and ranges are written once, in :class:`tactile_zoo.settings.RecipeSchema` (strict: text is never
+a number or a boolean); this module builds recipes with it. Neither imports torch, so the registry validates a
+model's ``recipe`` metadata at registration time and the engine trains with the same object.
 """
 
 from __future__ import annotations
@@ -53,26 +54,23 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from . import settings
 from .errors import ConfigError
 
 __all__ = ["Recipe", "DEFAULT_RECIPE", "RECIPE_KEYS", "RECIPE_SECTIONS", "resolve_recipe", "recipe_values",
            "named_recipe_for",
            "check_named_recipe", "lr_factor", "cap_epochs", "full_recipe", "recipe_name_of"]
 
-LOSSES = ("ce", "mse_rate")
-OPTIMIZERS = ("adam", "adamw", "sgd")
-MONITORS = ("val_accuracy", "val_loss")
-SCHEDULE_KEYS = {
-    "multistep": {"milestones", "gamma"},
-    "step": {"step_size", "gamma"},
-    "exponential": {"gamma"},
-    "cosine": {"eta_min", "t_max"},
-}
+LOSSES, OPTIMIZERS, MONITORS = settings.LOSSES, settings.OPTIMIZERS, settings.MONITORS
+SCHEDULE_KEYS = {kind: set(keys) for kind, keys in settings.SCHEDULES.items()}
 
 
 @dataclass(frozen=True)
 class Recipe:
-    """A validated training recipe; build one with :meth:`from_dict` or :func:`resolve_recipe`."""
+    """A validated training recipe; build one with :meth:`from_dict` or :func:`resolve_recipe`.
+
+    Every value is checked against the one schema (:class:`tactile_zoo.settings.RecipeSchema`) when the object is
+    built, so a ``Recipe(...)`` written by hand is checked as a YAML file's recipe is."""
 
     loss: str = "ce"
     optimizer: str = "adam"
@@ -94,27 +92,10 @@ class Recipe:
 
     def __post_init__(self) -> None:
         where = "recipe"
-        object.__setattr__(self, "schedule", _normalise_schedule(where, self.schedule))
-        object.__setattr__(self, "rate_targets", tuple(self.rate_targets))
-        _choice(where, "loss", self.loss, LOSSES)
-        _choice(where, "optimizer", self.optimizer, OPTIMIZERS)
-        _choice(where, "monitor", self.monitor, MONITORS)
-        if not self.lr > 0 or not math.isfinite(self.lr):
-            raise ConfigError(f"{where}: lr must be a positive number, got {self.lr!r}")
-        if self.weight_decay < 0:
-            raise ConfigError(f"{where}: weight_decay must be >= 0, got {self.weight_decay!r}")
-        for key in ("max_epochs", "batch_size", "eval_batch_size"):
-            if getattr(self, key) < 1:
-                raise ConfigError(f"{where}: {key} must be >= 1, got {getattr(self, key)!r}")
-        if self.patience is not None and self.patience < 1:
-            raise ConfigError(f"{where}: patience must be >= 1 or null (no early stopping), got {self.patience!r}")
-        if self.grad_clip is not None and not self.grad_clip > 0:
-            raise ConfigError(f"{where}: grad_clip must be > 0 or null, got {self.grad_clip!r}")
-        if not 0.0 <= self.label_smoothing < 1.0:
-            raise ConfigError(f"{where}: label_smoothing must be in [0, 1), got {self.label_smoothing!r}")
-        if self.ema_decay is not None and not 0.0 < self.ema_decay < 1.0:
-            raise ConfigError(f"{where}: ema_decay must be in (0, 1) or null, got {self.ema_decay!r}")
-        _check_schedule(self.schedule)
+        for f in fields(self):
+            object.__setattr__(self, f.name, _coerce(where, f.name, getattr(self, f.name)))
+        if self.optimizer == "sgd" and self.nesterov and self.momentum == 0:
+            raise ConfigError(f"{where}: nesterov needs a momentum > 0, got momentum={self.momentum!r}")
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None, where: str = "recipe") -> Recipe:
@@ -135,115 +116,32 @@ class Recipe:
         return resolve_recipe(self, changes)
 
 
-_INT_KEYS = {"max_epochs", "batch_size", "eval_batch_size"}
-_FLOAT_KEYS = {"lr", "weight_decay", "momentum", "label_smoothing"}
-_BOOL_KEYS = {"amsgrad", "nesterov"}
-
-
-def _choice(where: str, key: str, value: Any, allowed: tuple[str, ...]) -> None:
-    if value not in allowed:
-        raise ConfigError(f"{where}: {key} must be one of {', '.join(allowed)}; got {value!r}")
-
-
-def _from_text(value: Any) -> Any:
-    """Numbers written as text (``"1e-3"`` from a YAML file, which PyYAML reads as a string) become numbers."""
-    if isinstance(value, str):
-        try:
-            return int(value)
-        except ValueError:
-            try:
-                return float(value)
-            except ValueError:
-                return value
-    return value
-
-
-def _as_int(where: str, key: str, value: Any) -> int:
-    value = _from_text(value)
-    if isinstance(value, bool) or not isinstance(value, int | float) or int(value) != value:
-        raise ConfigError(f"{where}: {key} must be an integer, got {value!r}")
-    return int(value)
-
-
-def _as_float(where: str, key: str, value: Any) -> float:
-    value = _from_text(value)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{where}: {key} must be a number, got {value!r}")
-    return float(value)
-
-
-def _as_bool(where: str, key: str, value: Any) -> bool:
-    if not isinstance(value, bool):
-        raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
-    return value
-
-
-def _normalise_schedule(where: str, value: Any) -> dict[str, Any] | None:
-    if value is None or value in ("none", "None", "constant"):
-        return None
-    if isinstance(value, str):
-        value = {"type": value}
-    if not isinstance(value, Mapping):
-        raise ConfigError(f"{where}: schedule must be null, a type name or a dict with 'type'; got {value!r}")
-    value = dict(value)
-    kind = value.get("type")
-    if kind not in SCHEDULE_KEYS:
-        raise ConfigError(f"{where}: schedule type must be one of {', '.join(SCHEDULE_KEYS)}; got {kind!r}")
-    unknown = sorted(set(value) - SCHEDULE_KEYS[kind] - {"type", "warmup_epochs"})
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {unknown} in a {kind!r} schedule; allowed: "
-                          f"{sorted(SCHEDULE_KEYS[kind] | {'type', 'warmup_epochs'})}")
-    out: dict[str, Any] = {"type": kind}
-    if kind == "multistep":
-        milestones = value.get("milestones")
-        if not isinstance(milestones, list | tuple) or not milestones:
-            raise ConfigError(f"{where}: a multistep schedule needs a non-empty list 'milestones', got {milestones!r}")
-        out["milestones"] = sorted(_as_int(where, "schedule.milestones", m) for m in milestones)
-    if kind == "step":
-        out["step_size"] = _as_int(where, "schedule.step_size", value.get("step_size", 30))
-    if kind in ("multistep", "step", "exponential"):
-        out["gamma"] = _as_float(where, "schedule.gamma", value.get("gamma", 0.1))
-    if kind == "cosine":
-        out["eta_min"] = _as_float(where, "schedule.eta_min", value.get("eta_min", 0.0))
-        t_max = value.get("t_max")
-        out["t_max"] = None if t_max is None else _as_int(where, "schedule.t_max", t_max)
-    if value.get("warmup_epochs"):
-        out["warmup_epochs"] = _as_int(where, "schedule.warmup_epochs", value["warmup_epochs"])
-    return out
-
-
-def _check_schedule(schedule: dict[str, Any] | None) -> None:
-    if schedule is None:
-        return
-    if schedule.get("type") == "step" and schedule["step_size"] < 1:
-        raise ConfigError("recipe: schedule.step_size must be >= 1")
-    if schedule.get("type") == "cosine" and schedule.get("t_max") is not None and schedule["t_max"] < 1:
-        raise ConfigError("recipe: schedule.t_max must be >= 1")
-    if schedule.get("warmup_epochs", 0) < 0:
-        raise ConfigError("recipe: schedule.warmup_epochs must be >= 0")
-
-
 def _coerce(where: str, key: str, value: Any) -> Any:
-    if key in _INT_KEYS:
-        return _as_int(where, key, value)
-    if key in _FLOAT_KEYS:
-        return _as_float(where, key, value)
-    if key in _BOOL_KEYS:
-        return _as_bool(where, key, value)
-    if key == "patience":
-        return None if value is None or value is False else _as_int(where, key, value)
-    if key in ("grad_clip", "ema_decay"):
-        return None if value is None or value is False else _as_float(where, key, value)
+    """One recipe key's value, checked against the schema and in the plain form a recipe holds (``"Adam"`` ->
+    ``"adam"``, ``1`` -> ``1.0`` where a float belongs, ``false`` -> ``None`` for a key that can be off)."""
+    if key in ("patience", "grad_clip", "ema_decay") and value is False:
+        return None
+    if key in ("loss", "optimizer", "monitor") and isinstance(value, str):
+        value = value.lower()
     if key == "schedule":
-        return _normalise_schedule(where, value)
+        return settings.check_schedule(value, where)
+    if key == "rate_targets" and not (isinstance(value, list | tuple) and len(value) == 2):
+        raise ConfigError(f"{where}: rate_targets must be [rate of the true class, rate of the others], "
+                          f"got {value!r}")
     if key == "rate_targets":
-        if not isinstance(value, list | tuple) or len(value) != 2:
-            raise ConfigError(f"{where}: rate_targets must be [rate of the true class, rate of the others], "
-                              f"got {value!r}")
-        return (_as_float(where, key, value[0]), _as_float(where, key, value[1]))
-    if not isinstance(value, str):
-        raise ConfigError(f"{where}: {key} must be a string, got {value!r}")
-    return value.lower()
+        value = tuple(value)
+    return settings.check_field(settings.RecipeSchema, key, value, where)
+
+
+def check_recipe_keys(layer: Any, where: str) -> dict[str, Any]:
+    """One layer of recipe keys (a file's ``recipe``, a ``--set``, an override dict) checked key by key: an unknown
+    key, or a value of the wrong type or out of range, is a :class:`ConfigError` naming ``where`` and the key."""
+    if not isinstance(layer, Mapping):
+        raise ConfigError(f"{where} must be a dict of recipe keys, got {type(layer).__name__}")
+    unknown = sorted(set(layer) - set(RECIPE_KEYS), key=str)
+    if unknown:
+        raise ConfigError(f"{where}: unknown recipe key(s) {unknown}; known keys: {', '.join(RECIPE_KEYS)}")
+    return {key: _coerce(where, key, value) for key, value in layer.items()}
 
 
 def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Mapping[str, Any] | None = None,
@@ -260,7 +158,7 @@ def resolve_recipe(base: Recipe | Mapping[str, Any] | None = None, overrides: Ma
 def recipe_values(base: Recipe | Mapping[str, Any] | None = None, overrides: Mapping[str, Any] | None = None,
                   epochs: int | None = None, where: str = "recipe") -> dict[str, Any]:
     """The keys :func:`resolve_recipe` builds its recipe from: the defaults, ``base``, ``overrides``, ``epochs``,
-    each key checked and coerced (``"1e-3"`` -> 0.001); building the :class:`Recipe` checks their values together."""
+    each key checked (:func:`check_recipe_keys`); building the :class:`Recipe` checks their values together."""
     values: dict[str, Any] = {**_DEFAULT_VALUES, "rate_targets": list(_DEFAULT_VALUES["rate_targets"])}
     layers: list[tuple[str, Mapping[str, Any]]] = []
     if isinstance(base, Recipe):
@@ -270,15 +168,9 @@ def recipe_values(base: Recipe | Mapping[str, Any] | None = None, overrides: Map
     if overrides:
         layers.append((where if base is None else f"{where} override", overrides))
     for label, layer in layers:
-        if not isinstance(layer, Mapping):
-            raise ConfigError(f"{label} must be a dict of recipe keys, got {type(layer).__name__}")
-        unknown = sorted(set(layer) - set(RECIPE_KEYS))
-        if unknown:
-            raise ConfigError(f"{label}: unknown recipe key(s) {unknown}; known keys: {', '.join(RECIPE_KEYS)}")
-        for key, value in layer.items():
-            values[key] = _coerce(label, key, value)
+        values.update(check_recipe_keys(layer, label))
     if epochs is not None:
-        values["max_epochs"] = _as_int(where, "epochs", epochs)
+        values["max_epochs"] = settings.check_field(settings.RecipeSchema, "max_epochs", epochs, where, "epochs")
     return values
 
 
@@ -288,7 +180,6 @@ def _build(values: Mapping[str, Any], where: str) -> Recipe:
         return Recipe(**values)
     except ConfigError as exc:
         raise ConfigError(str(exc).replace("recipe:", f"{where}:", 1)) from None
-
 
 RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 #: keys added after cells were first recorded, and their "off" value: left out of :meth:`Recipe.to_dict` while off,
@@ -307,6 +198,12 @@ def _mapping(where: str, key: str, value: Any) -> dict[str, Any]:
     if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
         raise ConfigError(f"{where}: {key} must be a dict of keyword arguments, got {value!r}")
     return dict(value)
+
+
+def _or_empty(recipe: Mapping[str, Any], key: str) -> Any:
+    """``recipe[key]``, with an absent or null key as ``{}``."""
+    value = recipe.get(key)
+    return {} if value is None else value
 
 
 def check_named_recipe(recipe: Mapping[str, Any], where: str = "recipe") -> None:
@@ -344,13 +241,14 @@ def named_recipe_for(recipe: Mapping[str, Any] | None, dataset: str | None, wher
     if recipe is None:
         return None, {}, {}
     training = {k: v for k, v in recipe.items() if k not in RECIPE_SECTIONS}
-    hparams = _mapping(where, "hparams", recipe.get("hparams") or {})
-    kwargs = _mapping(where, "dataset_kwargs", recipe.get("dataset_kwargs") or {})
+    hparams = settings.check_keywords(_or_empty(recipe, "hparams"), where, "hparams")
+    kwargs = settings.check_keywords(_or_empty(recipe, "dataset_kwargs"), where, "dataset_kwargs")
     section = _mapping(where, "datasets", recipe.get("datasets") or {}).get(dataset) if dataset else None
     if section:
         training.update({k: v for k, v in section.items() if k not in RECIPE_SECTIONS})
-        hparams.update(_mapping(f"{where}: datasets.{dataset}", "hparams", section.get("hparams") or {}))
-        kwargs.update(_mapping(f"{where}: datasets.{dataset}", "dataset_kwargs", section.get("dataset_kwargs") or {}))
+        hparams.update(settings.check_keywords(_or_empty(section, "hparams"), where, f"datasets.{dataset}.hparams"))
+        kwargs.update(settings.check_keywords(_or_empty(section, "dataset_kwargs"), where,
+                                              f"datasets.{dataset}.dataset_kwargs"))
     return training, hparams, kwargs
 
 

@@ -194,7 +194,7 @@ def test_list_patterns_wildcards_and_tags():
     ({"recipe": {"optimizer": "lbfgs"}}, "recipe 'default': optimizer"),
     ({"recipe": {"lr": -0.1}}, "recipe 'default': lr"),
     ({"recipe": {"batch_size": 0}}, "recipe 'default': batch_size"),
-    ({"recipe": {"schedule": {"type": "sawtooth"}}}, "recipe 'default': schedule type"),
+    ({"recipe": {"schedule": {"type": "sawtooth"}}}, "recipe 'default': schedule.type"),
 ])
 def test_bad_model_metadata_is_a_config_error(meta, culprit):
     name = unique("bad_meta")

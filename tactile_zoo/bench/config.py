@@ -37,27 +37,31 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
       sim_evtouch: {n_train_per_class: 40}
       "*": {}                       # every dataset
 
-Unknown keys anywhere in the file are a :class:`ConfigError` that names them. :func:`plan_cells` turns the settings
-into every cell's :class:`~tactile_zoo.engine.config.CellConfig` (resolved once, in :mod:`tactile_zoo.engine.config`);
-nothing after it reads the settings for a cell again.
+Unknown keys anywhere in the file are a :class:`ConfigError` that names them; every value is checked against the
+one settings schema (:class:`tactile_zoo.settings.BenchSettings`, strict: ``quick: "false"`` is refused) as the
+file is read (:mod:`tactile_zoo._yaml`: at most 1 MiB, no anchor bomb), and an override for a model or dataset that
+is not registered is refused once the plugins are imported (:meth:`BenchConfig.check_names`).
+:func:`plan_cells` turns the settings into every cell's :class:`~tactile_zoo.engine.config.CellConfig` (resolved
+once, in :mod:`tactile_zoo.engine.config`); nothing after it reads the settings for a cell again.
 """
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from .. import registry
+from .. import registry, settings
 from .._env import check_environment
+from .._yaml import load_yaml, read_yaml_file
 from ..engine.config import QUICK_EPOCHS, QUICK_SUBSET, CellConfig, check_hparams, resolve_cell
 from ..engine.evaluate import DEFAULT_PREFIXES
 from ..engine.runtime import cpu_count, resolve_device
 from ..errors import ConfigError, TactileZooError
-from .parsing import parse_folds, parse_positive_int, parse_prefixes, parse_seeds
+from ..recipe import check_recipe_keys
+from .parsing import check_settings, parse_folds, parse_positive_int, parse_prefixes, parse_seeds
 
 __all__ = ["BenchConfig", "load_yaml_config", "merge_config", "parse_assignment", "parse_value", "parse_threads",
            "EXECUTORS", "OVERSUBSCRIPTION", "MAX_REMOTE_THREADS", "CellPlan", "plan_cells"]
@@ -113,6 +117,10 @@ class BenchConfig:
         :class:`ConfigError` naming it, before anything is loaded, trained or written. Also checks the package's
         environment variables (:func:`tactile_zoo._env.check_environment`). Returns ``self``, normalised."""
         check_environment()
+        for key in ("root", "out", "tracker_dir"):  # a path given in Python
+            if isinstance(getattr(self, key), os.PathLike):
+                setattr(self, key, os.fspath(getattr(self, key)))
+        check_settings(self.to_dict(), "")  # the schema's types and ranges (tactile_zoo.settings.BenchSettings)
         self.models = _names("models", self.models)
         self.datasets = _names("datasets", self.datasets)
         self.seeds = parse_seeds(self.seeds)
@@ -156,20 +164,6 @@ class BenchConfig:
         if self.recipe_name is not None and (not isinstance(self.recipe_name, str) or not self.recipe_name.strip()):
             raise ConfigError(f"--recipe must name a recipe (e.g. source), got {self.recipe_name!r}")
         self.plugin_modules = _names("plugin_modules", self.plugin_modules, allow_empty=True)
-        for key in ("recipe", "hparams", "model_overrides", "dataset_kwargs"):
-            if not isinstance(getattr(self, key), Mapping):
-                raise ConfigError(f"{key} must be a mapping, got {type(getattr(self, key)).__name__}")
-        for model, over in self.model_overrides.items():
-            if not isinstance(over, Mapping):
-                raise ConfigError(f"model_overrides.{model} must be a mapping with 'recipe' and/or 'hparams'")
-            unknown = sorted(set(over) - {"recipe", "hparams"})
-            if unknown:
-                raise ConfigError(f"model_overrides.{model}: unknown key(s) {unknown}; allowed: recipe, hparams")
-        for name, kwargs in self.dataset_kwargs.items():
-            if not isinstance(kwargs, Mapping):
-                raise ConfigError(f"dataset_kwargs.{name} must be a mapping of keyword arguments")
-        for key in ("recipe", "hparams", "model_overrides", "dataset_kwargs"):
-            _refuse_non_finite(key, getattr(self, key))
         return self
 
     @property
@@ -191,20 +185,38 @@ class BenchConfig:
 
         keys = {normalize_name(model), *(normalize_name(a) for a in aliases)}
         recipe, hparams = dict(self.recipe), dict(self.hparams)
-        for name, over in self.model_overrides.items():
-            if normalize_name(name) in keys:
-                recipe.update(over.get("recipe") or {})
-                hparams.update(over.get("hparams") or {})
+        patterns = [n for n in self.model_overrides if n == "*" or _is_pattern(n) and model in registry.model_names(n)]
+        named = [n for n in self.model_overrides if not _is_pattern(n) and normalize_name(n) in keys]
+        for name in patterns + named:  # a pattern's override first: the one naming the model wins
+            recipe.update(self.model_overrides[name].get("recipe") or {})
+            hparams.update(self.model_overrides[name].get("hparams") or {})
         return recipe, hparams
 
     def kwargs_for(self, dataset: str) -> dict[str, Any]:
         from ..registry import normalize_name
 
-        out = dict(self.dataset_kwargs.get("*", {}))
-        for name, kwargs in self.dataset_kwargs.items():
-            if name != "*" and normalize_name(name) == normalize_name(dataset):
-                out.update(kwargs)
+        patterns = [n for n in self.dataset_kwargs
+                    if n == "*" or _is_pattern(n) and dataset in registry.list_datasets(n)]
+        named = [n for n in self.dataset_kwargs if not _is_pattern(n) and normalize_name(n) == normalize_name(dataset)]
+        out: dict[str, Any] = {}
+        for name in sorted(patterns, key=lambda n: n != "*") + named:  # "*", other patterns, then the dataset's own
+            out.update(self.dataset_kwargs[name])
         return out
+
+    def check_names(self) -> None:
+        """An override aimed at no registered model (``--set nosuch:lr=0.1``, a config file's ``model_overrides``)
+        or dataset (``--dataset-arg nosuch:seed=1``, ``dataset_kwargs``) is a :class:`ConfigError` listing the known
+        names; a pattern (``"*"``, ``"x_*"``) must match one. Called once the plugins are imported."""
+        for kind, overrides, listing, how in (
+                ("model", self.model_overrides, registry.model_names,
+                 "--set/--hparam NAME:KEY=VALUE or a config file's model_overrides"),
+                ("dataset", self.dataset_kwargs, registry.list_datasets,
+                 "--dataset-arg NAME:KEY=VALUE or a config file's dataset_kwargs")):
+            for name in overrides:
+                if _is_pattern(name) and listing(name) or not _is_pattern(name) and _registered(kind, name):
+                    continue
+                raise ConfigError(f"{how}: {name!r} names no registered {kind} (an override for it would be "
+                                  f"ignored); known {kind}s: {', '.join(listing())}")
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -232,6 +244,18 @@ def _names(key: str, value: Any, allow_empty: bool = False) -> list[str]:
     return out
 
 
+def _is_pattern(name: str) -> bool:
+    return any(c in name for c in "*?[")
+
+
+def _registered(kind: str, name: str) -> bool:
+    try:
+        (registry.get_model_entry if kind == "model" else registry.get_dataset_entry)(name)
+    except TactileZooError:
+        return False
+    return True
+
+
 def parse_threads(value: Any, remote: bool = False, flag: str = "--threads") -> int:
     """Torch threads per cell: a positive integer up to :data:`OVERSUBSCRIPTION` times this machine's cores (or
     :data:`MAX_REMOTE_THREADS` for cells on a Dask scheduler's workers, whose cores are unknown here)."""
@@ -245,32 +269,24 @@ def parse_threads(value: Any, remote: bool = False, flag: str = "--threads") -> 
     return threads
 
 
-def _refuse_non_finite(where: str, value: Any) -> None:
-    """A NaN or infinite setting (``--hparam dropout=nan``, ``.inf`` in a YAML file) is bad input: every cell
-    records its settings, and a record holds no NaN or infinity (:mod:`.schema`)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        raise ConfigError(f"{where} is {value}, expected a finite number")
-    if isinstance(value, Mapping):
-        for key, item in value.items():
-            _refuse_non_finite(f"{where}.{key}", item)
-    elif isinstance(value, list | tuple):
-        for i, item in enumerate(value):
-            _refuse_non_finite(f"{where}[{i}]", item)
+#: the settings whose command-line text is a number (or ``all``)
+_COUNTS = ("epochs", "workers", "threads", "retries", "folds")
 
 
 def parse_value(text: str) -> Any:
-    """A CLI value: int, float, then YAML (``true``, ``null``, ``[1, 2]``, ``{type: cosine}``), else the string."""
-    import yaml
-
+    """A CLI value: int, float, then YAML (``true``, ``null``, ``[1, 2]``, ``{type: cosine}``), else the string.
+    The YAML is read as a settings file is (:mod:`tactile_zoo._yaml`: ``1e-3`` is a number, no anchor bomb)."""
     for cast in (int, float):
         try:
             return cast(text)
         except ValueError:
             pass
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError:
-        return text
+        return load_yaml(text, "a command-line value")
+    except ConfigError as exc:
+        if "not valid YAML" in str(exc):
+            return text
+        raise
 
 
 def parse_assignment(flag: str, text: str) -> tuple[str | None, str, Any]:
@@ -288,17 +304,8 @@ def parse_assignment(flag: str, text: str) -> tuple[str | None, str, Any]:
 
 def load_yaml_config(path: str | os.PathLike) -> dict[str, Any]:
     """Read a YAML bench config; unknown keys are a :class:`ConfigError` naming them and the file."""
-    import yaml
-
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"--config {path}: cannot read it ({exc.strerror or exc})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"--config {path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    data = read_yaml_file(path, f"--config {path}")  # bounded: a size cap, and no anchor bomb
     if data is None:
         return {}
     if not isinstance(data, Mapping):
@@ -309,6 +316,7 @@ def load_yaml_config(path: str | os.PathLike) -> dict[str, Any]:
     if unknown:
         raise ConfigError(f"--config {path}: unknown key(s) {', '.join(unknown)}; known keys: "
                           f"{', '.join(sorted(CONFIG_KEYS))}")
+    check_settings(data, f"--config {path}")
     return data
 
 
@@ -326,6 +334,8 @@ def merge_config(yaml_data: Mapping[str, Any] | None, flags: Mapping[str, Any], 
             raise ConfigError(f"internal: unknown bench setting {key!r}")
         if key == "plugin_modules":
             value = [*_names("plugin_modules", data.get("plugin_modules"), allow_empty=True), *value]
+        if key in _COUNTS and isinstance(value, str):  # a flag's text, read by YAML rules as --set's is
+            value = parse_value(value.strip())
         data[key] = value
     data.setdefault("recipe", {})
     data.setdefault("hparams", {})
@@ -334,6 +344,10 @@ def merge_config(yaml_data: Mapping[str, Any] | None, flags: Mapping[str, Any], 
     for flag, items, field_name in (("--set", sets, "recipe"), ("--hparam", hparams, "hparams")):
         for text in items:
             scope, key, value = parse_assignment(flag, text)
+            if field_name == "recipe":  # each assignment checked as it is read: the error names it
+                check_recipe_keys({key: value}, f"--set {text}")
+            else:
+                settings.check_keywords({key: value}, f"--hparam {text}", "")
             if scope is None:
                 data[field_name] = {**(data[field_name] or {}), key: value}
             else:
@@ -341,6 +355,7 @@ def merge_config(yaml_data: Mapping[str, Any] | None, flags: Mapping[str, Any], 
                 over[field_name] = {**(over.get(field_name) or {}), key: value}
     for text in dataset_args:
         scope, key, value = parse_assignment("--dataset-arg", text)
+        settings.check_keywords({key: value}, f"--dataset-arg {text}", "")
         target = data["dataset_kwargs"].setdefault(scope or "*", {})
         target[key] = value
     return BenchConfig(**data)
@@ -362,6 +377,7 @@ def plan_cells(config: BenchConfig, models: Sequence[str], datasets: Sequence[st
     """The one place a command's settings become cells: each pair resolved once (:func:`resolve_cell`, the recipe's
     layers in order), its constructor keywords checked. ``tactile-zoo bench`` and ``tactile-zoo train`` both call it;
     every setting is read here first, so nothing downstream reads ``config`` for a cell again."""
+    config.check_names()
     settings = config.to_dict()
     per_model = {m: config.overrides_for(m, _aliases(registry.get_model_entry(m))) for m in models}
     kwargs = {d: config.kwargs_for(d) for d in datasets}
@@ -373,7 +389,7 @@ def plan_cells(config: BenchConfig, models: Sequence[str], datasets: Sequence[st
             recipe, hparams = per_model[model]
             configs[model, dataset] = resolve_cell(model, dataset, recipe=recipe, hparams=hparams,
                                                    dataset_kwargs=kwargs[dataset], **common)
-            check_hparams(configs[model, dataset])  # an unknown constructor keyword stops the command here
+            check_hparams(configs[model, dataset], hparams)  # an unknown constructor keyword stops the command here
     return CellPlan(configs, {m: hparams for m, (_, hparams) in per_model.items()}, kwargs, settings,
                     bool(settings["quick"]))
 

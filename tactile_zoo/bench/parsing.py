@@ -1,4 +1,5 @@
-"""Parsers of the bench settings that are lists or counts (seeds, folds, prefixes), and the cap on a grid's size.
+"""Parsers of the bench settings that are lists or counts (seeds, folds, prefixes), the cap on a grid's size, and
+the check of every setting against the one schema (:func:`check_settings`).
 
 :mod:`.config` re-exports them; they read values only, never a configuration object.
 """
@@ -6,12 +7,15 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
+from .. import settings
 from ..errors import ConfigError
+from ..recipe import check_recipe_keys
+from ..settings import check_prefixes
 
-__all__ = ["MAX_CELLS", "parse_positive_int", "parse_seeds", "parse_folds", "parse_prefixes"]
+__all__ = ["MAX_CELLS", "parse_positive_int", "parse_seeds", "parse_folds", "parse_prefixes", "check_settings"]
 
 #: The most cells (and so seeds) one bench command takes: weeks of computing at a second per cell, far above any grid
 #: the zoo's tables need (the largest is a few hundred), and small enough that the grid is listed in about a second.
@@ -85,20 +89,55 @@ def parse_folds(value: Any) -> int | None:
 
 
 def parse_prefixes(value: Any) -> list[float]:
-    """Prefix fractions in (0, 1] for early classification; 1.0 is always included."""
-    if isinstance(value, str):
-        value = [v for v in value.split(",") if v.strip()]
-    if not isinstance(value, Sequence) or not value:
-        raise ConfigError(f"--prefixes must be a comma-separated list of fractions in (0, 1], got {value!r}")
-    out = set()
-    for item in value:
-        try:
-            frac = float(item)
-        except (TypeError, ValueError):
-            raise ConfigError(f"--prefixes: {item!r} is not a number") from None
-        if frac > 1 and frac <= 100:  # percentages
-            frac /= 100
-        if not 0 < frac <= 1:
-            raise ConfigError(f"--prefixes: {item!r} is not a fraction in (0, 1] (or a percentage)")
-        out.add(round(frac, 6))
-    return sorted(out | {1.0})
+    """Prefix fractions in (0, 1] for early classification; 1.0 is always included (the schema's rule:
+    :func:`tactile_zoo.settings.check_prefixes`, which keeps the ``accuracy_at_<percent>`` columns distinct)."""
+    return check_prefixes(value)
+
+
+#: the flag that gives each setting on the command line: an error about a setting names it (a config file's errors
+#: name the file and the key instead)
+_FLAGS = {"plugin_modules": "--plugin-module", "recipe_name": "--recipe", "recipe": "recipe", "hparams": "hparams",
+          "model_overrides": "model_overrides", "dataset_kwargs": "dataset_kwargs"}
+
+
+def check_settings(data: Mapping[str, Any], where: str = "") -> None:
+    """Every setting in ``data`` (a config file's, or a :class:`BenchConfig`'s) checked against the one schema,
+    :class:`tactile_zoo.settings.BenchSettings`: its type and range, and the keys and values of the nested recipe
+    (:func:`~tactile_zoo.recipe.check_recipe_keys`), ``hparams`` and dataset keywords. ``where`` names a file
+    (``--config FILE``); without it an error names the setting's flag."""
+    prefix = f"{where}: " if where else ""
+    for model, over in (data.get("model_overrides") or {}).items() if isinstance(data.get("model_overrides"),
+                                                                                   Mapping) else ():
+        unknown = sorted(set(over) - {"recipe", "hparams"}, key=str) if isinstance(over, Mapping) else []
+        if unknown:
+            raise ConfigError(f"{prefix}model_overrides.{model}: unknown key(s) {unknown}; allowed: recipe, hparams")
+    try:  # their own messages, which say what the values mean
+        if isinstance(data.get("folds"), int) and not isinstance(data["folds"], bool):
+            parse_folds(data["folds"])
+        if where and "seeds" in data:
+            parse_seeds(data["seeds"])
+    except ConfigError as exc:
+        raise ConfigError(re.sub(r"^--(seeds|folds)", f"{prefix}\\1", str(exc)) if where else str(exc)) from None
+    for key, value in data.items():
+        settings.check_field(settings.BenchSettings, key, value, where,
+                             key if where else _FLAGS.get(key, f"--{key.replace('_', '-')}"))
+    if where and data.get("prefixes") is not None:
+        settings.check_prefixes(data["prefixes"], f"{prefix}prefixes")
+    try:  # their own messages, which say what the values mean
+        if isinstance(data.get("folds"), int) and not isinstance(data["folds"], bool):
+            parse_folds(data["folds"])
+        if where and "seeds" in data:
+            parse_seeds(data["seeds"])
+    except ConfigError as exc:
+        raise ConfigError(re.sub(r"^--(seeds|folds)", f"{prefix}\\1", str(exc)) if where else str(exc)) from None
+    if isinstance(data.get("recipe"), Mapping):
+        check_recipe_keys(data["recipe"], f"{prefix}recipe")
+    if "hparams" in data:
+        settings.check_keywords(data["hparams"], where, "hparams")
+    for model, over in (data.get("model_overrides") or {}).items():
+        if "recipe" in over:
+            check_recipe_keys(over["recipe"], f"{prefix}model_overrides.{model}.recipe")
+        if "hparams" in over:
+            settings.check_keywords(over["hparams"], where, f"model_overrides.{model}.hparams")
+    for name, kwargs in (data.get("dataset_kwargs") or {}).items():
+        settings.check_keywords(kwargs, where, f"dataset_kwargs.{name}")

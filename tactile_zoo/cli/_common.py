@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from .. import registry
+from .. import registry, settings
 from ..errors import ConfigError
 
 __all__ = ["echo", "add_quiet_flag", "progress_on", "add_recipe_flags", "add_tracker_flags",
@@ -89,5 +89,6 @@ def checkpoint_dataset(args: argparse.Namespace, config: dict[str, Any], flag: s
     for text in args.dataset_args:
         _, key, value = parse_assignment("--dataset-arg", text)
         kwargs[key] = value
+    settings.check_keywords(kwargs, "--dataset-arg", "")  # the schema's keyword names, finite values
     fold = fold_arg(args.fold) if args.fold is not None else (int(config.get("fold", 0)) if same else 0)
     return registry.load_dataset(dataset, root=args.root, split=args.split, fold=fold, **kwargs), dataset, fold

@@ -30,7 +30,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .. import registry
+from .. import registry, settings
 from ..errors import ConfigError, ModelCannotConsume
 from ..recipe import (
     Recipe,
@@ -59,7 +59,7 @@ UNHASHED_KEYS = ("causal", "recipe_name")
 #: (:mod:`tactile_zoo.data.guard`), where loading one raises, and records the validation score only. ``final``
 #: (honest, for a recipe whose epoch count was declared beforehand from validation evidence, such as ``full``):
 #: train on train + val for the recipe's fixed epochs, nothing selected, and read the test split once, at the end.
-EVALUATIONS = ("validation", "reference", "tuning", "final")
+EVALUATIONS = settings.EVALUATIONS  # ("validation", "reference", "tuning", "final"), written in the schema
 #: the evaluations that train on every training recording (train + val) and select nothing
 MERGED_EVALUATIONS = ("reference", "final")
 #: 2: the configuration gained the model's and the dataset's computational revisions (``model_revision``,
@@ -197,6 +197,8 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
     """
     if evaluation is not None and evaluation not in EVALUATIONS:
         raise ConfigError(f"--evaluation must be one of {', '.join(EVALUATIONS)}, got {evaluation!r}")
+    hparams = settings.check_keywords(hparams or {}, "", "hparams")  # the schema's keyword names, finite values
+    dataset_kwargs = settings.check_keywords(dataset_kwargs or {}, "", "dataset_kwargs")
     entry = registry.get_model_entry(model)
     data_entry = registry.get_dataset_entry(dataset)
     if isinstance(recipe, str):
@@ -245,14 +247,22 @@ def _constructor_keywords(model: str) -> tuple[str, ...] | None:
     return tuple(p.name for p in named)
 
 
-def check_hparams(config: CellConfig) -> None:
+def check_hparams(config: CellConfig, given: Mapping[str, Any] | None = None) -> None:
     """An unknown constructor keyword (``--hparam``, a config file's ``hparams``, a named recipe's) is bad input:
-    it stops the command before anything runs, instead of failing every cell of the model."""
+    it stops the command before anything runs, instead of failing every cell of the model. ``given``: the keywords
+    the user gave (``None``: all of them); a keyword among the others is blamed on the model's recipe."""
     accepted = _constructor_keywords(config.model)
     unknown = sorted(set(config.hparams) - set(accepted)) if accepted is not None else []
     if unknown:
-        raise ConfigError(f"--hparam: model {config.model!r} takes no keyword argument(s) "
-                          f"{', '.join(map(repr, unknown))}; it takes {', '.join(accepted) or 'none'}")
+        theirs = [k for k in unknown if given is None or k in given]
+        source = "--hparam" if theirs else _recipe_source(config)
+        raise ConfigError(f"{source}: model {config.model!r} takes no keyword argument(s) "
+                          f"{', '.join(map(repr, theirs or unknown))}; it takes {', '.join(accepted) or 'none'}")
+
+
+def _recipe_source(config: CellConfig) -> str:
+    """Names the hparams of the recipe a cell's configuration started from, for an error about them."""
+    return f"recipe {config.recipe_name!r} of model {config.model!r}: hparams"
 
 
 def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]) -> bool:
@@ -263,12 +273,12 @@ def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]
         resolved: the cell configuration (its model and every constructor keyword, the named recipe's included).
         spec: the dataset's spec.
         given: the constructor keywords the user gave (``--hparam``, a config file's ``hparams``): an error while
-            any is given is blamed on them.
+            any is given is blamed on them, else on the keywords of the model's recipe, if it has any.
 
     Returns:
         False when the model declares it cannot consume this dataset (:class:`ModelCannotConsume`: its cells are
-        skipped), else True. A model that fails without any keyword from the user is not bad input: its cells run
-        and record the failure, as a broken dataset's do.
+        skipped), else True. A model that fails without any keyword (the user's or its recipe's) is not bad input:
+        its cells run and record the failure, as a broken dataset's do.
 
     Raises:
         ConfigError: the model cannot be built with the user's keywords; one line naming them, the model, the dataset
@@ -282,10 +292,13 @@ def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]
     except ModelCannotConsume:
         return False
     except Exception as exc:  # noqa: BLE001 - whatever a constructor raises for a value it cannot use
-        if not given:
+        recipe_keywords = {k: v for k, v in resolved.hparams.items() if k not in given}
+        if not given and not recipe_keywords:
             return True
-        values = ", ".join(f"{key}={value!r}" for key, value in given.items())
+        blamed = given or recipe_keywords
+        values = ", ".join(f"{key}={value!r}" for key, value in blamed.items())
+        source = "--hparam" if given else _recipe_source(resolved)
         why = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line, whatever the model's message holds
-        raise ConfigError(f"--hparam {values}: model {resolved.model!r} cannot be built with it for dataset "
+        raise ConfigError(f"{source} {values}: model {resolved.model!r} cannot be built with it for dataset "
                           f"{resolved.dataset!r}: {why}") from None
     return True

@@ -21,13 +21,13 @@ Each recipe holds the keys of :mod:`tactile_zoo.recipe` (training keys, ``hparam
 when the file is read, so a typo fails at import with a :class:`ConfigError` naming the file, the recipe and the key.
 ``epochs`` keeps the ``full`` derivation a rule applied to declared counts (the counts are the evidence a plan
 declares; the rule turns early stopping off, declares ``evaluation: final`` and pins a cosine period), not six
-hand-written copies of its result. Numbers in exponent form (``1e-3``) are numbers, as in YAML 1.2.
+hand-written copies of its result. Numbers in exponent form (``1e-3``) are numbers, as in YAML 1.2. A file is read
+with a size cap and an alias limit (:mod:`tactile_zoo._yaml`).
 """
 
 from __future__ import annotations
 
 import copy
-import re
 from collections.abc import Mapping
 from importlib import resources
 from importlib.resources.abc import Traversable
@@ -35,8 +35,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from .._yaml import read_yaml_file
 from ..errors import ConfigError
 from ..recipe import check_named_recipe, full_recipe
 
@@ -46,16 +45,6 @@ __all__ = ["recipe_file", "read_recipe_file", "recipe_file_path", "FILE_KEYS", "
 FILE_KEYS = ("default", "recipes")
 #: the keys a recipe in a file may hold besides the recipe schema's: how it derives from one defined above it
 DERIVATION_KEYS = ("from", "epochs")
-
-
-class _Loader(yaml.SafeLoader):
-    """PyYAML's safe loader, reading ``1e-3`` (no dot, YAML 1.1 calls it a string) as the number it means."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"))
 
 
 def recipe_file_path(package: str, model: str) -> Traversable:
@@ -79,17 +68,7 @@ def read_recipe_file(path: str | PathLike[str] | Traversable) -> dict[str, Any]:
     """
     source = path if isinstance(path, Traversable) else Path(path)
     where = str(source)
-    try:
-        text = source.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{where}: cannot read the recipe file ({exc.strerror or exc})") from None
-    loader = _Loader(text)  # what yaml.safe_load does, with the exponent resolver: a SafeLoader builds plain data only
-    try:
-        data = loader.get_single_data()
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{where}: not a valid YAML recipe file: {exc}") from None
-    finally:
-        loader.dispose()
+    data = read_yaml_file(source, where, "not a valid YAML recipe file")  # a size cap, no anchor bomb
     if not isinstance(data, Mapping):
         raise ConfigError(f"{where}: a recipe file is a mapping with the keys {', '.join(FILE_KEYS)}; got "
                           f"{type(data).__name__}")

@@ -85,10 +85,12 @@ def test_config_validation() -> None:
 
 
 @pytest.mark.parametrize(("flag", "items", "message"), [
-    ("hparams", ["dropout=nan"], "hparams.dropout is nan, expected a finite number"),
-    ("hparams", ["tiny_mlp:hidden=-inf"], "model_overrides.tiny_mlp.hparams.hidden is -inf"),
-    ("sets", ["schedule={type: multistep, milestones: [.inf]}"], "recipe.schedule.milestones[0] is inf"),
-    ("dataset_args", ["noise=.nan"], "dataset_kwargs.*.noise is nan"),
+    # issue 49: each assignment is checked as it is read, so the error names the flag and its text
+    ("hparams", ["dropout=nan"], "--hparam dropout=nan: dropout is nan, expected a finite number"),
+    ("hparams", ["tiny_mlp:hidden=-inf"], "--hparam tiny_mlp:hidden=-inf: hidden is -inf"),
+    ("sets", ["schedule={type: multistep, milestones: [.inf]}"],
+     "--set schedule={type: multistep, milestones: [.inf]}: schedule.milestones[0] must be an integer, got inf"),
+    ("dataset_args", ["noise=.nan"], "--dataset-arg noise=.nan: noise is nan"),
 ])
 def test_a_non_finite_setting_is_refused(flag: str, items: list[str], message: str) -> None:
     """Issue 38: every cell records its settings and a record holds no NaN or infinity, so ``--hparam x=nan`` is bad

@@ -68,7 +68,7 @@ def test_every_layer_applies_in_order() -> None:
     on_d = resolve_model_recipe(meta, dataset="d", budget=10)  # the section, then the dataset's budget
     assert (on_d.recipe.lr, on_d.recipe.batch_size, on_d.recipe.max_epochs) == (0.02, 8, 10)
     assert on_d.recipe.schedule["milestones"] == [5, 8]
-    over = resolve_model_recipe(meta, dataset="d", overrides={"lr": "1e-3"}, budget=10)  # overrides beat the section
+    over = resolve_model_recipe(meta, dataset="d", overrides={"lr": 1e-3}, budget=10)  # overrides beat the section
     assert (over.recipe.lr, over.recipe.max_epochs) == (0.001, 10)
     assert resolve_model_recipe(meta, dataset="d", epochs=60, budget=10).recipe.max_epochs == 60  # --epochs last
     assert resolve_model_recipe(meta, dataset="d", quick=True, budget=10).recipe.max_epochs == 2  # --quick

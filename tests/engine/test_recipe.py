@@ -25,8 +25,10 @@ def test_default_recipe_is_cross_entropy_adam() -> None:
 
 
 def test_overrides_apply_in_order_and_epochs_last() -> None:
-    rec = resolve_recipe({"lr": 0.01, "batch_size": 8, "max_epochs": 50}, {"lr": "1e-4"}, epochs=3)
-    assert rec.lr == 1e-4 and rec.batch_size == 8 and rec.max_epochs == 3  # text numbers (from YAML) are numbers
+    rec = resolve_recipe({"lr": 0.01, "batch_size": 8, "max_epochs": 50}, {"lr": 1e-4}, epochs=3)
+    assert rec.lr == 1e-4 and rec.batch_size == 8 and rec.max_epochs == 3
+    with pytest.raises(ConfigError, match=r"recipe override: lr must be a number, got '1e-4'"):
+        resolve_recipe({"lr": 0.01}, {"lr": "1e-4"})  # strict: text is never a number (YAML reads 1e-3 as one)
     assert rec.replace(patience=None).patience is None
 
 
