@@ -11,16 +11,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from .. import registry
+from .._signals import TERMINATED_EXIT, Terminated
 from ..errors import ConfigError
 from ._common import add_quiet_flag, echo, progress_on
 from .weights import add_pretrained_flags, pretrained_model
 
 __all__ = ["add_export"]
+
+logger = logging.getLogger(__name__)
 
 #: where the files go without --out
 DEFAULT_OUT = "tactile-zoo-export"
@@ -166,9 +170,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
                 "preprocessing": _preprocessing(entry.dataset, dict(entry.dataset_kwargs))}
         label = f"weights {entry.qualified_tag}"
     name = name.rpartition(":")[2]
-    result = export_model(model, args.out, name=name, spec=spec, formats=formats, batch=args.batch,
-                          steps=args.steps, step=args.step, check=args.check, seed=args.seed, opset=args.opset,
-                          info=info, progress=progress_on(args))
+    try:
+        result = export_model(model, args.out, name=name, spec=spec, formats=formats, batch=args.batch,
+                              steps=args.steps, step=args.step, check=args.check, seed=args.seed, opset=args.opset,
+                              info=info, progress=progress_on(args))
+    except Terminated as exc:  # SIGTERM: export_model removed its staging folder, as after Ctrl-C
+        logger.error("%s; the export stopped and left %s as it was", exc, args.out)
+        return TERMINATED_EXIT
     desc = result.manifest
     if args.json:
         echo(json.dumps(desc, indent=2))

@@ -4,6 +4,7 @@ and check them against eager PyTorch, and describe them in ``MODEL.export.json``
 from __future__ import annotations
 
 import copy
+import io
 import json
 import math
 import os
@@ -18,10 +19,11 @@ from torch import Tensor, nn
 
 from .. import registry
 from .._files import atomic_write_text
+from .._signals import terminate_as_interrupt
 from .._version import __version__
 from ..engine.progress import Progress
 from ..errors import ConfigError, ExportError
-from .folder import _SUFFIX, ExportFolder, export_targets
+from .folder import _SUFFIX, ExportFolder, export_targets, write_file
 from .graphs import ForwardGraph, StepGraph, _dtype_name, _for_export, _registry_key
 from .onnx_io import (
     ONNX_INSTALL,
@@ -36,8 +38,7 @@ from .onnx_io import (
 )
 
 __all__ = ["FORMATS", "EXPORT_FORMAT", "TOLERANCE", "MAX_STEPS", "MAX_INPUT_BYTES", "ExportResult", "export_model",
-           "check_shape",
-           "check_steps", "initial_state", "spec_for_dataset"]
+           "check_shape", "check_steps", "initial_state", "spec_for_dataset"]
 
 #: The formats :func:`export_model` writes.
 FORMATS = ("torchscript", "onnx")
@@ -45,7 +46,6 @@ FORMATS = ("torchscript", "onnx")
 EXPORT_FORMAT = "tactile-zoo-export/1"
 #: Largest absolute difference (plus the same relative one) an export may show against eager PyTorch in its checks.
 TOLERANCE = 1e-5
-#: How to install what the ONNX export and its check need.
 
 #: The most frames (``steps``) a forward is exported for. The forward is unrolled over every frame, so its graph and
 #: its export time grow with them (Ev-Objects' 250 frames: 20-35 s); every dataset here has at most 325. A longer
@@ -134,8 +134,6 @@ def _registered_name(model: nn.Module) -> str:
     return type(model).__name__
 
 
-#: The loggers the exporters talk through. What they say goes to tactile-zoo's debug log (``-v``), never straight to
-#: stderr: the ONNX version converter, for one, logs a whole traceback when it cannot convert and then carries on.
 def _example(spec: Any, batch: int, steps: int | None, seed: int, dtype: torch.dtype) -> tuple[Tensor, Tensor | None]:
     """Seeded inputs ``x (B, T, N, C)`` in [0, 1) and ``g (B, T, G)`` (``None`` without globals)."""
     gen = torch.Generator().manual_seed(seed)
@@ -244,7 +242,8 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
             :mod:`tactile_zoo.engine.progress`); ``False``: nothing.
 
     ``out`` follows the output-folder rule (:mod:`tactile_zoo.export.folder`): a folder holding files but no
-    export marker is refused, and the model's files replace its previous export there as one set.
+    export marker is refused, and the model's files replace its previous export there as one set; one export at a
+    time writes into a folder (a second waits), and a full disk, SIGTERM or Ctrl-C leave the folder as it was.
 
     Returns:
         an :class:`ExportResult`.
@@ -272,14 +271,20 @@ def export_model(model: nn.Module, out: str | os.PathLike, *, name: str | None =
         check_opset(opset)
     if not forward and not (step and streams):
         raise ConfigError(f"nothing to export: forward=False, and {name} has no streaming step to export")
-    folder = ExportFolder(out)
-    folder.check(export_targets(name, formats, forward, step and streams))  # before any work: whose folder is it
-    try:
-        return _export(model, folder, name, key, spec, meta, streams, formats, batch, steps, step, forward, check,
-                       seed, opset, info, progress)
-    except BaseException:
-        folder.abort()  # the folder as it was: no staging folder, and no new folder of its own
-        raise
+    folder, targets = ExportFolder(out), export_targets(name, formats, forward, step and streams)
+    folder.check(targets)  # before any work: whose folder is it
+    with terminate_as_interrupt(), folder.locked():
+        folder.check(targets)  # again holding the lock: an export we waited for may have changed the folder
+        folder.remove_stale()  # a killed export's staging folder: no live export has one while we hold the lock
+        try:
+            return _export(model, folder, name, key, spec, meta, streams, formats, batch, steps, step, forward,
+                           check, seed, opset, info, progress)
+        except OSError as exc:  # a full disk: one line naming the file, and the folder as it was
+            folder.abort()
+            raise folder.write_error(exc) from exc
+        except BaseException:
+            folder.abort()  # the folder as it was: no staging folder, and no new folder of its own
+            raise
 
 
 def _export(model: nn.Module, folder: ExportFolder, name: str, key: str, spec: Any, meta: dict[str, Any],
@@ -360,19 +365,24 @@ def _write(graphs: list[tuple[str, nn.Module, tuple[Tensor, ...]]], formats: Seq
                 path = folder / f"{name}.{graph_name}.{_SUFFIX[fmt]}"
                 bar.update(0, f"writing {path.name}")
                 if fmt == "torchscript":
-                    try:
-                        traced = _trace(graph, inputs)
-                        torch.jit.save(traced, str(path))
+                    try:  # into memory: torch writing to a full disk aborts the process (folder.py)
+                        torch.jit.save(_trace(graph, inputs), buffer := io.BytesIO())
                     except Exception as exc:  # noqa: BLE001 - as for ONNX: say which file and why, in one line
                         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
                         raise ExportError(f"TorchScript export of {path.name} failed: {type(exc).__name__}: "
                                           f"{first}") from exc
+                    write_file(path, buffer.getvalue())
                 else:
                     # the forward is unrolled over all T frames, and the exporter's optimiser (rewrite rules matched
                     # at every node) costs more than the graph grows: SGnet on Ev-Objects, 250 frames, took 500
                     # CPU-s with it, 50 without; onnxruntime optimises the graph when it loads it anyway. The step,
                     # small and the one a robot runs per frame, is optimised.
-                    to_onnx(graph, inputs, path, opset, optimize=graph_name == "step")
+                    try:
+                        to_onnx(graph, inputs, path, opset, optimize=graph_name == "step")
+                    except ExportError as exc:
+                        if isinstance(exc.__cause__, OSError):  # a full disk: said as for any file
+                            raise OSError(exc.__cause__.errno, exc.__cause__.strerror, str(path)) from exc
+                        raise
                 files[(fmt, graph_name)] = path
                 if check:
                     _check_file(fmt, graph_name, path, full_ref, check_inputs, stepper_ref, frames, globs, checks)

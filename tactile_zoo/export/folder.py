@@ -15,23 +15,38 @@ every command shares (:mod:`tactile_zoo._owned`).
   ones moved in, the description last, so no file of an earlier export of that model (a format or a graph not
   exported this time) is left beside a description that does not mention it. A failed export leaves the folder as
   it was (a folder it created is removed again). Other models' sets in the same folder are left alone.
+- One export at a time per folder: an export holds an exclusive lock on the folder (``flock`` on the folder itself,
+  released by the kernel when its process dies, however) from its checks to its commit; a second one waits for it,
+  saying so. A staging folder found while holding the lock is therefore a killed export's (SIGKILL, a power cut):
+  it is removed before the new export stages its own. SIGTERM and Ctrl-C remove the export's own staging folder.
+- A file that cannot be written (a full disk, a file size limit) stops the export with one error naming the file and
+  the folder, and leaves the folder as it was. TorchScript files are serialised in memory and written by Python:
+  torch writing straight to a full disk aborts the process from C++ instead of raising.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import shutil
 import tempfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 from .._files import atomic_write_text
 from .._owned import FolderRule, check_folder, folder_entries, make_writable
-from ..errors import ConfigError
+from ..errors import ConfigError, ExportError
 
-__all__ = ["MARKER", "FOLDER_FORMAT", "EXPORT_FOLDER", "ExportFolder", "export_targets"]
+try:
+    import fcntl
+except ImportError:  # Windows: no flock; exports into one folder are then not serialised
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = ["MARKER", "FOLDER_FORMAT", "EXPORT_FOLDER", "ExportFolder", "export_targets", "write_file"]
+
+logger = logging.getLogger(__name__)
 
 MARKER = "tactile-zoo-export.json"
 FOLDER_FORMAT = "tactile-zoo-export-folder/1"
@@ -106,8 +121,61 @@ class ExportFolder:
             raise ConfigError(f"--out {self.path}: {', '.join(clash)} {'is' if len(clash) == 1 else 'are'} not from "
                               f"an export ({MARKER} does not list {'it' if len(clash) == 1 else 'them'}) and would be "
                               f"overwritten; move {'it' if len(clash) == 1 else 'them'} away or choose another folder")
-        self.created = not self.path.exists()
+        self.created = self.created or not self.path.exists()  # checked again under the lock: keep the first answer
         make_writable(self.path, EXPORT_FOLDER)
+
+    @contextlib.contextmanager
+    def locked(self) -> Iterator[None]:
+        """Hold the folder's export lock (module docstring), waiting for another export that holds it; the folder
+        must exist (:meth:`check` creates it). A folder removed and made again while we waited is locked anew."""
+        if fcntl is None:
+            yield
+            return
+        while True:
+            fd = os.open(self.path, os.O_RDONLY)
+            try:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    logger.info("another tactile-zoo export is writing into %s; waiting for it to finish", self.path)
+                    fcntl.flock(fd, fcntl.LOCK_EX)
+                except OSError as exc:  # a file system without locks (some network mounts): go on unserialised
+                    logger.debug("cannot lock %s (%s): exports into it are not serialised", self.path, exc)
+                    yield
+                    return
+                here = os.fstat(fd)
+                try:
+                    now = os.stat(self.path)
+                except FileNotFoundError:
+                    now = None
+                if now is None or (now.st_dev, now.st_ino) != (here.st_dev, here.st_ino):
+                    make_writable(self.path, EXPORT_FOLDER)  # the other export removed the folder it had made
+                    continue
+                yield
+                return
+            finally:
+                os.close(fd)  # releases the lock
+
+    def remove_stale(self) -> list[str]:
+        """Remove what killed exports left (their staging folders and torn marker files); call it holding the lock,
+        so none of them is a live export's. Returns the names removed."""
+        stale = [p for p in self.path.glob(f"{_STAGING_PREFIX}*.tmp") if p.is_dir()] + \
+            [p for p in self.path.glob(f".{MARKER}.*.tmp") if p.is_file()]
+        for path in stale:
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+        if stale:
+            logger.info("removed what a killed export left in %s: %s", self.path, ", ".join(p.name for p in stale))
+        return [p.name for p in stale]
+
+    def write_error(self, exc: OSError, file: str | os.PathLike | None = None) -> ExportError:
+        """One line for a file the export could not write (a full disk): the file, the folder and why."""
+        name = Path(file or exc.filename or "").name
+        what = f"cannot write {name} into {self.path}" if name else f"cannot write into {self.path}"
+        return ExportError(f"{what}: {exc.strerror or exc}; the export stopped and left the folder as it was")
 
     def stage(self) -> Path:
         """A new hidden folder inside ``--out`` for this export's files (:attr:`staging`)."""
@@ -145,3 +213,11 @@ class ExportFolder:
             with contextlib.suppress(OSError):
                 self.path.rmdir()  # only when empty
 
+
+def write_file(path: Path, data: bytes) -> None:
+    """Write ``data`` to the new file ``path``; an :class:`OSError` (a full disk) names ``path``."""
+    try:
+        with open(path, "xb") as fh:
+            fh.write(data)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(path)) from exc
