@@ -35,6 +35,7 @@ from .catalog import add_info, add_list, add_plugins
 from .download import add_download
 from .export import add_export
 from .stream import add_stream
+from .study import add_study
 from .train import add_evaluate, add_train
 from .weights import add_predict, add_weights
 
@@ -43,7 +44,7 @@ __all__ = ["main", "entry", "build_parser", "SUBCOMMANDS"]
 #: Every subcommand's argument declaration, in help order.
 SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_list, add_info, add_plugins, add_download, add_bench, add_train, add_evaluate, add_report, add_stream,
-    add_weights, add_predict, add_export,
+    add_weights, add_predict, add_export, add_study,
 ]
 
 

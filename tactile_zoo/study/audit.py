@@ -1,0 +1,165 @@
+"""``study audit``: were the study's rules kept? Each broken rule is a failure line naming the cell or the read.
+
+The checks, over the cells of every grid that is not superseded (read through :mod:`tactile_zoo.bench.records`):
+
+- **the freeze** came before every cell's start time (``started``; the grid's own freeze for an amended grid);
+- **the test split**: each final cell read it exactly once (``test_reads`` 1), each tuning cell never (0; a
+  ``tuning`` study allows tuning cells only); a ``reference`` cell reads it after every epoch by design, and is held
+  to that count (``epochs_run``);
+- **one CPU type** (name and torch's instruction-set capability), the declared one where ``rules.cpu`` names it;
+- **config hashes**: every cell is one the grid plans (its model, dataset, seed and configuration hash);
+- **the budget**: the cells' own ``seconds`` summed, at most ``rules.budget_cpu_hours``;
+- **ensembles**: every declared member has run, and a recorded ensemble read exactly its declared members, from the
+  cell files as they are now.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..bench.records import InvalidCellsError, run_records
+from ..bench.rundir import RunDir
+from .checks import plans, read_members
+from .freeze import freeze_times, parse_time, read_freeze
+from .reads import cell_digest, recorded_reads
+from .schema import Study
+
+__all__ = ["AuditResult", "audit", "cpu_type", "cpu_types", "study_records", "cpu_hours"]
+
+
+def cpu_type(record: dict[str, Any]) -> str:
+    """A cell's CPU type: the processor's name and torch's instruction-set capability."""
+    return f"{record.get('cpu', '?')} ({(record.get('cpu_isa') or {}).get('capability', '?')})"
+
+
+def cpu_types(records: list[dict[str, Any]]) -> list[str]:
+    """The CPU types ``records`` ran on, sorted: seeds pool only within one type (the same seed can train
+    differently on another)."""
+    return sorted({cpu_type(r) for r in records})
+
+
+def cpu_hours(records: list[dict[str, Any]]) -> float:
+    """The cells' own times (``seconds``, else ``train_seconds``), summed, in hours: one torch thread each."""
+    return sum(float(r.get("seconds") or r.get("train_seconds") or 0) for r in records) / 3600
+
+
+@dataclass
+class AuditResult:
+    """The audit's lines (what it found) and failures (each broken rule, one line)."""
+
+    lines: list[str] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+    rules: dict[str, bool] = field(default_factory=dict)  # rule -> held
+
+    def fail(self, rule: str, text: str) -> None:
+        self.failures.append(text)
+        self.rules[rule] = False
+
+
+def study_records(study: Study) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
+    """Per grid that is not superseded, its cell records; and a line per grid folder with damaged cell files."""
+    out, damaged = {}, []
+    for grid in study.grids():
+        if grid.superseded:
+            continue
+        try:
+            out[grid.name] = run_records(study.folder(grid))
+        except InvalidCellsError as exc:
+            out[grid.name] = []
+            damaged.append(str(exc))
+    return out, damaged
+
+
+def _expected_reads(record: dict[str, Any]) -> int:
+    evaluation = (record.get("config") or {}).get("evaluation") or "validation"
+    return 0 if evaluation == "tuning" else int(record.get("epochs_run") or 0) if evaluation == "reference" else 1
+
+
+def audit(study: Study) -> AuditResult:
+    """Every check of the module docstring; ``failures`` is empty when the study kept its rules."""
+    result = AuditResult(rules={k: True for k in ("freeze", "test split", "one CPU type", "config hashes", "budget",
+                                                  "ensemble members")})
+    state = read_freeze(study)
+    times = freeze_times(study, state)
+    rules = study.rules()
+    if not study.spec.pre_registered:
+        result.lines.append("not pre-registered: the cells ran before any plan; the freeze checks are left out")
+    elif not times:
+        result.fail("freeze", f"{study.where}: never frozen (no {study.results / 'study' / 'freeze.json'}); "
+                              f"`tactile-zoo study run` freezes it before the first cell")
+    by_grid, damaged = study_records(study)
+    for text in damaged:
+        result.fail("config hashes", text)
+    everything: list[dict[str, Any]] = []
+    all_plans = plans(study)
+    for name, records in by_grid.items():
+        plan = all_plans[name]
+        frozen = times.get(name)
+        ok = [r for r in records if r.get("status") == "ok"]
+        everything += records
+        result.lines.append(f"grid {name}: {len(ok)} ok cell(s) of {len(plan.cell_ids())} planned per fold, in "
+                            f"{plan.folder}")
+        for rec in records:
+            where = f"grid {name}: cell {rec['cell_id']}"
+            want = plan.hashes.get((rec["model"], rec["dataset"]))
+            if want is None:
+                result.fail("config hashes", f"{where}: {rec['model']} on {rec['dataset']} is not a pair of the grid")
+            elif rec["config_hash"] != want:
+                result.fail("config hashes", f"{where}: config hash {rec['config_hash']} is not the grid's ({want} "
+                                             f"for {rec['model']} on {rec['dataset']})")
+            elif rec["seed"] not in plan.config.seeds:
+                result.fail("config hashes", f"{where}: seed {rec['seed']} is not a seed of the grid")
+            if rec.get("status") != "ok":
+                continue
+            if study.spec.pre_registered and frozen is not None:
+                started = rec.get("started")
+                if not started or parse_time(started) < frozen:
+                    result.fail("freeze", f"{where}: started {started or 'at an unrecorded time'}, before the freeze "
+                                          f"({frozen.strftime('%Y-%m-%dT%H:%M:%S%z')})")
+            evaluation = (rec.get("config") or {}).get("evaluation") or "validation"
+            reads, expected = rec.get("test_reads"), _expected_reads(rec)
+            if rules.test_split == "never" and evaluation != "tuning":
+                result.fail("test split", f"{where}: a {evaluation} cell in a tuning study (rules.test_split: never)")
+            elif reads != expected:
+                kind = "tuning" if evaluation == "tuning" else "final"
+                result.fail("test split", f"{where}: a {kind} cell that read its test split {reads} time(s), not "
+                                          f"{'never' if expected == 0 else 'once' if expected == 1 else expected}")
+    types = cpu_types([r for r in everything if r.get("status") == "ok"])
+    result.lines.append(f"CPU types: {'; '.join(types) or 'no cell yet'}")
+    if len(types) > 1:
+        result.fail("one CPU type", f"cells on {len(types)} CPU types ({'; '.join(types)}); a study runs on one")
+    if rules.cpu and types and any(not t.startswith(rules.cpu) for t in types):
+        result.fail("one CPU type", f"cells on {'; '.join(types)}; rules.cpu declares {rules.cpu}")
+    hours = cpu_hours(everything)
+    result.lines.append(f"cost: {hours:.3f} CPU-hours"
+                        + (f" of a budget of {rules.budget_cpu_hours:g}" if rules.budget_cpu_hours else ""))
+    if rules.budget_cpu_hours is not None and hours > rules.budget_cpu_hours:
+        result.fail("budget", f"budget exceeded: {hours:.3f} CPU-hours spent, {rules.budget_cpu_hours:g} declared")
+    _ensembles(study, by_grid, result)
+    return result
+
+
+def _ensembles(study: Study, by_grid: dict[str, list[dict[str, Any]]], result: AuditResult) -> None:
+    recorded = recorded_reads(study)
+    for read in study.reads().ensembles:
+        grid = read.grid or study.grids()[0].name
+        declared = [m[-1] for m in read_members(study, read)]
+        have = {r["cell_id"] for r in by_grid.get(grid, []) if r.get("status") == "ok"}
+        missing = [i for i in declared if i not in have]
+        if missing:
+            result.fail("ensemble members", f"ensemble {read.name}: declared member(s) not present: "
+                                            f"{', '.join(missing)}")
+        entry = recorded.get(read.name)
+        if entry is None:
+            continue
+        for cell in entry.get("inputs", []):
+            if cell not in declared:
+                result.fail("ensemble members", f"ensemble {read.name}: member {cell} was not declared")
+        folder = plans(study)[grid].folder
+        for cell, digest in (entry.get("digests") or {}).items():
+            path = RunDir(folder).cell_path(cell)
+            if path.is_file() and cell_digest(path) != digest:
+                result.fail("ensemble members", f"ensemble {read.name}: member {cell} changed after the read was "
+                                                f"recorded")
+

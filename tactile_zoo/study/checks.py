@@ -1,0 +1,146 @@
+"""What a study file must say consistently, checked when it is read (:func:`load_study`): unique names,
+grids the bench accepts, a tuning study whose every cell is a tuning cell, and reads that name a grid, its models,
+its datasets and its seeds. Each error names the file and the key."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError
+from .plan import PlannedGrid, planned
+from .schema import EnsembleRead, Members, Study, parse_study
+
+__all__ = ["load_study", "check_study", "read_members", "plans", "describe"]
+
+#: the statistics a threshold may read from each kind of read
+_STATISTICS = {"means": ("accuracy", "low", "high"), "ensembles": ("accuracy", "low", "high"),
+               "comparisons": ("difference", "low", "high", "p_value")}
+
+
+def plans(study: Study) -> dict[str, PlannedGrid]:
+    """Each grid's :class:`PlannedGrid`, computed once per study."""
+    cached = getattr(study, "_plans", None)
+    if cached is None:
+        cached = {grid.name: planned(study, grid) for grid in study.grids()}
+        study._plans = cached  # type: ignore[attr-defined]
+    return cached
+
+
+def _twice(names: list[str]) -> list[str]:
+    return sorted(name for name, n in Counter(names).items() if n > 1)
+
+
+def read_members(study: Study, read: EnsembleRead) -> list[tuple[str, str, int, int, str]]:
+    """The declared members of an ensemble: ``(model, dataset, fold, seed, cell id)`` each, in declared order."""
+    plan = plans(study)[read.grid or study.grids()[0].name]
+    return [(m.model, read.dataset, m.fold, seed, plan.cell_id_of(m.model, read.dataset, m.fold, seed))
+            for m in read.members for seed in (m.seeds if m.seeds is not None else plan.config.seeds)]
+
+
+def _check_selection(study: Study, key: str, grid: str | None, dataset: str, models: list[str],
+                     members: list[Members] | None = None, seeds: list[int] | None = None) -> None:
+    names = [g.name for g in study.grids()]
+    if grid is None and len(names) > 1:
+        raise ConfigError(f"{study.where}: {key}.grid is required: the study has {len(names)} grids "
+                          f"({', '.join(names)})")
+    if grid is not None and grid not in names:
+        raise ConfigError(f"{study.where}: {key}.grid {grid!r} names no grid of the study ({', '.join(names)})")
+    plan = plans(study)[grid or names[0]]
+    if dataset not in plan.datasets:
+        raise ConfigError(f"{study.where}: {key}.dataset {dataset!r} is not a dataset of grid {plan.spec.name} "
+                          f"({', '.join(plan.datasets)})")
+    for model in models:
+        if model not in plan.models:
+            raise ConfigError(f"{study.where}: {key}: model {model!r} is not a model of grid {plan.spec.name} "
+                              f"({', '.join(plan.models)})")
+    for i, member in enumerate(members or []):
+        extra = sorted(set(member.seeds or []) - set(plan.config.seeds))
+        if extra:
+            raise ConfigError(f"{study.where}: {key}.members[{i}].seeds {extra} are not seeds of grid "
+                              f"{plan.spec.name} ({plan.config.seeds})")
+    extra = sorted(set(seeds or []) - set(plan.config.seeds))
+    if extra:
+        raise ConfigError(f"{study.where}: {key}.seeds {extra} are not seeds of grid {plan.spec.name}")
+
+
+def load_study(path: str | Path) -> Study:
+    """Read and check the study file at ``path``: a :class:`ConfigError` names the file and the key of the first
+    problem (the YAML, the study's shape, a grid's bench settings, a read that names no grid, model or seed of it)."""
+    study = parse_study(path)
+    check_study(study)
+    return study
+
+
+def check_study(study: Study) -> None:
+    """Raise :class:`ConfigError` at the first inconsistency (see the module docstring)."""
+    where = study.where
+    grids = [g.name for g in study.spec.grids]
+    for name in _twice(grids):
+        raise ConfigError(f"{where}: grids: the name {name!r} is given twice")
+    folders = [str(study.folder(g)) for g in study.grids()]
+    for folder in _twice(folders):
+        raise ConfigError(f"{where}: grids: two grids write into {folder}")
+    reads = study.reads()
+    kinds: dict[str, str] = {}
+    for kind in ("means", "ensembles", "comparisons"):
+        for read in getattr(reads, kind):
+            if read.name in kinds:
+                raise ConfigError(f"{where}: reads: the name {read.name!r} is declared twice")
+            kinds[read.name] = kind
+    for name in _twice([t.name for t in reads.thresholds]):
+        raise ConfigError(f"{where}: reads.thresholds: the name {name!r} is declared twice")
+    all_plans = plans(study)
+    rules = study.rules()
+    if rules.test_split == "never":
+        for plan in all_plans.values():
+            for (model, dataset), cfg in plan.configs.items():
+                if cfg.evaluation != "tuning":
+                    raise ConfigError(f"{where}: grids.{plan.spec.name}.settings: {model} on {dataset} runs under "
+                                      f"evaluation {cfg.evaluation!r}, which reads the test split; rules.test_split "
+                                      f"is 'never' (a tuning study): set evaluation: tuning")
+    for read in reads.means:
+        _check_selection(study, f"reads.means.{read.name}", read.grid, read.dataset, [read.model], seeds=read.seeds)
+    for read in reads.ensembles:
+        key = f"reads.ensembles.{read.name}"
+        _check_selection(study, key, read.grid, read.dataset, [m.model for m in read.members], read.members)
+        ids = [member[-1] for member in read_members(study, read)]
+        for twice in _twice(ids):
+            raise ConfigError(f"{where}: {key}.members: the cell {twice} is named twice")
+    for read in reads.comparisons:
+        _check_selection(study, f"reads.comparisons.{read.name}", read.grid, read.dataset, [read.a, read.b])
+        if read.a == read.b:
+            raise ConfigError(f"{where}: reads.comparisons.{read.name}: a and b are both {read.a!r}")
+    for threshold in reads.thresholds:
+        key = f"reads.thresholds.{threshold.name}"
+        if threshold.read not in kinds:
+            raise ConfigError(f"{where}: {key}.read {threshold.read!r} names no declared mean, ensemble or "
+                              f"comparison ({', '.join(sorted(kinds)) or 'none declared'})")
+        allowed = _STATISTICS[kinds[threshold.read]]
+        if threshold.statistic not in allowed:
+            raise ConfigError(f"{where}: {key}.statistic {threshold.statistic!r}: a {kinds[threshold.read][:-1]} "
+                              f"gives {', '.join(allowed)}")
+    known = set(kinds) | {t.name for t in reads.thresholds}
+    for i, publication in enumerate(study.spec.publishes):
+        for name in publication.reads:
+            if name not in known:
+                raise ConfigError(f"{where}: publishes[{i}].reads: {name!r} names no declared read")
+
+
+def describe(study: Study) -> list[str]:
+    """The lines ``study check`` prints about the file (the cells come from the bench's grid, printed beside)."""
+    rules = study.rules()
+    lines: list[Any] = [f"study {study.name}: {study.spec.question}",
+                        f"  results folder: {study.results}",
+                        f"  rules: one CPU type ({rules.cpu or 'the first cell decides'}); budget "
+                        f"{'none' if rules.budget_cpu_hours is None else f'{rules.budget_cpu_hours:g} CPU-hours'}; "
+                        f"test split read {'never (tuning)' if rules.test_split == 'never' else 'once per cell'}"]
+    if not study.spec.pre_registered:
+        lines.append("  not pre-registered: its cells ran before any plan")
+    reads = study.reads()
+    for kind in ("means", "ensembles", "comparisons", "thresholds"):
+        names = [r.name for r in getattr(reads, kind)]
+        if names:
+            lines.append(f"  declared {kind}: {', '.join(names)}")
+    return lines

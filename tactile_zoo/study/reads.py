@@ -1,0 +1,195 @@
+"""The declared reads: computed once, when every input cell is in, and recorded; a recorded read is never computed
+again (a later change in how it would be computed cannot move it).
+
+- a *mean*: one model's seeds on a dataset, the mean accuracy on the split and its 95 % interval (the shared-draw
+  method of :mod:`tactile_zoo.bench.intervals`);
+- an *ensemble*: its declared member cells combined (:func:`seed_ensemble`: the mean of their stored probabilities,
+  or a majority vote of their predictions), one run: its accuracy and an interval over the test units;
+- a *comparison*: ``b`` against ``a`` over their paired cells (:func:`~tactile_zoo.bench.paired.records_paired`):
+  the mean difference, its interval and the one-sided p-value of "b is not better";
+- a *threshold*: a statistic of one of those against its declared bound, and the decision its outcome leads to.
+
+``RESULTS/study/reads.json`` holds each recorded read: its value, its input cells (id and the sha256 of the file
+it was computed from) and when. The audit checks that those inputs are the declared ones and unchanged.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..bench.intervals import bootstrap_accuracy, records_interval
+from ..bench.paired import records_paired
+from ..bench.rundir import RunDir, atomic_write_json
+from ..errors import ResultsError
+from .checks import plans, read_members
+from .schema import ComparisonRead, EnsembleRead, MeanRead, Study, Threshold
+
+__all__ = ["seed_ensemble", "reads_path", "recorded_reads", "compute_reads", "threshold_outcome", "cell_digest"]
+
+
+def seed_ensemble(records: list[dict[str, Any]], split: str = "test", combine: str = "mean_probabilities"
+                  ) -> tuple[float, float, float] | None:
+    """The ensemble of ``records`` on ``split``: per test sample the class of highest mean stored probability
+    (``mean_probabilities``) or the most frequent prediction (``majority_vote``, ties to the lowest class), its
+    accuracy and a 95 % interval over the test units (recordings where the records list them). ``None`` when a
+    record stores no probabilities (or predictions) for ``split``; members scored on different test sets raise
+    :class:`ResultsError`."""
+    stored = [(r.get("predictions") or {}).get(split) or {} for r in records]
+    need = "probabilities" if combine == "mean_probabilities" else "predictions"
+    if not records or any(need not in pred for pred in stored):
+        return None
+    targets = np.asarray(stored[0]["targets"])
+    for rec, pred in zip(records[1:], stored[1:], strict=True):
+        if not np.array_equal(np.asarray(pred["targets"]), targets):
+            raise ResultsError(f"{rec['cell_id']}: another {split} set than {records[0]['cell_id']}")
+    if combine == "mean_probabilities":
+        predictions = np.mean([np.asarray(pred["probabilities"]) for pred in stored], axis=0).argmax(1)
+    else:
+        votes = np.stack([np.asarray(pred["predictions"]) for pred in stored])  # (members, samples)
+        classes = int(max(votes.max(), targets.max())) + 1
+        predictions = np.apply_along_axis(lambda v: np.bincount(v, minlength=classes).argmax(), 0, votes)
+    groups = stored[0].get("groups")
+    low_high = bootstrap_accuracy([(targets, predictions)], groups=None if groups is None else [groups])
+    assert low_high is not None
+    return float((predictions == targets).mean()), *low_high
+
+
+def reads_path(study: Study) -> Path:
+    return study.results / "study" / "reads.json"
+
+
+def recorded_reads(study: Study) -> dict[str, dict[str, Any]]:
+    path = reads_path(study)
+    if not path.is_file():
+        return {}
+    try:
+        return dict(json.loads(path.read_text(encoding="utf-8"))["reads"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ResultsError(f"{path}: cannot be read as the study's recorded reads ({exc})") from None
+
+
+def cell_digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _cells(study: Study, grid: str | None, ids: list[str], records: dict[str, dict[str, Any]]
+           ) -> tuple[list[dict[str, Any]], list[str]]:
+    """The ok records of ``ids`` and the ids not (yet) there."""
+    found = [records[i] for i in ids if (records.get(i) or {}).get("status") == "ok"]
+    return found, [i for i in ids if (records.get(i) or {}).get("status") != "ok"]
+
+
+def _listed_cells(folder: Path) -> set[str]:
+    """The cell ids the bench listed for the grid when it last ran (``run.json``; its folds come from the data)."""
+    try:
+        return set(json.loads((folder / "run.json").read_text(encoding="utf-8"))["grid"]["cells"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return set()
+
+
+def _selection(study: Study, read: MeanRead | ComparisonRead, model: str, seeds: list[int] | None) -> list[str]:
+    """One model's cells of the read: each seed's folds as the bench listed them (fold 0 before any run)."""
+    plan = plans(study)[read.grid or study.grids()[0].name]
+    listed = _listed_cells(plan.folder)
+    out = []
+    for seed in seeds if seeds is not None else plan.config.seeds:
+        fold = 0
+        out.append(plan.cell_id_of(model, read.dataset, fold, seed))
+        while (next_id := plan.cell_id_of(model, read.dataset, fold + 1, seed)) in listed:
+            out.append(next_id)
+            fold += 1
+    return out
+
+
+def _value(study: Study, read: Any, records: dict[str, dict[str, Any]]) -> tuple[dict[str, Any] | None, list[str],
+                                                                                 list[str]]:
+    """(value or None, input cell ids, the ids missing)."""
+    if isinstance(read, EnsembleRead):
+        ids = [m[-1] for m in read_members(study, read)]
+        found, missing = _cells(study, read.grid, ids, records)
+        if missing:
+            return None, ids, missing
+        result = seed_ensemble(found, read.split, read.combine)
+        if result is None:
+            return {"unreadable": f"a member stores no {read.combine.split('_')[-1]} for {read.split!r}"}, ids, []
+        accuracy, low, high = result
+        return {"accuracy": accuracy, "low": low, "high": high,
+                "members_mean": statistics.fmean(r["metrics"][read.split]["accuracy"] for r in found)}, ids, []
+    if isinstance(read, MeanRead):
+        ids = _selection(study, read, read.model, read.seeds)
+        found, missing = _cells(study, read.grid, ids, records)
+        if missing:
+            return None, ids, missing
+        low_high = records_interval(found, read.split)
+        return {"accuracy": statistics.fmean(r["metrics"][read.split]["accuracy"] for r in found),
+                "low": None if low_high is None else low_high[0], "high": None if low_high is None else low_high[1],
+                "runs": len(found)}, ids, []
+    ids_a, ids_b = _selection(study, read, read.a, None), _selection(study, read, read.b, None)
+    found_a, missing_a = _cells(study, read.grid, ids_a, records)
+    found_b, missing_b = _cells(study, read.grid, ids_b, records)
+    if missing_a or missing_b:
+        return None, ids_a + ids_b, missing_a + missing_b
+    paired = records_paired(found_a, found_b, read.split, level=read.level)
+    return {"difference": paired.difference, "low": paired.low, "high": paired.high, "p_value": paired.p_value,
+            "pairs": paired.n_cells}, ids_a + ids_b, []
+
+
+def threshold_outcome(threshold: Threshold, value: dict[str, Any] | None) -> dict[str, Any] | None:
+    """``{"statistic", "value", "met", "decision"}`` of ``threshold`` on its read's value; ``None`` while the read
+    is not in."""
+    if value is None or threshold.statistic not in value or value[threshold.statistic] is None:
+        return None
+    got = float(value[threshold.statistic])
+    met = got >= threshold.at_least if threshold.at_least is not None else got < float(threshold.below)
+    bound = f">= {threshold.at_least:g}" if threshold.at_least is not None else f"< {threshold.below:g}"
+    return {"statistic": threshold.statistic, "value": got, "bound": bound, "met": met,
+            "decision": threshold.decision.met if met else threshold.decision.missed}
+
+
+def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dict[str, Path], record: bool = True
+                  ) -> dict[str, dict[str, Any]]:
+    """Every declared read: the recorded value where there is one, else computed from ``records`` (cell id ->
+    record) when all its inputs are in, and then recorded (with ``record``). A read still waiting for cells is
+    ``{"kind", "missing": [...]}``. ``folders``: grid name -> its bench folder (for the inputs' digests)."""
+    recorded = recorded_reads(study)
+    reads = study.reads()
+    out: dict[str, dict[str, Any]] = {}
+    new = False
+    for kind in ("means", "ensembles", "comparisons"):
+        for read in getattr(reads, kind):
+            if read.name in recorded:
+                out[read.name] = recorded[read.name]
+                continue
+            value, ids, missing = _value(study, read, records)
+            entry: dict[str, Any] = {"kind": kind[:-1], "value": value, "inputs": ids}
+            if missing:
+                entry["missing"] = missing
+            elif value is not None:
+                folder = folders[read.grid or study.grids()[0].name]
+                entry["digests"] = {i: cell_digest(RunDir(folder).cell_path(i)) for i in ids}
+                entry["time"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+                recorded[read.name] = entry
+                new = True
+            out[read.name] = entry
+    for threshold in reads.thresholds:
+        if threshold.name in recorded:
+            out[threshold.name] = recorded[threshold.name]
+            continue
+        outcome = threshold_outcome(threshold, (out.get(threshold.read) or {}).get("value"))
+        entry = {"kind": "threshold", "read": threshold.read, "outcome": outcome}
+        if outcome is not None:
+            entry["time"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+            recorded[threshold.name] = entry
+            new = True
+        out[threshold.name] = entry
+    if record and new:
+        reads_path(study).parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(reads_path(study), {"study": study.name, "reads": recorded})
+    return out

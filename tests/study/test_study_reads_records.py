@@ -1,0 +1,26 @@
+"""The study package reads cell files through :mod:`tactile_zoo.bench.records` (and finds them through
+``RunDir.cell_path``) only: no module of it spells out where a bench folder keeps its cells."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+STUDY = Path(__file__).resolve().parents[2] / "tactile_zoo" / "study"
+#: a second reader of the records: a path joined to the cells folder, or a folder listed
+_LAYOUT = re.compile(r"""/\s*["']cells["/']|CELLS_DIR|\.r?glob\(|\.iterdir\(|os\.listdir|os\.scandir""")
+
+
+def layout_lines(root: Path) -> list[str]:
+    return [f"{path.name}:{n}" for path in sorted(root.rglob("*.py"))
+            for n, line in enumerate(path.read_text().splitlines(), 1) if _LAYOUT.search(line)]
+
+
+def test_the_study_package_reads_cells_through_the_records_module_only() -> None:
+    assert layout_lines(STUDY) == []
+
+
+def test_a_second_reader_is_found(tmp_path: Path) -> None:
+    (tmp_path / "ok.py").write_text("from ..bench.records import run_records\n")
+    (tmp_path / "bad.py").write_text("x = 1\npaths = sorted((folder / 'cells').glob('*.json'))\n")
+    assert layout_lines(tmp_path) == ["bad.py:2"]
