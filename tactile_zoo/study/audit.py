@@ -2,7 +2,8 @@
 
 The checks, over the cells of every grid that is not superseded (read through :mod:`tactile_zoo.bench.records`):
 
-- **the freeze** came before every cell's start time (``started``; the grid's own freeze for an amended grid);
+- **the freeze** came before every cell's start time (``started``; the grid's own freeze for an amended grid), and
+  the file's grids, rules, reads and amendments are the ones frozen;
 - **the test split**: each final cell read it exactly once (``test_reads`` 1), each tuning cell never (0; a
   ``tuning`` study allows tuning cells only); a ``reference`` cell reads it after every epoch by design, and is held
   to that count (``epochs_run``);
@@ -21,9 +22,9 @@ from typing import Any
 from ..bench.records import InvalidCellsError, run_records
 from ..bench.rundir import RunDir
 from .checks import plans, read_members
-from .freeze import freeze_times, parse_time, read_freeze
+from .freeze import changes, freeze_times, parse_time, read_freeze
 from .reads import cell_digest, recorded_reads
-from .schema import Study
+from .schema import Study, canonical_hash
 
 __all__ = ["AuditResult", "audit", "cpu_type", "cpu_types", "study_records", "cpu_hours"]
 
@@ -88,6 +89,16 @@ def audit(study: Study) -> AuditResult:
     elif not times:
         result.fail("freeze", f"{study.where}: never frozen (no {study.results / 'study' / 'freeze.json'}); "
                               f"`tactile-zoo study run` freezes it before the first cell")
+    if state is not None:
+        changed = changes(state["frozen"], study.frozen_parts())
+        amended = [f"amendments[{i}]" for i, record in enumerate(state.get("amendments") or [])
+                   if i >= len(study.spec.amendments)
+                   or canonical_hash(study.spec.amendments[i].model_dump(mode="json")) != record["sha256"]]
+        unfrozen = [f"amendments[{i}] (never frozen)"
+                    for i in range(len(state.get("amendments") or []), len(study.spec.amendments))]
+        if changed or amended or unfrozen:
+            result.fail("freeze", f"{study.where}: not the file that was frozen ({state['time']}): "
+                                  f"{'; '.join([*changed, *amended, *unfrozen])}")
     by_grid, damaged = study_records(study)
     for text in damaged:
         result.fail("config hashes", text)

@@ -163,6 +163,10 @@ def write_report(study: Study, out: str | Path | None = None) -> dict[str, Path]
     lines += ["## Results", "", *_results(summary), *_external(study, summary)]
     read_rows = _read_rows(reads)
     lines += ["## Declared reads", "", *_reads(read_rows), "## Rules", "", *_rules(result)]
+    if study.spec.publishes:
+        lines += ["## Published", ""] + [f"- {p.where}" + (f", block `{p.block}`" if p.block else "")
+                                         + (f": {', '.join(p.reads)}" if p.reads else "")
+                                         for p in study.spec.publishes] + [""]
     hours = cpu_hours(everything)
     lines += ["## Cost", "", f"{hours:.3f} CPU-hours over {len(everything)} cell(s) (the cells' own `seconds`, one "
               f"torch thread each)" + (f", of a budget of {rules.budget_cpu_hours:g}" if rules.budget_cpu_hours

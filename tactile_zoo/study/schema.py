@@ -54,6 +54,7 @@ from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, mode
 
 from .._yaml import read_yaml_file
 from ..errors import ConfigError
+from ..settings import describe_error
 
 __all__ = ["Study", "StudyFile", "GridSpec", "Rules", "Reads", "MeanRead", "EnsembleRead", "ComparisonRead",
            "Threshold", "Members", "Amendment", "Freeze", "parse_study", "canonical_hash"]
@@ -269,14 +270,15 @@ def _location(loc: tuple[Any, ...]) -> str:
 
 
 def _describe(exc: ValidationError, where: str) -> str:
+    """One line naming the file and the key: the settings schema's wording (:func:`tactile_zoo.settings.
+    describe_error`), without the value where that is a whole section (a missing key, a rule across keys)."""
     error = exc.errors(include_url=False)[0]
-    message = str(error["msg"])
-    if error["type"] == "extra_forbidden":
-        message = "is not a known key"
-    elif error["type"] == "missing":
-        message = "is required"
-    got = "" if error["type"] == "missing" else f", got {error['input']!r}"
-    return f"{where}: {_location(error['loc'])} {message}{got}"
+    if error["type"] == "missing":
+        return f"{where}: {_location(error['loc'])} is required"
+    if isinstance(error["input"], dict | list):
+        message = str((error.get("ctx") or {}).get("error", error["msg"]))
+        return f"{where}: {_location(error['loc'])}: {message}"
+    return describe_error(exc, where)
 
 
 def parse_study(path: str | Path) -> Study:

@@ -31,7 +31,7 @@ def _study(tmp_path: Path, edit: dict) -> Path:
 @pytest.mark.parametrize(("edit", "named"), [
     ({"colour": "blue"}, "colour is not a known key"),
     ({"question": None}, "question is required"),
-    ({"rules.budget_cpu_hours": -1.0}, "rules.budget_cpu_hours Input should be greater than 0"),
+    ({"rules.budget_cpu_hours": -1.0}, "rules.budget_cpu_hours must be a positive number, got -1.0"),
     ({"grids.0.settings.epochs": 0}, "grids.main.settings: "),
     ({"grids.0.settings.epoch": 1}, "grids.main.settings: unknown key(s) epoch"),
     ({"grids.0.settings.force": True}, "grids.main.settings.force: not a study setting"),
@@ -45,7 +45,9 @@ def _study(tmp_path: Path, edit: dict) -> Path:
     ({"reads.thresholds.0.read": "nothing"}, "reads.thresholds.ensemble_above_chance.read 'nothing' names no"),
     ({"reads.thresholds.0.statistic": "p_value"},
      "reads.thresholds.ensemble_above_chance.statistic 'p_value': a ensemble gives accuracy, low, high"),
-    ({"reads.thresholds.0.below": 0.5}, "give exactly one of at_least and below"),
+    ({"reads.thresholds.0.below": 0.5}, "reads.thresholds[0]: give exactly one of at_least and below"),
+    ({"rules.test_split": "sometimes"}, "rules.test_split must be one of once, never, got 'sometimes'"),
+    ({"grids.0.name": "main grid"}, "grids[0].name "),
     ({"rules.test_split": "never"}, "rules.test_split is 'never' (a tuning study): set evaluation: tuning"),
 ])
 def test_an_error_names_the_file_and_the_key(tmp_path: Path, edit: dict, named: str) -> None:

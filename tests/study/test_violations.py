@@ -95,3 +95,32 @@ def test_a_declared_member_missing_fails_the_audit(quickstart: QuickstartRun, tm
     member = next(r["cell_id"] for r in run_records(folder) if r["model"] == "cnn_lstm")
     RunDir(folder).cell_path(member).unlink()
     assert f"ensemble cnn_lstm_ens2: declared member(s) not present: {member}" in _audit(study)
+
+
+def test_a_rule_edited_after_the_run_fails_the_audit(quickstart: QuickstartRun, tmp_path: Path) -> None:
+    study = quickstart.copy(tmp_path)
+    study.write_text(study.read_text().replace("budget_cpu_hours: 0.1", "budget_cpu_hours: 5"))
+    assert "not the file that was frozen" in (out := _audit(study)) and "rules.budget_cpu_hours: 0.1 -> 5" in out
+
+
+def test_a_migrated_study_is_audited_against_the_freeze_in_its_file(quickstart: QuickstartRun,
+                                                                   tmp_path: Path) -> None:
+    study = quickstart.copy(tmp_path)
+    study.write_text(study.read_text() + "freeze: {time: 2030-01-01T00:00:00+0000, source: PLAN.md's first commit}\n")
+    assert _audit(study).count("before the freeze (2030-01-01T00:00:00+0000)") == 4
+
+
+def test_a_study_not_pre_registered_says_so_and_skips_the_freeze(quickstart: QuickstartRun, tmp_path: Path) -> None:
+    study = quickstart.copy(tmp_path)
+    _edit_cell(study, lambda r: r.update(started="2020-01-01T00:00:00+0000"), model="dcnn")  # not an ensemble's
+    extra = ("pre_registered: false\npublishes: [{where: docs/mine.md, block: quickstart, reads: [cnn_lstm_ens2]}]\n"
+             "compares_with:\n  - name: a_paper\n    source: Someone et al. 2030, Table 2\n"
+             "    figures: [{model: dcnn, dataset: sim_evtouch, value: 0.99}]\n")
+    study.write_text(study.read_text() + extra)
+    code, out, err = tz("study", "audit", str(study))
+    assert code == 0 and "not pre-registered" in out, out + err
+    assert tz("study", "report", str(study))[0] == 0
+    report = (study.parent / "quickstart-results" / "study" / "report.md").read_text()
+    assert "**Not pre-registered**" in report and "- docs/mine.md, block `quickstart`: cnn_lstm_ens2" in report
+    assert "**a_paper** (Someone et al. 2030, Table 2)" in report and "| dcnn | sim_evtouch | 0.9900 |" in report
+    assert "| above |" in report
