@@ -155,6 +155,17 @@ def test_a_bad_config_file_value_exits_2_naming_the_file_and_the_key(key: str, d
     assert f"--config {path}: {key}" in err, err
 
 
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+@pytest.mark.parametrize("key", sorted(RECIPE_BAD))
+def test_a_bad_set_value_exits_2_naming_the_flag_and_the_key(key: str, data: st.DataObject,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    value = json.dumps(data.draw(RECIPE_BAD[key], label=key))  # JSON is YAML: a string stays a quoted string
+    assert run_cli([*DRY, "--set", f"{key}={value}"]) == 2
+    err = capsys.readouterr().err
+    assert f"--set {key}={value}: {key}" in err or f"--set {key}={value}: schedule" in err, err
+
+
 @pytest.mark.parametrize(("text", "key"), [
     ('quick: "false"', "quick"), ('refit: "no"', "refit"), ('save_weights: "yes"', "save_weights"),
     ("out: 123", "out"), ("epochs: '5'", "epochs"), ("recipe: {lr: '1e-3'}", "recipe: lr"),
