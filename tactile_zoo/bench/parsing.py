@@ -119,6 +119,8 @@ def check_settings(data: Mapping[str, Any], where: str = "") -> None:
     except ConfigError as exc:
         raise ConfigError(re.sub(r"^--(seeds|folds)", f"{prefix}\\1", str(exc)) if where else str(exc)) from None
     for key, value in data.items():
+        if isinstance(value, tuple | range):  # a sequence given in Python checks as the list it stands for
+            value = list(value)
         settings.check_field(settings.BenchSettings, key, value, where,
                              key if where else _FLAGS.get(key, f"--{key.replace('_', '-')}"))
     if where and data.get("prefixes") is not None:

@@ -178,6 +178,11 @@ def test_items_1_and_11_strings_are_not_booleans_or_numbers(tmp_path: Path, text
     assert f"--config {tmp_path / 'c.yaml'}: {key}" in capsys.readouterr().err
 
 
+def test_python_sequences_are_lists() -> None:
+    config = BenchConfig(models=("tiny_mlp",), seeds=range(2), prefixes=(0.5,), plugin_modules=())
+    assert config.models == ["tiny_mlp"] and config.seeds == [0, 1] and config.prefixes == [0.5, 1.0]
+
+
 def test_yaml_numbers_and_cli_text_still_work(tmp_path: Path) -> None:
     (tmp_path / "c.yaml").write_text("quick: false\nrecipe: {lr: 1e-3}\nepochs: 3\nprefixes: [0.5, 25]\n")
     from tactile_zoo.bench.config import load_yaml_config
