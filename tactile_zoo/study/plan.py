@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import registry
-from ..bench.config import CONFIG_KEYS, BenchConfig, merge_config, plan_cells
+from ..bench.config import BenchConfig, merge_config, plan_cells
 from ..bench.grid import cell_id, resolve_datasets, resolve_models
 from ..bench.records import InvalidCell, cell_files, read_record
 from ..engine.config import CellConfig, config_hash
@@ -62,11 +62,7 @@ def bench_config(study: Study, grid: GridSpec) -> BenchConfig:
     """The grid's bench settings as a :class:`BenchConfig` writing into its folder; a bad setting is a
     :class:`ConfigError` naming the file, the grid and the key."""
     where = f"{study.where}: grids.{grid.name}.settings"
-    settings = dict(grid.settings)
-    unknown = sorted(set(settings) - CONFIG_KEYS)
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; a grid holds the bench settings "
-                          f"({', '.join(sorted(CONFIG_KEYS - set(_REFUSED)))})")
+    settings = grid.given()
     for key, why in _REFUSED.items():
         if key in settings:
             raise ConfigError(f"{where}.{key}: not a study setting: {why}")

@@ -37,9 +37,10 @@ A study is a benchmark decided before it runs::
       - {reason: "...", reads: {...}, rules: {...}, grids: [...]}
 
 :func:`parse_study` reads the file through the bounded YAML reader (:mod:`tactile_zoo._yaml`) and checks its shape
-here; :func:`~.checks.load_study` adds each grid's settings, checked through the bench's own path
-(:func:`~tactile_zoo.bench.config.merge_config`, so a grid accepts exactly what ``tactile-zoo bench --config``
-accepts), and what the parts say of each other. :meth:`Study.effective`
+here, each grid's settings against the bench's own schema (:class:`tactile_zoo.settings.BenchSettings`);
+:func:`~.checks.load_study` then resolves each grid as the bench does (:func:`~tactile_zoo.bench.config.
+merge_config`, so a grid accepts exactly what ``tactile-zoo bench --config`` accepts) and checks what the parts say
+of each other. :meth:`Study.effective`
 applies the amendments.
 """
 
@@ -54,7 +55,7 @@ from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, mode
 
 from .._yaml import read_yaml_file
 from ..errors import ConfigError
-from ..settings import describe_error
+from ..settings import BenchSettings, describe_error
 
 __all__ = ["Study", "StudyFile", "GridSpec", "Rules", "Reads", "MeanRead", "EnsembleRead", "ComparisonRead",
            "Threshold", "Members", "Amendment", "Freeze", "parse_study", "canonical_hash"]
@@ -83,7 +84,11 @@ class GridSpec(_Model):
     name: Name
     folder: Text | None = None  # relative to the study's results folder (default: the name)
     superseded: Text | None = None  # why its cells no longer count
-    settings: dict[Text, Any]
+    settings: BenchSettings  # the bench's settings schema; :func:`~.plan.bench_config` resolves them as bench does
+
+    def given(self) -> dict[str, Any]:
+        """The settings the file gives (the bench's defaults left to the bench)."""
+        return self.settings.model_dump(exclude_unset=True)
 
 
 class Rules(_Model):
