@@ -280,7 +280,7 @@ def _describe(exc: ValidationError, where: str) -> str:
     error = exc.errors(include_url=False)[0]
     if error["type"] == "missing":
         return f"{where}: {_location(error['loc'])} is required"
-    if isinstance(error["input"], dict | list):
+    if isinstance(error["input"], dict) or error["type"] == "value_error" and isinstance(error["input"], list):
         message = str((error.get("ctx") or {}).get("error", error["msg"]))
         return f"{where}: {_location(error['loc'])}: {message}"
     return describe_error(exc, where)

@@ -31,6 +31,7 @@ def _study(tmp_path: Path, edit: dict) -> Path:
 @pytest.mark.parametrize(("edit", "named"), [
     ({"colour": "blue"}, "colour is not a known key"),
     ({"question": None}, "question is required"),
+    ({"grids": []}, "grids must hold at least 1 item(s), got []"),
     ({"rules.budget_cpu_hours": -1.0}, "rules.budget_cpu_hours must be a positive number, got -1.0"),
     ({"grids.0.settings.epochs": 0}, "grids[0].settings.epochs must be an integer >= 1, got 0"),
     ({"grids.0.settings.epoch": 1}, "grids[0].settings.epoch is not a known key"),
