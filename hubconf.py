@@ -31,7 +31,7 @@ from typing import Any as _Any
 #: the modules torch.hub checks before loading an entry point: the runtime dependencies in pyproject.toml, by import
 #: name (tests/test_hubconf.py keeps the two lists in step)
 dependencies = ["torch", "torch_geometric", "snntorch", "numpy", "scipy", "sklearn", "pandas", "tqdm", "matplotlib",
-                "yaml", "safetensors", "numba"]
+                "yaml", "safetensors", "numba", "pydantic"]
 
 _CHECKOUT = _Path(__file__).resolve().parent
 #: the weight pack of this checkout (absent from an sdist): what ``pip install`` of it would provide
