@@ -7,11 +7,22 @@ TGT ?= torch-geometric-temporal==0.56.2
 
 .PHONY: install bench test lint benchmarks tables docs clean wheel-check min-check
 
-$(BIN)/tactile-zoo: pyproject.toml constraints.txt
-	$(PYTHON) -m venv $(VENV)
+# Two installs into the one venv, each with its own stamp, so neither undoes the other: `make bench` installs what the
+# bench needs (torch, then the package alone); `make test` (and every target below that needs the tools) upgrades the
+# same venv with the extras. A change to pyproject.toml or constraints.txt redoes both, in that order.
+BENCH_STAMP := $(VENV)/.installed-bench
+TEST_STAMP := $(VENV)/.installed-test
+
+$(BENCH_STAMP): pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	# torch first: the CPU build on disk; a looser requirement would drag in several GB of CUDA packages
 	$(BIN)/python -m pip install -q "$(TORCH)"
+	# the package and its runtime dependencies, no extra: all `tactile-zoo bench` on the simulators needs
+	$(BIN)/python -m pip install -q -c constraints.txt -e .
+	touch $@
+
+$(TEST_STAMP): $(BENCH_STAMP)
 	# [test] holds every optional extra ([export]: onnx, onnxscript and onnxruntime, so the suite checks every ONNX
 	# export; [docs]: mkdocs-material and mkdocstrings, so the suite builds the docs site)
 	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
@@ -20,9 +31,10 @@ $(BIN)/tactile-zoo: pyproject.toml constraints.txt
 	$(BIN)/python -m pip install -q --no-deps "$(TGT)"
 	touch $@
 
-install: $(BIN)/tactile-zoo
+# the full install: the package with every extra and the tools (what `make test`, lint, docs and the checks need)
+install: $(TEST_STAMP)
 
-bench: install
+bench: $(BENCH_STAMP)
 	$(BIN)/tactile-zoo bench --models all --executor process --workers 2
 
 test: install
