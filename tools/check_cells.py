@@ -38,7 +38,7 @@ from typing import Any
 
 from tactile_zoo.bench import BenchConfig, build_grid
 from tactile_zoo.bench.grid import cell_id
-from tactile_zoo.bench.records import InvalidCell, cell_files, read_record, run_records
+from tactile_zoo.bench.records import COMPACT_SUFFIX, InvalidCell, cell_files, read_record, run_records
 from tactile_zoo.bench.rundir import atomic_write_json
 from tactile_zoo.engine.config import HASH_FORMAT, config_hash
 from tactile_zoo.recipe import recipe_name_of
@@ -92,7 +92,7 @@ def migrate(path: Path, record: dict[str, Any], current: dict[str, Any]) -> Path
     new_id = cell_id(record["model"], record["dataset"], record["fold"], record["seed"], new_hash)
     migrated = {**record, "config": current, "config_hash": new_hash, "cell_id": new_id, "hash_format": HASH_FORMAT,
                 "migrated_from": {"config_hash": record["config_hash"], "hash_format": 1}}
-    target = path.with_name(f"{new_id}.json")
+    target = path.with_name(new_id + (COMPACT_SUFFIX if path.name.endswith(COMPACT_SUFFIX) else ".json"))  # same form
     atomic_write_json(target, migrated)
     if target != path:
         path.unlink()

@@ -61,7 +61,7 @@ import numpy as np
 import torch
 
 from tactile_zoo import registry
-from tactile_zoo.bench.records import revision_gaps, run_records
+from tactile_zoo.bench.records import CELLS_DIR, cell_file, revision_gaps, run_records
 from tactile_zoo.bench.tables import leaderboard_rows
 from tactile_zoo.data.base import file_sha256
 from tactile_zoo.errors import ConfigError
@@ -136,7 +136,7 @@ class Slot:
 
 
 def read_cells(folder: Path) -> list[dict[str, Any]]:
-    """The cell records of a bench folder (``cells/*.json``), in file-name order."""
+    """The cell records of a bench folder (``cells/*.json``, ``cells/*.json.gz``), in file-name order."""
     return run_records(folder)
 
 
@@ -501,8 +501,8 @@ def _warn_uncommitted(sources: Sequence[Source]) -> None:
         return  # not a git checkout: nothing to say
     tracked = set(listing.split("\0"))
     for src in sources:
-        for path in sorted({src.table / "cells" / f"{src.cell['cell_id']}.json",
-                            src.run_dir / "cells" / f"{src.saved['cell_id']}.json"}):
+        for path in sorted({cell_file(src.table / CELLS_DIR, src.cell["cell_id"]),
+                            cell_file(src.run_dir / CELLS_DIR, src.saved["cell_id"])}):
             if _rel(path) not in tracked:
                 print(f"note: {_rel(path)} is not committed yet; commit it with the pack (--check reads it)")
 
@@ -612,7 +612,7 @@ def list_slots(reruns: Sequence[Path] = ()) -> str:
             lines.append(f"{slot.model:<12} {slot.dataset:<14} {'missing':<8} {'':>8} {'':>8}  {slot.reason}")
             continue
         src = slot.source
-        where = _rel(src.run_dir / "cells" / f"{src.saved['cell_id']}.json")
+        where = _rel(cell_file(src.run_dir / CELLS_DIR, src.saved["cell_id"]))
         here = "" if src.file.is_file() else " (its .safetensors file is not on this machine)"
         accuracy = src.cell["metrics"]["test"]["accuracy"]
         lines.append(f"{slot.model:<12} {slot.dataset:<14} {'weights':<8} {accuracy:>8.4f} "

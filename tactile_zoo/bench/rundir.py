@@ -4,6 +4,7 @@ Layout of ``--out``::
 
     run.json                                                          written first: its "format" marks a bench folder
     cells/<model>__<dataset>__f<fold>__s<seed>__<config hash>.json   one per finished cell (ok, failed, skipped)
+                                                                      (or .json.gz: compact, see .records)
     cells/damaged/                                                    damaged cell files, moved aside (.records)
     claims/<cell id>.lock                                             held (flock) while a process runs that cell
     progress/<cell id>.json                                           a running cell's last epoch (see .progress)
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import gzip
 import json
 import os
 import socket
@@ -35,10 +37,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from .._files import atomic_write_text, torn_temporaries
+from .._files import atomic_write_bytes, atomic_write_text, torn_temporaries
 from .._owned import FolderRule, check_folder, make_writable
 from ..errors import ConfigError
-from .records import CellScan, InvalidCell, read_record, scan_cells
+from .records import COMPACT_SUFFIX, CellScan, InvalidCell, cell_file, read_record, scan_cells
 from .schema import InvalidRecordError, check_record
 
 try:
@@ -81,15 +83,20 @@ def atomic_write_json(path: str | os.PathLike, obj: Any) -> None:
     """``obj`` as JSON, one top-level key per line with its value written compactly: a cell's per-sample lists
     (predictions, probabilities, recordings) take a line each instead of a line per number, a fifth of the bytes.
     A NaN or infinity raises ``ValueError`` before anything is written: JSON has neither, and a file holding one is
-    refused by every reader (:mod:`.schema`)."""
+    refused by every reader (:mod:`.schema`). A ``path`` ending ``.json.gz`` gets the gzip of those bytes (a compact
+    cell file, :mod:`.records`)."""
     def dump(value: Any, **kwargs: Any) -> str:
         return json.dumps(value, default=_json_default, allow_nan=False, **kwargs)
 
     if isinstance(obj, dict) and obj:
         body = ",\n".join(f" {dump(str(k))}: {dump(v, separators=(',', ':'))}" for k, v in obj.items())
-        atomic_write_text(path, "{\n" + body + "\n}\n")
+        text = "{\n" + body + "\n}\n"
     else:
-        atomic_write_text(path, dump(obj, indent=1) + "\n")
+        text = dump(obj, indent=1) + "\n"
+    if str(path).endswith(COMPACT_SUFFIX):
+        atomic_write_bytes(path, gzip.compress(text.encode("utf-8"), compresslevel=9, mtime=0))
+    else:
+        atomic_write_text(path, text)
 
 
 class Claim:
@@ -187,7 +194,9 @@ class RunDir:
 
     # ------------------------------------------------------------------------------------------- cells
     def cell_path(self, cell_id: str) -> Path:
-        return self.cells_dir / f"{cell_id}.json"
+        """The cell's file: ``cells/<id>.json``, or ``cells/<id>.json.gz`` where the cell is stored compact (both
+        forms of one cell raise :class:`~.records.CellFormsError`)."""
+        return cell_file(self.cells_dir, cell_id)
 
     def read_cell(self, cell_id: str) -> dict[str, Any] | None:
         """The cell's valid record; ``None`` when it has no file or a damaged one (see :meth:`read_cell_file`)."""
@@ -210,9 +219,11 @@ class RunDir:
         return self.scan().records
 
     def write_cell(self, record: dict[str, Any]) -> Path:
-        """Write ``record`` as its cell's file. A record that fails the schema (:func:`~.schema.check_record`: a NaN
-        score, a negative fold) raises :class:`~.schema.InvalidRecordError` and nothing is written, so no reader
-        is ever handed a record it would refuse; a file that cannot be written raises :class:`CellWriteError`."""
+        """Write ``record`` as its cell's file, plain (``<id>.json``) unless the cell is stored compact, which stays
+        compact (one file per cell, replaced atomically: no moment holds both forms). A record that fails the schema
+        (:func:`~.schema.check_record`: a NaN score, a negative fold) raises :class:`~.schema.InvalidRecordError` and
+        nothing is written, so no reader is ever handed a record it would refuse; a file that cannot be written
+        raises :class:`CellWriteError`."""
         path = self.cell_path(record["cell_id"])
         problems = check_record(record)
         if problems:

@@ -293,7 +293,7 @@ class _Loop:
                 claim.release()
                 self.finish(cell, record, by_us=False)
                 continue
-            self.run_dir.remove_torn(self.run_dir.cells_dir, f"{cell.cell_id}.json")  # a killed writer's half file
+            self.run_dir.remove_torn(self.run_dir.cells_dir, self.run_dir.cell_path(cell.cell_id).name)  # a torn write
             if not self.set_aside(cell):
                 claim.release()
                 continue

@@ -22,12 +22,12 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from tactile_zoo.bench.config import BenchConfig, plan_cells  # noqa: E402
-from tactile_zoo.bench.records import cell_files, recipe_name_of  # noqa: E402
+from tactile_zoo.bench.records import cell_files, read_cell_bytes, recipe_name_of  # noqa: E402
 from tactile_zoo.engine.config import config_hash  # noqa: E402
 from tools import check_cells  # noqa: E402
 
-CELLS = sorted((REPO / "benchmarks" / "results" / "paper-table1" / "cells").glob("*.json")) + sorted(
-    (REPO / "benchmarks" / "results" / "paper-table1-revision1" / "cells").glob("*.json"))  # stale: older code
+CELLS = cell_files(REPO / "benchmarks" / "results" / "paper-table1") + cell_files(
+    REPO / "benchmarks" / "results" / "paper-table1-revision1")  # stale: older code
 RESULTS = REPO / "benchmarks" / "results"
 #: every committed record, in every bench folder under benchmarks/results
 EVERY = cell_files(RESULTS, recursive=True)
@@ -39,7 +39,7 @@ def test_every_committed_record_hashes_to_its_config_hash() -> None:
     assert len(EVERY) >= 480, "committed cell records went missing"
     wrong = []
     for path in EVERY:
-        record = json.loads(path.read_text())
+        record = json.loads(read_cell_bytes(path))
         stored = record["config"]
         # hash format 1 predates the revisions in the configuration (records not migrated keep it)
         form = 2 if all(k in stored for k in check_cells.REVISION_KEYS) else 1
@@ -62,7 +62,7 @@ def _from_cli_settings(record: dict, recipe: str | None = None) -> str:
 
 @pytest.mark.parametrize("folder", TABLE1)
 def test_table1_cells_resolve_from_their_command_line_settings(folder: str) -> None:
-    records = [json.loads(p.read_text()) for p in cell_files(RESULTS / folder)]
+    records = [json.loads(read_cell_bytes(p)) for p in cell_files(RESULTS / folder)]
     assert len(records) >= 80
     assert [r["cell_id"] for r in records if _from_cli_settings(r) != r["config_hash"]] == []
     full = next(r for r in records if recipe_name_of(r["config"]) == "full") if folder.endswith("full") else None
@@ -75,9 +75,9 @@ def test_there_are_committed_cells() -> None:
 
 
 @pytest.mark.real_data
-@pytest.mark.parametrize("path", CELLS, ids=lambda p: p.stem.rsplit("__", 1)[0])
+@pytest.mark.parametrize("path", CELLS, ids=lambda p: p.name.rsplit("__", 1)[0])
 def test_a_committed_cell_maps_to_its_configuration(path: Path, shared_data: Path) -> None:
-    record = json.loads(path.read_text())
+    record = json.loads(read_cell_bytes(path))
     status, why, current = check_cells.check(record, str(shared_data))
     assert status in ("maps", "stale"), f"{path.name}: {why}"
     if status == "stale":  # computed by an older revision of its model's code: reported, never taken as current
@@ -96,7 +96,7 @@ def test_a_newer_revision_makes_a_cell_stale_another_setting_a_mismatch(shared_d
                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     from tactile_zoo import registry
 
-    record = next(r for r in (json.loads(p.read_text()) for p in CELLS) if r["config"]["model_revision"] == 1)
+    record = next(r for r in (json.loads(read_cell_bytes(p)) for p in CELLS) if r["config"]["model_revision"] == 1)
     entry = registry.get_model_entry(record["model"])
     monkeypatch.setitem(registry._TABLES["model"].builtin, registry.normalize_name(entry.name),
                         registry.Entry(entry.kind, entry.name, entry.obj, {**entry.meta, "revision": 2}))

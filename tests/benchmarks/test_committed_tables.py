@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from tactile_zoo.bench.records import cell_files, read_cell_bytes
 from tactile_zoo.bench.report import load_run
 from tactile_zoo.bench.tables import leaderboard_rows, record_metrics, rows_to_csv, summary_rows
 from tactile_zoo.engine.metrics import metric_value, registered_metrics
@@ -42,8 +43,8 @@ def test_recomputed_metrics_equal_the_stored_ones_in_the_table1_cells() -> None:
     fixed = [m for m in registered_metrics() if m.name in ("accuracy", "balanced_accuracy", "macro_f1")]
     assert [m.name for m in fixed] == ["accuracy", "balanced_accuracy", "macro_f1"]
     checked = 0
-    for path in sorted((RESULTS / "paper-table1-full" / "cells").glob("*.json")):
-        record = json.loads(path.read_text())
+    for path in cell_files(RESULTS / "paper-table1-full"):
+        record = json.loads(read_cell_bytes(path))
         test = (record.get("metrics") or {}).get("test")
         if record["status"] != "ok" or not test:
             continue

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from tactile_zoo.bench.records import cell_files, read_cell_bytes
 from tactile_zoo.engine.config import resolve_model_recipe
 from tactile_zoo.registry import get_model_entry, model_names
 
@@ -23,8 +24,8 @@ WITH_FULL = [m for m in BUILT_IN if "full" in get_model_entry(m).meta["recipes"]
 def declared_epochs(folder: Path) -> dict[tuple[str, str], int]:
     """(model, dataset) -> the median epoch validation selected over the folder's ok cells, halves rounded up."""
     chosen: dict[tuple[str, str], list[int]] = {}
-    for path in sorted((folder / "cells").glob("*.json")):
-        record = json.loads(path.read_text())
+    for path in cell_files(folder):
+        record = json.loads(read_cell_bytes(path))
         if record.get("status") == "ok" and record["config"].get("recipe_name") == "zoo":
             chosen.setdefault((record["model"], record["dataset"]), []).append(int(record["best_epoch"]))
     return {key: math.floor(statistics.median(epochs) + 0.5) for key, epochs in chosen.items()}
@@ -54,8 +55,8 @@ def test_a_model_lacks_full_only_where_no_zoo_cell_could_declare_it() -> None:
 
 def test_the_rule_uses_several_seeds_never_one() -> None:
     counts: dict[tuple[str, str], int] = {}
-    for path in (RESULTS / "paper-table1-zoo" / "cells").glob("*.json"):
-        record = json.loads(path.read_text())
+    for path in cell_files(RESULTS / "paper-table1-zoo"):
+        record = json.loads(read_cell_bytes(path))
         if record.get("status") == "ok":
             counts[record["model"], record["dataset"]] = counts.get((record["model"], record["dataset"]), 0) + 1
     assert counts and min(counts.values()) >= 4

@@ -38,6 +38,7 @@ from weights_helpers import installed_weight_pack, sample_table
 
 import tactile_zoo as tz
 from tactile_zoo import create_model, registry
+from tactile_zoo.bench.records import CELLS_DIR, cell_file, read_cell_bytes
 from tactile_zoo.cli import main
 from tactile_zoo.engine.evaluate import EvalResult, predict_scores
 from tactile_zoo.engine.runtime import flush_denormals
@@ -162,7 +163,7 @@ _EVALS: dict[str, EvalResult] = {}
 
 
 def _record(entry: WeightEntry) -> dict[str, Any]:
-    return json.loads((weights_pack.TABLES[entry.recipe] / "cells" / f"{entry.cell_id}.json").read_text())
+    return json.loads(read_cell_bytes(cell_file(weights_pack.TABLES[entry.recipe] / CELLS_DIR, entry.cell_id)))
 
 
 def _test_split(entry: WeightEntry) -> Any:
