@@ -13,6 +13,9 @@ from tactile_zoo import registry
 from tactile_zoo.bench.intervals import records_interval
 from tools.paper_table1 import main, table
 
+#: the generators run several times over the same committed cells (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("cells_checked_once")
+
 
 def _predictions(accuracy: float, n: int, groups: list[int] | None = None) -> dict:
     right = round(accuracy * n)

@@ -24,6 +24,9 @@ from tools.table1_full import (
     unregistered,
 )
 
+#: the generators run several times over the same committed cells (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("cells_checked_once")
+
 WINDOWS = [g for g in range(4) for _ in range(5)]  # BioTac-DoS: 4 recordings of 5 windows
 N_TEST = 20  # test samples of a made-up record (:func:`_predictions`)
 

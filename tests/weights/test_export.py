@@ -47,6 +47,14 @@ def _zoo_member(name: str) -> bool:
 
 MODELS = [name for name in tz.list_models() if _zoo_member(name)]
 STREAMING = [m for m in MODELS if registry.get_model_entry(m).meta.get("streaming")]
+
+
+def _grouped(names: list[str]) -> list[Any]:
+    """One xdist group per model: under ``--dist loadgroup`` the tests of a model run on one worker, which exports
+    it once (the exports are most of this module's time), and the models' groups spread over the workers."""
+    return [pytest.param(name, marks=pytest.mark.xdist_group(f"export_{name}")) for name in names]
+
+
 #: the dataset each model is exported for and its hyper-parameters: both kinds of input (events without globals,
 #: readings with 8 global features), and bins of several frames for every binned model (ConvLSTM and CNN-LSTM bin
 #: ceil(T / max_frames) frames), so that the 7 frames below end in a partial bin
@@ -123,9 +131,10 @@ def _calibrate(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None) 
             model.train()(x, g)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def exported(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    """``exported(name)``: the model, its inputs and its export (made once per model)."""
+    """``exported(name)``: the model, its inputs and its export (made once per model and worker: session scope, as a
+    worker may run other modules' tests between two of this module's)."""
     done: dict[str, Exported] = {}
     formats = ("torchscript", "onnx") if ONNX else ("torchscript",)
 
@@ -160,7 +169,7 @@ def _max_diff(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 # ------------------------------------------------------------------------------------------------------- forward
-@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("name", _grouped(MODELS))
 def test_torchscript_forward_is_the_eager_forward(exported: Any, name: str) -> None:
     e = exported(name)
     forward = torch.jit.load(str(e.file("torchscript", "forward")))
@@ -172,7 +181,7 @@ def test_torchscript_forward_is_the_eager_forward(exported: Any, name: str) -> N
 
 
 @needs_onnx
-@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("name", _grouped(MODELS))
 def test_onnx_forward_matches_eager_under_onnxruntime(exported: Any, name: str) -> None:
     e = exported(name)
     with torch.no_grad():
@@ -185,7 +194,7 @@ def test_onnx_forward_matches_eager_under_onnxruntime(exported: Any, name: str) 
 
 
 # ---------------------------------------------------------------------------------------------------------- step
-@pytest.mark.parametrize("name", STREAMING)
+@pytest.mark.parametrize("name", _grouped(STREAMING))
 def test_torchscript_step_is_the_eager_step_on_every_frame(exported: Any, name: str) -> None:
     """Frame by frame from the JSON file's initial state: the scores are ``step()``'s bit for bit, the state tensors
     those of the eager flat-state step, and after frame t the scores are the forward on frames 0..t."""
@@ -206,7 +215,7 @@ def test_torchscript_step_is_the_eager_step_on_every_frame(exported: Any, name: 
 
 
 @needs_onnx
-@pytest.mark.parametrize("name", STREAMING)
+@pytest.mark.parametrize("name", _grouped(STREAMING))
 def test_onnx_step_matches_the_eager_step_under_onnxruntime(exported: Any, name: str) -> None:
     """onnxruntime fed its own state back, frame by frame: scores within 1e-5 of ``step()`` (SGnet's rates exactly),
     spike counts and counters exactly, every other state tensor within 1e-5."""
@@ -234,7 +243,7 @@ def test_onnx_step_matches_the_eager_step_under_onnxruntime(exported: Any, name:
             assert any(float(out[1 + s.index].sum()) > 0 for s in flat.states if s.path in SPIKE_STATES[name])
 
 
-@pytest.mark.parametrize("name", STREAMING)
+@pytest.mark.parametrize("name", _grouped(STREAMING))
 def test_the_initial_state_is_where_the_eager_step_starts(name: str) -> None:
     """The flat-state step that is traced, from the initial values the JSON file gives, computes what ``step()``
     computes from ``init_state``, bit for bit. X-Tacformer also with its frame scorer negated: the running maximum of
@@ -258,6 +267,7 @@ def test_the_initial_state_is_where_the_eager_step_starts(name: str) -> None:
                 state = out[1:]
 
 
+@pytest.mark.xdist_group("export_x_tacformer")
 def test_each_row_of_the_step_is_its_own_stream(exported: Any) -> None:
     """Resetting one row of every state tensor (along its batch dimension) to the initial value starts a new stream
     in that row: its scores are those of a fresh stream, and the other row carries on undisturbed."""
@@ -283,7 +293,7 @@ def test_each_row_of_the_step_is_its_own_stream(exported: Any) -> None:
 
 
 # --------------------------------------------------------------------------------------------------- torch.export
-@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("name", _grouped(MODELS))
 def test_torch_export_exports_every_model(name: str) -> None:
     """``torch.export.export`` traces every model (it failed on the graph models while the graph convolution keyed
     its cache on ``data_ptr()``, which fake tensors do not have) and the program computes the eager scores."""
@@ -299,7 +309,7 @@ def test_torch_export_exports_every_model(name: str) -> None:
 
 
 # ------------------------------------------------------------------------------------------------- description
-@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("name", _grouped(MODELS))
 def test_the_json_file_describes_the_files(exported: Any, name: str) -> None:
     e = exported(name)
     desc = e.result.manifest
@@ -337,6 +347,7 @@ def test_the_json_file_describes_the_files(exported: Any, name: str) -> None:
     assert set(initial.values()) == ({0.0, "-inf"} if name == "x_tacformer" else {0.0})
 
 
+@pytest.mark.xdist_group("export_x_tacformer")
 def test_the_kinds_of_state(exported: Any) -> None:
     """SGnet's state is its LIF membranes, output spike count and step counter; a binned model's adds the open bin."""
     sgnet = [(s["path"], s["kind"]) for s in exported("sgnet").result.manifest["step"]["state"]]
@@ -348,6 +359,7 @@ def test_the_kinds_of_state(exported: Any) -> None:
     assert x_tac["state"][-1]["kind"] == "counter" and x_tac["state"][-1]["shape"] == [BATCH, 1]
 
 
+@pytest.mark.xdist_group("export_x_tacformer")
 def test_initial_state_reads_the_json_file(exported: Any, tmp_path: Path) -> None:
     desc = exported("x_tacformer").result.manifest
     from_file = initial_state(exported("x_tacformer").result.manifest_path)
