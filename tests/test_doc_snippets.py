@@ -392,8 +392,11 @@ def test_the_models_table_gives_the_parameter_counts_of_the_table_i_cells() -> N
     """docs/models.md's "parameters (Ev-Objects, as in Table I)" column against the committed Table I cells (issue 38:
     ConvLSTM was listed at 29.8 k, the default read-out's count, while every Table I cell, readout="taxels", has
     39,540)."""
-    cells = sorted((REPO / "benchmarks" / "results" / "paper-table1-full" / "cells").glob("*__ev_objects__*.json"))
-    params = {json.loads(c.read_text())["model"]: json.loads(c.read_text())["params"] for c in cells}
+    from tactile_zoo.bench.records import run_records
+
+    records = [r for r in run_records(REPO / "benchmarks" / "results" / "paper-table1-full")
+               if r["dataset"] == "ev_objects"]
+    params = {r["model"]: r["params"] for r in records}
     rows = re.findall(r"^\| `(\w+)` \|[^|]*\|[^|]*\| ([\d.]+) (k|M)\b", (REPO / "docs" / "models.md").read_text(), re.M)
     # models added after Table I (no cells yet) are checked by their own cards' tests
     rows = [row for row in rows if row[0] in params]

@@ -131,9 +131,10 @@ def test_a_cell_of_a_newer_record_format_stops_bench_and_report(reference_run: P
 
 
 def test_committed_result_folders_are_bench_folders() -> None:
+    from tactile_zoo.bench.records import cell_files
     from tactile_zoo.bench.rundir import RunDir
 
-    folders = sorted({p.parent.parent for p in (REPO / "benchmarks" / "results").rglob("cells/*.json")})
+    folders = sorted({p.parent.parent for p in cell_files(REPO / "benchmarks" / "results", recursive=True)})
     assert len(folders) >= 19
     assert [str(f) for f in folders if not RunDir(f).is_bench_folder()] == []
 

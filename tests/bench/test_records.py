@@ -148,9 +148,9 @@ def test_a_copy_of_a_cell_under_another_name_is_invalid(reference_run: Path, tmp
 
 
 def test_every_committed_cell_is_valid() -> None:
-    from tactile_zoo.bench.records import scan_cells
+    from tactile_zoo.bench.records import cell_files, scan_cells
 
-    folders = sorted({p.parent for p in (REPO / "benchmarks" / "results").rglob("cells/*.json")})
+    folders = sorted({p.parent for p in cell_files(REPO / "benchmarks" / "results", recursive=True)})
     scans = [scan_cells(folder) for folder in folders]
     assert [str(item) for scan in scans for item in scan.invalid] == []
     assert sum(len(scan.records) for scan in scans) >= 276

@@ -34,9 +34,12 @@ def test_every_builtin_dataset_declares_its_revision(name: str) -> None:
 
 
 def test_deeptactiles_declared_revision_is_the_one_its_committed_cells_carry() -> None:
-    cells = sorted((REPO / "benchmarks" / "results" / "deeptactile" / "cells").glob("deeptactile__*.json"))
+    from tactile_zoo.bench.records import cell_files, read_cell_bytes
+
+    folder = REPO / "benchmarks" / "results" / "deeptactile"
+    cells = [p for p in cell_files(folder) if p.name.startswith("deeptactile__")]
     assert cells
-    carried = {json.loads(path.read_text())["config"]["model_revision"] for path in cells}
+    carried = {json.loads(read_cell_bytes(path))["config"]["model_revision"] for path in cells}
     assert carried == {registry.get_model_entry("deeptactile").meta["revision"]}
     assert rg.load_expected()["models"]["deeptactile"]["revision"] == registry.revision_of(
         registry.get_model_entry("deeptactile"))
