@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 TORCH ?= torch==2.13.0
 TGT ?= torch-geometric-temporal==0.56.2
 
-.PHONY: install bench test lint benchmarks tables docs clean wheel-check min-check
+.PHONY: install bench test lint benchmarks tables compact-results docs clean wheel-check min-check
 
 # Two installs into the one venv, each with its own stamp, so neither undoes the other: `make bench` installs what the
 # bench needs (torch, then the package alone); `make test` (and every target below that needs the tools) upgrades the
@@ -59,6 +59,10 @@ lint: install
 
 benchmarks: install
 	$(BIN)/python -m benchmarks.run $(BENCHMARK_ARGS)
+
+# store the committed results' cell records compact (cells/<id>.json.gz), each verified first (issue 51)
+compact-results: install
+	$(BIN)/python -m tactile_zoo.bench.compact benchmarks/results
 
 # every generated page, checked by the suite: after committing new cells, the fidelity ledger, Table I (docs/table1.md)
 # and the README's headline; after changing a command's flags, the command-line reference (docs/cli.md); after adding
