@@ -79,5 +79,11 @@ def test_lif_outputs_do_not_depend_on_huge_pages(recorder: _Recorder, monkeypatc
 
 
 def test_the_released_path_still_imports() -> None:
-    """``tactile_zoo.nn.memory`` (documented in 0.2.0) is a thin alias of :mod:`tactile_zoo.nn.hugepages`."""
-    assert memory.empty is hugepages.empty and memory.MIN_BYTES == hugepages.MIN_BYTES
+    """``tactile_zoo.nn.memory`` (documented in 0.2.0) is a deprecated alias of :mod:`tactile_zoo.nn.hugepages`: the
+    same objects, each read warning with the new home."""
+    with pytest.warns(DeprecationWarning, match="tactile_zoo.nn.hugepages.empty"):
+        assert memory.empty is hugepages.empty
+    with pytest.warns(DeprecationWarning, match="MIN_BYTES"):
+        assert memory.MIN_BYTES == hugepages.MIN_BYTES
+    with pytest.raises(AttributeError):
+        memory.reusable  # noqa: B018 - moved to storage_pool, never documented here
