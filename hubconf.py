@@ -94,7 +94,8 @@ def _builtin_entries() -> dict[str, _Callable[..., _Any]]:
     found = {}
     for name in registry.model_names():
         registered = registry.get_model_entry(name)
-        if registered.dist is None:
+        # the zoo's own: defined in tactile_zoo.models (a plugin has a dist; a model a script registered has neither)
+        if registered.dist is None and getattr(registered.obj, "__module__", "").startswith("tactile_zoo.models."):
             found[name] = _entry(name, str(registered.meta.get("description") or name))
     return found
 

@@ -19,7 +19,9 @@ from tactile_zoo.engine.config import config_hash, resolve_cell
 
 SIMULATORS = sorted(d for d in registry.list_datasets() if registry.get_dataset_entry(d).meta.get("simulated"))
 REAL = sorted(d for d in registry.list_datasets() if not registry.get_dataset_entry(d).meta.get("simulated"))
-BUILT_IN = sorted(m for m in registry.model_names() if registry.get_model_entry(m).dist is None)
+#: the zoo's own models (defined in tactile_zoo.models), not the ones other test modules register in this worker
+BUILT_IN = sorted(m for m in registry.model_names() if registry.get_model_entry(m).dist is None
+                  and registry.get_model_entry(m).obj.__module__.startswith("tactile_zoo.models."))
 #: the models whose default recipe carries simulator sections (the two that did not fit a first run)
 SIZED = ("deeptactile", "multibarrel")
 #: DeepTactile's clock on the simulators: at most this many binned time steps per sample
