@@ -11,10 +11,12 @@ import resource
 import stat
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
+import tiny_zoo
 import torch
 
 from tactile_zoo.cli import main
@@ -23,6 +25,15 @@ from tactile_zoo.engine.checkpoint import is_checkpoint
 
 TESTS = Path(__file__).resolve().parent
 TRAIN = ["train", "tiny_mlp", "tiny_blobs", "--plugin-module", "tiny_zoo", "--epochs", "1", "-q"]
+
+
+@pytest.fixture(autouse=True)
+def tiny() -> Iterator[None]:
+    """The tiny zoo registered for each test: ``--plugin-module tiny_zoo`` is a no-op once another test module has
+    imported it (and may have unregistered its models since)."""
+    tiny_zoo.register()
+    yield
+    tiny_zoo.unregister()
 
 
 @pytest.fixture()
