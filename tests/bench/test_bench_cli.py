@@ -101,7 +101,7 @@ def test_train_save_and_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture) 
     assert "num_globals=3" in _err(capsys)
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     assert main(["evaluate", str(tmp_path / "bad.pt")]) == 2
-    assert "cannot be loaded safely" in _err(capsys)
+    assert f"checkpoint {tmp_path / 'bad.pt'} is not a tactile-zoo checkpoint: it is a text file" in _err(capsys)
 
 
 def test_train_bad_seed_and_fold(capsys: pytest.CaptureFixture) -> None:
