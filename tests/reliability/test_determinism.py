@@ -14,6 +14,7 @@ from reliability_helpers import cell_records, numbers, quiet_bench, read_csv
 from tactile_zoo import registry
 from tactile_zoo.bench.config import BenchConfig, merge_config
 from tactile_zoo.bench.grid import build_grid
+from tactile_zoo.errors import ConfigError
 from tactile_zoo.recipe import RECIPE_KEYS, resolve_recipe
 
 
@@ -132,7 +133,7 @@ def test_what_changes_the_hash_and_what_does_not(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("spelling", [
     (["lr=3e-2"], {"lr": 0.03}),
-    (["max_epochs=8.0"], {"max_epochs": 8}),
+    (["schedule={type: cosine}"], {"schedule": {"type": "cosine"}}),
     (["schedule=cosine"], {"schedule": {"type": "cosine"}}),
     (["tiny_mlp:patience=null"], None),
 ])
@@ -145,3 +146,11 @@ def test_equal_settings_spelled_differently_hash_the_same(spelling: tuple[list[s
     else:
         expected = _hashes(recipe=recipe)
     assert from_cli == expected
+
+
+def test_a_float_spelling_of_an_integer_setting_is_refused_not_rounded() -> None:
+    """The strict schema (issue 49): ``max_epochs=8.0`` once hashed as 8; an integer key takes an integer only, and the
+    error names the flag, the key and the value."""
+    flags = {"models": BASE["models"], "datasets": BASE["datasets"], "folds": 1}
+    with pytest.raises(ConfigError, match=r"--set max_epochs=8\.0: max_epochs must be an integer, got 8\.0"):
+        build_grid(merge_config(None, flags, ["max_epochs=8.0"]))
