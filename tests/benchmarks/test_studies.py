@@ -1,0 +1,25 @@
+"""Every study file under benchmarks/studies/ (committed rounds written down as studies) passes check and audit."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tactile_zoo.study import audit, load_study
+from tactile_zoo.study.checks import check_study
+
+STUDIES = Path(__file__).resolve().parents[2] / "benchmarks" / "studies"
+FILES = sorted(STUDIES.glob("*.yaml"))
+
+
+def test_there_are_study_files() -> None:
+    assert FILES, f"no study file under {STUDIES}"
+
+
+@pytest.mark.parametrize("path", FILES, ids=[p.stem for p in FILES])
+def test_study_checks_and_audits(path: Path) -> None:
+    study = load_study(path)
+    check_study(study)
+    result = audit(study)
+    assert not result.failures, result.failures
