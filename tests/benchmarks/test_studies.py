@@ -23,3 +23,6 @@ def test_study_checks_and_audits(path: Path) -> None:
     check_study(study)
     result = audit(study)
     assert not result.failures, result.failures
+    # a migrated study points at committed cells: a grid that finds none (a folder misspelt) audits clean, so refuse it
+    empty = [line for line in result.lines if line.startswith("grid ") and ": 0 ok cell(s)" in line]
+    assert not empty, empty
