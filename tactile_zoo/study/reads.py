@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from ..bench import records
 from ..bench.intervals import bootstrap_accuracy, records_interval
 from ..bench.paired import records_paired
 from ..bench.rundir import RunDir, atomic_write_json
@@ -76,7 +77,8 @@ def recorded_reads(study: Study) -> dict[str, dict[str, Any]]:
 
 
 def cell_digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    """sha256 of the cell's plain bytes: the same for a cell stored plain or compact (compaction keeps the bytes)."""
+    return hashlib.sha256(records.read_cell_bytes(path)).hexdigest()
 
 
 def _cells(study: Study, grid: str | None, ids: list[str], records: dict[str, dict[str, Any]]

@@ -24,3 +24,19 @@ def test_a_second_reader_is_found(tmp_path: Path) -> None:
     (tmp_path / "ok.py").write_text("from ..bench.records import run_records\n")
     (tmp_path / "bad.py").write_text("x = 1\npaths = sorted((folder / 'cells').glob('*.json'))\n")
     assert layout_lines(tmp_path) == ["bad.py:2"]
+
+
+def test_a_cells_digest_is_the_same_plain_or_compact(tmp_path: Path) -> None:
+    """A recorded read names its members by the digest of their bytes; compacting a finished folder keeps each record's
+    plain bytes, so it must not make a recorded read look like its members changed."""
+    import gzip
+
+    from tactile_zoo.study.reads import cell_digest
+
+    plain = tmp_path / "cells" / "m__d__f0__s0__abc.json"
+    plain.parent.mkdir()
+    plain.write_bytes(b'{"cell_id": "m__d__f0__s0__abc"}\n')
+    compact = tmp_path / "other" / "cells" / "m__d__f0__s0__abc.json.gz"
+    compact.parent.mkdir(parents=True)
+    compact.write_bytes(gzip.compress(plain.read_bytes()))
+    assert cell_digest(compact) == cell_digest(plain)
