@@ -17,8 +17,11 @@ import tactile_zoo as tz
 from tactile_zoo import registry
 from tactile_zoo.engine.config import config_hash, resolve_cell
 
-SIMULATORS = sorted(d for d in registry.list_datasets() if registry.get_dataset_entry(d).meta.get("simulated"))
-REAL = sorted(d for d in registry.list_datasets() if not registry.get_dataset_entry(d).meta.get("simulated"))
+#: the zoo's own datasets (defined in tactile_zoo.data), not the ones other test modules register in this worker
+ZOO_DATASETS = [d for d in registry.list_datasets() if registry.get_dataset_entry(d).dist is None
+                and getattr(registry.get_dataset_entry(d).obj, "__module__", "").startswith("tactile_zoo.data.")]
+SIMULATORS = sorted(d for d in ZOO_DATASETS if registry.get_dataset_entry(d).meta.get("simulated"))
+REAL = sorted(d for d in ZOO_DATASETS if not registry.get_dataset_entry(d).meta.get("simulated"))
 #: the zoo's own models (defined in tactile_zoo.models), not the ones other test modules register in this worker
 BUILT_IN = sorted(m for m in registry.model_names() if registry.get_model_entry(m).dist is None
                   and registry.get_model_entry(m).obj.__module__.startswith("tactile_zoo.models."))
