@@ -125,13 +125,6 @@ def check_settings(data: Mapping[str, Any], where: str = "") -> None:
                              key if where else _FLAGS.get(key, f"--{key.replace('_', '-')}"))
     if where and data.get("prefixes") is not None:
         settings.check_prefixes(data["prefixes"], f"{prefix}prefixes")
-    try:  # their own messages, which say what the values mean
-        if isinstance(data.get("folds"), int) and not isinstance(data["folds"], bool):
-            parse_folds(data["folds"])
-        if where and "seeds" in data:
-            parse_seeds(data["seeds"])
-    except ConfigError as exc:
-        raise ConfigError(re.sub(r"^--(seeds|folds)", f"{prefix}\\1", str(exc)) if where else str(exc)) from None
     if isinstance(data.get("recipe"), Mapping):
         check_recipe_keys(data["recipe"], f"{prefix}recipe")
     if "hparams" in data:
