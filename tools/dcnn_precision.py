@@ -4,8 +4,9 @@ Written when the first GPU check (``benchmarks/results/cuda/``) failed D-CNN's t
 disagreed by 1e-3 in the scores. This asks which side is off. The same model and batch run in float64 on the CPU
 is the reference; each row gives one run's largest score difference from it and its largest gradient difference
 as a fraction of the largest reference gradient. ``cpu32-nchw`` is the CPU with the convolution blocks in the
-default (NCHW) layout instead of the model's channels-last one. Rows are printed as JSON lines, CUDA rows only where
-CUDA exists.
+default (NCHW) layout instead of the model's channels-last one; ``cpu32-two_pass`` and ``cpu32-float64`` keep the
+channels-last layout and build batch norm with ``bn_stats="two_pass"`` / ``"float64"`` (accurate training statistics,
+:mod:`tactile_zoo.nn.batch_norm`). Rows are printed as JSON lines, CUDA rows only where CUDA exists.
 """
 
 from __future__ import annotations
@@ -27,17 +28,24 @@ from tactile_zoo.engine.build import build_model  # noqa: E402
 from tactile_zoo.engine.config import resolve_model_recipe  # noqa: E402
 from tactile_zoo.engine.runtime import flush_denormals  # noqa: E402
 from tactile_zoo.engine.train import compute_loss  # noqa: E402
+from tactile_zoo.nn.backend import BatchNormStats, resolve  # noqa: E402
+from tactile_zoo.nn.batch_norm import BatchNorm1d, BatchNorm2d  # noqa: E402
 from tactile_zoo.registry import get_model_entry  # noqa: E402
 
-#: label -> (device, dtype, channels-last convolution blocks)
-RUNS = {"cpu32": ("cpu", torch.float32, True), "cpu32-nchw": ("cpu", torch.float32, False),
-        "cuda32": ("cuda", torch.float32, True), "cuda64": ("cuda", torch.float64, True)}
+#: label -> (device, dtype, channels-last convolution blocks, batch norm's training statistics)
+RUNS = {"cpu32": ("cpu", torch.float32, True, "native"), "cpu32-nchw": ("cpu", torch.float32, False, "native"),
+        "cpu32-two_pass": ("cpu", torch.float32, True, "two_pass"),
+        "cpu32-float64": ("cpu", torch.float32, True, "float64"),
+        "cuda32": ("cuda", torch.float32, True, "native"), "cuda64": ("cuda", torch.float64, True, "native")}
 
 
 def train_step(model: torch.nn.Module, split: Any, recipe: Any, device: str, dtype: torch.dtype,
-               channels_last: bool) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+               channels_last: bool, stats: str = "native") -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Scores and every parameter's gradient of one train-mode step (dropout off), in float64 on the CPU."""
     m = copy.deepcopy(model).to(device=device, dtype=dtype)
+    for bn in m.modules():
+        if isinstance(bn, (BatchNorm1d, BatchNorm2d)):
+            bn.stats = resolve(BatchNormStats, stats, "stats", "dcnn_precision")
     m.features.to(memory_format=torch.channels_last if channels_last else torch.contiguous_format)
     _dropout_off(m)
     g = split.g.to(device=device, dtype=dtype) if split.g.shape[-1] else None
@@ -61,8 +69,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 model = build_model("dcnn", split.spec, seed=0)
                 ref_s, ref_g = train_step(model, split, recipe, "cpu", torch.float64, False)
                 largest = max(g.abs().max().item() for g in ref_g.values())
-                for label, (device, dtype, channels_last) in runs.items():
-                    s, g = train_step(model, split, recipe, device, dtype, channels_last)
+                for label, (device, dtype, channels_last, stats) in runs.items():
+                    s, g = train_step(model, split, recipe, device, dtype, channels_last, stats)
                     errors = {n: (g[n] - ref_g[n]).abs().max().item() / largest for n in g}
                     worst = max(errors, key=errors.__getitem__)
                     print(json.dumps({"dataset": dataset, "batch": batch, "run": label,

@@ -34,6 +34,8 @@ from torch import Tensor, nn
 from ..data.spec import DatasetSpec
 from ..errors import ConfigError
 from ..nn import hugepages
+from ..nn.backend import BatchNormStats, resolve
+from ..nn.batch_norm import BatchNorm1d, BatchNorm2d
 from ..nn.classifier import ClassifierMixin
 from ..registry import recipe_file, register_model
 from ._inputs import check_inputs
@@ -67,11 +69,11 @@ class _FirstBatchStats:
         return super().forward(x)  # type: ignore[misc]
 
 
-class _BatchNorm2d(_FirstBatchStats, nn.BatchNorm2d):
+class _BatchNorm2d(_FirstBatchStats, BatchNorm2d):
     pass
 
 
-class _BatchNorm1d(_FirstBatchStats, nn.BatchNorm1d):
+class _BatchNorm1d(_FirstBatchStats, BatchNorm1d):
     pass
 
 
@@ -133,12 +135,13 @@ class _SamePool(nn.MaxPool2d):
 class _ConvBlock(nn.Sequential):
     """Conv ("same") -> ReLU -> BN -> 2x2 max pool ("same"): the unit the D-CNN stacks three times."""
 
-    def __init__(self, cin: int, cout: int, kernel: tuple[int, int], bn_momentum: float) -> None:
+    def __init__(self, cin: int, cout: int, kernel: tuple[int, int], bn_momentum: float,
+                 bn_stats: BatchNormStats = BatchNormStats.NATIVE) -> None:
         (kh, kw) = kernel
         # Keras/TF "same": total padding k - 1, the odd cell of an even kernel after (right/bottom)
         pad = (((kw - 1) // 2), kw - 1 - (kw - 1) // 2, (kh - 1) // 2, kh - 1 - (kh - 1) // 2)
         super().__init__(nn.ZeroPad2d(pad), nn.Conv2d(cin, cout, kernel), nn.ReLU(inplace=True),
-                         _BatchNorm2d(cout, eps=BN_EPS, momentum=bn_momentum), _SamePool())
+                         _BatchNorm2d(cout, eps=BN_EPS, momentum=bn_momentum, stats=bn_stats), _SamePool())
 
 
 @register_model(
@@ -178,6 +181,10 @@ class DCNN(ClassifierMixin, nn.Module):
         kernels: their kernel sizes (source: 1x2, 2x3, 3x1).
         dense: widths of the two hidden dense layers (source: 103, 138).
         bn_momentum: PyTorch momentum of the batch-norm running statistics (Keras: 0.01; default 0.1, see the card).
+        bn_stats: how batch norm computes a training batch's statistics and its backward sums
+            (:class:`~tactile_zoo.nn.backend.BatchNormStats`): ``"native"`` (torch's kernel; on the CPU, over the
+            channels-last maps, scores 3e-2 from a float64 copy of the step), ``"two_pass"`` (float32 pairwise sums,
+            two-pass variance) or ``"float64"`` (the same sums in float64); see :mod:`tactile_zoo.nn.batch_norm`.
 
     Shapes:
         ``x (B, T, N, C)`` with ``T <= num_steps``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``.
@@ -185,18 +192,19 @@ class DCNN(ClassifierMixin, nn.Module):
 
     def __init__(self, spec: DatasetSpec, filters: tuple[int, int, int] = (31, 128, 57),
                  kernels: tuple[tuple[int, int], ...] = ((1, 2), (2, 3), (3, 1)),
-                 dense: tuple[int, int] = (103, 138), bn_momentum: float = 0.1) -> None:
+                 dense: tuple[int, int] = (103, 138), bn_momentum: float = 0.1, bn_stats: str = "native") -> None:
         super().__init__()
         if len(filters) != 3 or len(kernels) != 3 or len(dense) != 2:
             raise ConfigError(f"dcnn: need 3 filters, 3 kernels and 2 dense widths, got {filters}, {kernels}, {dense}")
         if not 0.0 < bn_momentum <= 1.0:
             raise ConfigError(f"dcnn: bn_momentum must lie in (0, 1], got {bn_momentum}")
-        bn = {"eps": BN_EPS, "momentum": bn_momentum}
+        stats = resolve(BatchNormStats, bn_stats, "bn_stats", "dcnn")
+        bn = {"eps": BN_EPS, "momentum": bn_momentum, "stats": stats}
         self.spec = spec
         self.num_steps = spec.num_steps
         self.num_features = spec.num_nodes * spec.num_channels + spec.num_globals
         chans = (1, *filters)
-        self.features = nn.Sequential(*(_ConvBlock(chans[i], chans[i + 1], tuple(kernels[i]), bn_momentum)
+        self.features = nn.Sequential(*(_ConvBlock(chans[i], chans[i + 1], tuple(kernels[i]), bn_momentum, stats)
                                         for i in range(3)))
         flat = filters[-1] * _pooled(self.num_steps, 3) * _pooled(self.num_features, 3)
         self.classifier = nn.Sequential(

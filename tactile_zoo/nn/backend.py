@@ -13,7 +13,9 @@ trees and fails on a second resolver).
   :class:`TemporalBackend`, ``native`` or ``tgt``;
 - ``attention`` of :class:`~tactile_zoo.nn.attention.SpikingSelfAttention`, Tacformer and X-Tacformer:
   :class:`Attention`, ``fused`` or ``explicit``;
-- ``compute`` of SGnet: :class:`Compute`, ``dense`` or ``event`` (:func:`resolve_compute`).
+- ``compute`` of SGnet: :class:`Compute`, ``dense`` or ``event`` (:func:`resolve_compute`);
+- ``stats`` of :class:`~tactile_zoo.nn.batch_norm.BatchNorm1d` and ``BatchNorm2d`` (D-CNN: ``bn_stats``):
+  :class:`BatchNormStats`, ``native``, ``two_pass`` or ``float64``.
 
 The first choice of each is the default. :func:`resolve` turns a keyword's value into its enumeration's member (a
 ``str``, so it still compares equal to the word) or raises one :class:`~tactile_zoo.errors.ConfigError` naming the
@@ -49,8 +51,8 @@ if TYPE_CHECKING:
     from .surrogate import Surrogate
 
 __all__ = ["LIFBackend", "LIFKernel", "ConvLSTMBackend", "GraphBackend", "WeightGrad", "TemporalBackend", "Attention",
-           "Compute", "resolve", "resolve_compute", "LIF_KERNEL_ENV", "lif_kernel_choice", "lif_kernels",
-           "lif_kernels_for", "event_kernels", "convlstm_kernels"]
+           "Compute", "BatchNormStats", "resolve", "resolve_compute", "LIF_KERNEL_ENV", "lif_kernel_choice",
+           "lif_kernels", "lif_kernels_for", "event_kernels", "convlstm_kernels"]
 
 
 class LIFBackend(StrEnum):
@@ -112,6 +114,15 @@ class Compute(StrEnum):
 
     DENSE = "dense"
     EVENT = "event"
+
+
+class BatchNormStats(StrEnum):
+    """How a training batch's statistics (and the backward pass's sums) are computed in batch norm: torch's kernel,
+    float32 pairwise sums with a two-pass variance, or the same sums accumulated in float64."""
+
+    NATIVE = "native"
+    TWO_PASS = "two_pass"
+    FLOAT64 = "float64"
 
 
 _Choice = TypeVar("_Choice", bound=StrEnum)

@@ -1,8 +1,9 @@
 """One switch for compute paths (tactile_zoo.nn.backend): read from the package's syntax trees.
 
 - No module of ``nn/`` or ``models/`` other than the switch compares a compute-path keyword (``backend``, ``compute``,
-  ``attention``, ``weight_grad`` and their model forms such as ``lif_backend``) with a string literal, a literal
-  tuple/list/set of strings, or a module constant holding one, nor looks one up in a string-keyed dict literal.
+  ``attention``, ``weight_grad``, ``stats`` and their model forms such as ``lif_backend``, ``bn_stats``) with a string
+  literal, a literal tuple/list/set of strings, or a module constant holding one, nor looks one up in a string-keyed
+  dict literal.
 - No module of the package other than the switch (and ``_env.py``'s table of variables) names the LIF's environment
   variable.
 - No module of ``nn/`` or ``models/`` imports an underscore name from another module of the package.
@@ -35,7 +36,8 @@ def _keyword(node: ast.AST) -> str | None:
     if name is None:
         return None
     base = name.lstrip("_")
-    if base in ("backend", "compute", "attention", "weight_grad") or base.endswith(("_backend", "_weight_grad")):
+    if base in ("backend", "compute", "attention", "weight_grad", "stats") or base.endswith(
+            ("_backend", "_weight_grad", "bn_stats")):
         return name
     return None
 
@@ -167,6 +169,8 @@ def test_no_private_name_crosses_a_module_boundary() -> None:
     'def f(temporal_backend):\n    cells = {"native": 1, "tgt": 2}\n    return cells[temporal_backend]\n',
     'def f(lif_backend):\n    match lif_backend:\n        case "fused":\n            return 1\n',
     'def f(weight_grad):\n    return "fast" == weight_grad\n',
+    'def f(bn_stats):\n    return bn_stats == "float64"\n',
+    'class B:\n    def forward(self):\n        return self.stats in ("two_pass", "float64")\n',
 ])
 def test_a_planted_second_resolver_is_caught(planted: str) -> None:
     assert second_resolvers(planted, "planted.py")
