@@ -245,10 +245,11 @@ def _pair(study: Study, against: Against, pset: PublishedSet, recipe: str, grid:
                           f"{cfg.dataset_revision}; {theirs.format(b=baseline)} use revision "
                           f"{', '.join(map(str, revisions))}")
         for key in _PROTOCOL:
-            published = sorted({json.dumps(_protocol_of(c)[key]) for c in found})
-            if published != [json.dumps(mine[key])]:
+            published = sorted({json.dumps(_protocol_of(c)[key], sort_keys=True) for c in found})
+            if published != [json.dumps(mine[key], sort_keys=True)]:
+                said = ", ".join(repr(json.loads(value)) for value in published)
                 raise _refuse(study, "a different protocol", f"{who}: {key} {mine[key]!r}; "
-                              f"{theirs.format(b=baseline)}: {key} {', '.join(published)}")
+                              f"{theirs.format(b=baseline)}: {key} {said}")
         held = {(c["fold"], c["seed"]): c for c in found}
         missing = [k for k in keys if k not in held]
         if missing:

@@ -244,6 +244,16 @@ def _parse(raw: bytes, where: str) -> dict[str, Any]:
     if data["format"] > SET_FORMAT:
         raise ResultsError(f"{where}: a published set of format {data['format']}, written by a newer tactile-zoo "
                            f"(this one reads format {SET_FORMAT}): upgrade tactile-zoo")
+    for ident, test_set in data.get("test_sets", {}).items():  # a pairing trusts these names: each is checked
+        if split_identity(test_set["dataset"], test_set["split"], test_set["targets"], test_set["groups"]) != ident:
+            raise ResultsError(f"{where}: test set {ident} ({test_set['dataset']}, {test_set['split']}) is not the "
+                               f"test set its split identity names: the set is damaged")
+    for cell in data["cells"]:
+        for split, entry in cell["splits"].items():
+            test_set = data["test_sets"].get(entry["test_set"])
+            if test_set is None or len(entry["predictions"]) != test_set["n"]:
+                raise ResultsError(f"{where}: cell {cell['cell_id']}, split {split}: its predictions do not match "
+                                   f"its test set {entry['test_set']}: the set is damaged")
     return data
 
 

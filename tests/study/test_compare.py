@@ -21,9 +21,10 @@ from study_helpers import tz
 
 from tactile_zoo.bench.paired import paired_bootstrap
 from tactile_zoo.bench.records import cell_files, read_record
-from tactile_zoo.study.compare import load_comparison, plan_comparison, seed_list
-from tactile_zoo.study.compare_report import user_tuning
-from tactile_zoo.study.published import build_set, encode_set, load_set
+from tactile_zoo.study.audit import study_records
+from tactile_zoo.study.compare import check_finished, load_comparison, plan_comparison, seed_list
+from tactile_zoo.study.compare_report import comparison_tables, user_tuning
+from tactile_zoo.study.published import build_set, encode_set, load_set, split_identity
 
 TESTS = Path(__file__).resolve().parents[1]
 
@@ -220,3 +221,53 @@ def test_compare_from_a_subprocess(published: Path, tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     [row] = _rows(tmp_path / "mine-results" / "compare" / "paired.csv")
     assert (row["model"], row["baseline"], row["pairs"]) == ("tiny_rate", "tiny_mlp", "1")
+
+
+def test_a_quick_grid_compares_with_a_quick_set_whatever_the_order_of_its_subset_keys(published: Path,
+                                                                                     tmp_path: Path) -> None:
+    data = json.loads(gzip.decompress(published.read_bytes()))
+    for cell in data["cells"]:
+        cell["subset"] = {"test": 64, "train": 64, "val": 32}  # as a set stores it: sorted keys
+    quick = _write_set(data, tmp_path / "quick-v1.json.gz")
+    comparison = plan_comparison(*load_comparison(_study(tmp_path, quick, ", quick: true")))
+    assert [(p.model, sorted(p.baselines), p.paired) for p in comparison.pairings] == [
+        ("tiny_rate", ["tiny_mlp"], {"tiny_mlp": True})]
+
+
+def test_a_baseline_on_the_same_recordings_cut_otherwise_is_shown_not_paired(compared: Path, published: Path
+                                                                              ) -> None:
+    """Each test recording as two samples for the baseline (as BioTac-DoS's sliding windows are for SGnet): its mean
+    stands beside yours, its row says why it is not paired, and no difference is computed."""
+    data = json.loads(gzip.decompress(published.read_bytes()))
+    renamed = {}
+    for ident, test_set in data["test_sets"].items():
+        test_set.update(targets=[t for t in test_set["targets"] for _ in (0, 1)],
+                        groups=[i for i in range(test_set["n"]) for _ in (0, 1)], n=2 * test_set["n"])
+        renamed[ident] = split_identity(test_set["dataset"], test_set["split"], test_set["targets"],
+                                        test_set["groups"])
+    data["test_sets"] = {renamed[k]: v for k, v in data["test_sets"].items()}
+    for cell in data["cells"]:
+        for entry in cell["splits"].values():
+            entry.update(test_set=renamed[entry["test_set"]],
+                         predictions=[p for p in entry["predictions"] for _ in (0, 1)])
+            entry.pop("probabilities", None)
+    windows = _write_set(data, compared.parent / "windows-v1.json.gz")
+    path = compared.parent / "windows.yaml"
+    text = compared.read_text().replace(str(published), str(windows))
+    path.write_text(text.replace("study: mine", "study: mine\nresults: mine-results"))
+    study, against = load_comparison(path)
+    comparison = plan_comparison(study, against)
+    assert comparison.pairings[0].paired == {"tiny_mlp": False}
+    tables = comparison_tables(comparison, check_finished(comparison, study_records(study)[0]))
+    [row] = tables["paired"]
+    assert row["difference"] is None and row["why"].startswith("not paired: the same test recordings cut into 48 "
+                                                               "samples (theirs) and 24 (yours)")
+    assert {r["model"] for r in tables["means"]} == {"tiny_rate", "tiny_mlp"}
+
+
+def test_a_damaged_set_is_refused_when_it_is_read(published: Path, tmp_path: Path) -> None:
+    data = json.loads(gzip.decompress(published.read_bytes()))
+    test_set = next(iter(data["test_sets"].values()))
+    test_set["targets"][0] = (test_set["targets"][0] + 1) % 3  # the targets no longer those its identity names
+    code, _, err = tz("study", "compare", str(_study(tmp_path, _write_set(data, tmp_path / "bad-v1.json.gz"))))
+    assert code == 2 and "is not the test set its split identity names: the set is damaged" in err, err
