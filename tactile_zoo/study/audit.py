@@ -8,10 +8,19 @@ The checks, over the cells of every grid that is not superseded (read through :m
   ``tuning`` study allows tuning cells only); a ``reference`` cell reads it after every epoch by design, and is held
   to that count (``epochs_run``);
 - **one CPU type** (name and torch's instruction-set capability), the declared one where ``rules.cpu`` names it;
-- **config hashes**: every cell is one the grid plans (its model, dataset, seed and configuration hash);
+- **config hashes**: every cell is one the grid plans (its model, dataset, seed and configuration hash); grids that
+  share a folder (a trial's arms) each take the cells they plan;
+- **cells present**: every grid's folder exists and holds cells of the grid (a misspelt folder would otherwise
+  pass every check over no cell);
 - **the budget**: the cells' own ``seconds`` summed, at most ``rules.budget_cpu_hours``;
 - **ensembles**: every declared member has run, and a recorded ensemble read exactly its declared members, from the
-  cell files as they are now.
+  cell files as they are now (and every recorded read's input files are unchanged).
+
+A grid marked ``reused`` holds cells the study reads but did not run (earlier evidence, a baseline arm): neither
+the freeze nor the test-split rule applies to them (their test reads are the running study's to audit; a reused
+final cell is a fact the study's notes state), and their time is not the study's cost; the one-CPU-type rule holds
+for them too (their scores are compared with the study's). A folder the study only reuses may hold other cells:
+those are not the study's.
 """
 
 from __future__ import annotations
@@ -58,17 +67,40 @@ class AuditResult:
         self.rules[rule] = False
 
 
+def _grid_of(record: dict[str, Any], grids: list[Any], all_plans: dict[str, Any]) -> Any:
+    """Which of the grids sharing a folder planned ``record`` (its model, dataset and configuration hash); when none
+    did, the first grid the study ran there (its audit then names the cell as not the grid's), or ``None`` where
+    the study only reuses the folder (its other cells are not the study's)."""
+    def plans_it(grid: Any) -> bool:  # a reused grid takes its own seeds only (the folder is another study's)
+        plan = all_plans[grid.name]
+        return plan.hashes.get((record["model"], record["dataset"])) == record.get("config_hash") and (
+            not grid.reused or record.get("seed") in plan.config.seeds)
+
+    return next((g for g in grids if plans_it(g)), next((g for g in grids if not g.reused), None))
+
+
 def study_records(study: Study) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
-    """Per grid that is not superseded, its cell records; and a line per grid folder with damaged cell files."""
-    out, damaged = {}, []
+    """Per grid that is not superseded, its cell records; and a line per grid folder with damaged cell files. Grids
+    may share a folder (a trial's arms): each cell goes to the grid that plans it."""
+    all_plans = plans(study)
+    by_folder: dict[str, list[Any]] = {}
     for grid in study.grids():
-        if grid.superseded:
+        by_folder.setdefault(str(study.folder(grid).resolve()), []).append(grid)
+    out: dict[str, list[dict[str, Any]]] = {g.name: [] for g in study.grids() if not g.superseded}
+    damaged = []
+    for grids in by_folder.values():
+        if all(g.superseded for g in grids):
             continue
         try:
-            out[grid.name] = run_records(study.folder(grid))
+            records = run_records(study.folder(grids[0]))
         except InvalidCellsError as exc:
-            out[grid.name] = []
             damaged.append(str(exc))
+            continue
+        for record in records:
+            grid = _grid_of(record, grids, all_plans)
+            if grid is None or grid.superseded:
+                continue
+            out[grid.name].append(record)
     return out, damaged
 
 
@@ -79,8 +111,8 @@ def _expected_reads(record: dict[str, Any]) -> int:
 
 def audit(study: Study) -> AuditResult:
     """Every check of the module docstring; ``failures`` is empty when the study kept its rules."""
-    result = AuditResult(rules={k: True for k in ("freeze", "test split", "one CPU type", "config hashes", "budget",
-                                                  "ensemble members")})
+    result = AuditResult(rules={k: True for k in ("freeze", "test split", "one CPU type", "config hashes",
+                                                  "cells present", "budget", "ensemble members")})
     state = read_freeze(study)
     times = freeze_times(study, state)
     rules = study.rules()
@@ -103,14 +135,21 @@ def audit(study: Study) -> AuditResult:
     for text in damaged:
         result.fail("config hashes", text)
     everything: list[dict[str, Any]] = []
+    own: list[dict[str, Any]] = []
     all_plans = plans(study)
     for name, records in by_grid.items():
         plan = all_plans[name]
+        reused = plan.spec.reused
         frozen = times.get(name)
         ok = [r for r in records if r.get("status") == "ok"]
         everything += records
+        own += [] if reused else records
         result.lines.append(f"grid {name}: {len(ok)} ok cell(s) of {len(plan.cell_ids())} planned per fold, in "
-                            f"{plan.folder}")
+                            f"{plan.folder}" + (" (reused)" if reused else ""))
+        if not plan.folder.is_dir():
+            result.fail("cells present", f"grid {name}: its folder {plan.folder} does not exist")
+        elif not records:
+            result.fail("cells present", f"grid {name}: {plan.folder} holds no cell of the grid")
         for rec in records:
             where = f"grid {name}: cell {rec['cell_id']}"
             want = plan.hashes.get((rec["model"], rec["dataset"]))
@@ -123,11 +162,13 @@ def audit(study: Study) -> AuditResult:
                 result.fail("config hashes", f"{where}: seed {rec['seed']} is not a seed of the grid")
             if rec.get("status") != "ok":
                 continue
-            if study.spec.pre_registered and frozen is not None:
+            if study.spec.pre_registered and frozen is not None and not reused:
                 started = rec.get("started")
                 if not started or parse_time(started) < frozen:
                     result.fail("freeze", f"{where}: started {started or 'at an unrecorded time'}, before the freeze "
                                           f"({frozen.strftime('%Y-%m-%dT%H:%M:%S%z')})")
+            if reused:  # read here, run by another study: its test reads are that study's to audit
+                continue
             evaluation = (rec.get("config") or {}).get("evaluation") or "validation"
             reads, expected = rec.get("test_reads"), _expected_reads(rec)
             if rules.test_split == "never" and evaluation != "tuning":
@@ -142,9 +183,10 @@ def audit(study: Study) -> AuditResult:
         result.fail("one CPU type", f"cells on {len(types)} CPU types ({'; '.join(types)}); a study runs on one")
     if rules.cpu and types and any(not t.startswith(rules.cpu) for t in types):
         result.fail("one CPU type", f"cells on {'; '.join(types)}; rules.cpu declares {rules.cpu}")
-    hours = cpu_hours(everything)
+    hours = cpu_hours(own)
     result.lines.append(f"cost: {hours:.3f} CPU-hours"
-                        + (f" of a budget of {rules.budget_cpu_hours:g}" if rules.budget_cpu_hours else ""))
+                        + (f" of a budget of {rules.budget_cpu_hours:g}" if rules.budget_cpu_hours else "")
+                        + (" (reused cells not counted)" if len(own) < len(everything) else ""))
     if rules.budget_cpu_hours is not None and hours > rules.budget_cpu_hours:
         result.fail("budget", f"budget exceeded: {hours:.3f} CPU-hours spent, {rules.budget_cpu_hours:g} declared")
     _ensembles(study, by_grid, result)
@@ -173,4 +215,11 @@ def _ensembles(study: Study, by_grid: dict[str, list[dict[str, Any]]], result: A
             if path.is_file() and cell_digest(path) != digest:
                 result.fail("ensemble members", f"ensemble {read.name}: member {cell} changed after the read was "
                                                 f"recorded")
+    folders = list(dict.fromkeys(plans(study)[g.name].folder for g in study.grids()))
+    for read in study.reads().validation:
+        for cell, digest in ((recorded.get(read.name) or {}).get("digests") or {}).items():
+            path = next((p for p in (RunDir(f).cell_path(cell) for f in folders) if p.is_file()), None)
+            if path is not None and cell_digest(path) != digest:
+                result.fail("ensemble members", f"validation read {read.name}: input {cell} changed after the read "
+                                                f"was recorded")
 

@@ -10,13 +10,14 @@ from typing import Any
 
 from ..errors import ConfigError
 from .plan import PlannedGrid, planned
-from .schema import EnsembleRead, Members, Study, parse_study
+from .schema import READ_KINDS, EnsembleRead, Members, Study, parse_study
 
 __all__ = ["load_study", "check_study", "read_members", "plans", "describe"]
 
 #: the statistics a threshold may read from each kind of read
 _STATISTICS = {"means": ("accuracy", "low", "high"), "ensembles": ("accuracy", "low", "high"),
-               "comparisons": ("difference", "low", "high", "p_value")}
+               "comparisons": ("difference", "low", "high", "p_value"), "validation": ("mean", "median"),
+               "validation against": ("mean", "median", "difference", "improved")}
 
 
 def plans(study: Study) -> dict[str, PlannedGrid]:
@@ -79,12 +80,9 @@ def check_study(study: Study) -> None:
     grids = [g.name for g in study.spec.grids]
     for name in _twice(grids):
         raise ConfigError(f"{where}: grids: the name {name!r} is given twice")
-    folders = [str(study.folder(g)) for g in study.grids()]
-    for folder in _twice(folders):
-        raise ConfigError(f"{where}: grids: two grids write into {folder}")
     reads = study.reads()
     kinds: dict[str, str] = {}
-    for kind in ("means", "ensembles", "comparisons"):
+    for kind in READ_KINDS:
         for read in getattr(reads, kind):
             if read.name in kinds:
                 raise ConfigError(f"{where}: reads: the name {read.name!r} is declared twice")
@@ -92,9 +90,12 @@ def check_study(study: Study) -> None:
     for name in _twice([t.name for t in reads.thresholds]):
         raise ConfigError(f"{where}: reads.thresholds: the name {name!r} is declared twice")
     all_plans = plans(study)
+    _check_shared_folders(study, all_plans)
     rules = study.rules()
     if rules.test_split == "never":
         for plan in all_plans.values():
+            if plan.spec.reused:  # cells the study reads but did not run: each held to its own evaluation
+                continue
             for (model, dataset), cfg in plan.configs.items():
                 if cfg.evaluation != "tuning":
                     raise ConfigError(f"{where}: grids.{plan.spec.name}.settings: {model} on {dataset} runs under "
@@ -112,20 +113,66 @@ def check_study(study: Study) -> None:
         _check_selection(study, f"reads.comparisons.{read.name}", read.grid, read.dataset, [read.a, read.b])
         if read.a == read.b:
             raise ConfigError(f"{where}: reads.comparisons.{read.name}: a and b are both {read.a!r}")
+    _check_validation(study, reads)
     for threshold in reads.thresholds:
         key = f"reads.thresholds.{threshold.name}"
-        if threshold.read not in kinds:
-            raise ConfigError(f"{where}: {key}.read {threshold.read!r} names no declared mean, ensemble or "
-                              f"comparison ({', '.join(sorted(kinds)) or 'none declared'})")
-        allowed = _STATISTICS[kinds[threshold.read]]
+        name = threshold.read
+        if name not in kinds:
+            raise ConfigError(f"{where}: {key}.read {name!r} names no declared mean, ensemble, comparison or "
+                              f"validation read ({', '.join(sorted(kinds)) or 'none declared'})")
+        kind = kinds[name]
+        if kind == "validation" and next(r for r in reads.validation if r.name == name).against is not None:
+            kind = "validation against"
+        allowed = _STATISTICS[kind]
         if threshold.statistic not in allowed:
-            raise ConfigError(f"{where}: {key}.statistic {threshold.statistic!r}: a {kinds[threshold.read][:-1]} "
-                              f"gives {', '.join(allowed)}")
-    known = set(kinds) | {t.name for t in reads.thresholds}
+            label = "validation read" if kind.startswith("validation") else kind[:-1]
+            raise ConfigError(f"{where}: {key}.statistic {threshold.statistic!r}: a {label} gives "
+                              f"{', '.join(allowed)}")
+    thresholds = {t.name for t in reads.thresholds}
+    for name in _twice([d.name for d in reads.decisions]):
+        raise ConfigError(f"{where}: reads.decisions: the name {name!r} is declared twice")
+    for decision in reads.decisions:
+        if decision.name in kinds or decision.name in thresholds:
+            raise ConfigError(f"{where}: reads.decisions: the name {decision.name!r} is declared twice")
+        for name in decision.all_of:
+            if name not in thresholds:
+                raise ConfigError(f"{where}: reads.decisions.{decision.name}.all_of: {name!r} names no declared "
+                                  f"threshold ({', '.join(sorted(thresholds)) or 'none declared'})")
+    known = set(kinds) | thresholds | {d.name for d in reads.decisions}
     for i, publication in enumerate(study.spec.publishes):
         for name in publication.reads:
             if name not in known:
                 raise ConfigError(f"{where}: publishes[{i}].reads: {name!r} names no declared read")
+
+
+def _check_validation(study: Study, reads: Any) -> None:
+    """Each validation read names a grid, model, dataset and seeds of the study; its other arm likewise, and not
+    the read's own."""
+    for read in reads.validation:
+        key = f"reads.validation.{read.name}"
+        _check_selection(study, key, read.grid, read.dataset, [read.model], seeds=read.seeds)
+        against = read.against
+        if against is None:
+            continue
+        _check_selection(study, f"{key}.against", against.grid or read.grid, read.dataset,
+                         [against.model or read.model], seeds=against.seeds)
+        if (against.grid or read.grid, against.model or read.model, against.seeds) == \
+                (read.grid, read.model, read.seeds):
+            raise ConfigError(f"{study.where}: {key}.against is the read's own arm (name another grid, model or "
+                              f"seeds)")
+
+
+def _check_shared_folders(study: Study, all_plans: dict[str, PlannedGrid]) -> None:
+    """Grids may share a bench folder (a trial's arms, run one command each into one folder), as long as no cell
+    could belong to two of them: no two plan the same model and dataset with the same configuration."""
+    owner: dict[tuple[str, str, str, str], str] = {}
+    for name, plan in all_plans.items():
+        folder = str(plan.folder.resolve())
+        for (model, dataset), digest in plan.hashes.items():
+            other = owner.setdefault((folder, model, dataset, digest), name)
+            if other != name:
+                raise ConfigError(f"{study.where}: grids {other} and {name} share the folder {plan.folder} and both "
+                                  f"plan {model} on {dataset} as configuration {digest}: whose cells are they?")
 
 
 def describe(study: Study) -> list[str]:
@@ -139,7 +186,7 @@ def describe(study: Study) -> list[str]:
     if not study.spec.pre_registered:
         lines.append("  not pre-registered: its cells ran before any plan")
     reads = study.reads()
-    for kind in ("means", "ensembles", "comparisons", "thresholds"):
+    for kind in (*READ_KINDS, "thresholds", "decisions"):
         names = [r.name for r in getattr(reads, kind)]
         if names:
             lines.append(f"  declared {kind}: {', '.join(names)}")

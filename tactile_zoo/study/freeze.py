@@ -171,12 +171,15 @@ def freeze(study: Study) -> dict[str, Any]:
 
 def freeze_times(study: Study, state: dict[str, Any] | None) -> dict[str, datetime]:
     """When each grid was frozen: the study's freeze (the file's own ``freeze`` for a migrated study), or the
-    amendment that last declared the grid. A grid never frozen is absent."""
+    amendment that last declared the grid (its own ``freeze`` for a migrated amendment). A grid never frozen is
+    absent."""
     base = study.spec.freeze.time if study.spec.freeze is not None else (state or {}).get("time")
     out = {g.name: parse_time(base) for g in study.spec.grids} if base else {}
     for i, amendment in enumerate(study.spec.amendments):
         records = (state or {}).get("amendments") or []
-        if i < len(records):
+        if amendment.freeze is not None:  # a migrated amendment: when the plan's history says it was appended
+            out.update({g.name: parse_time(amendment.freeze.time) for g in amendment.grids})
+        elif i < len(records):
             out.update({g.name: parse_time(records[i]["time"]) for g in amendment.grids})
     return out
 

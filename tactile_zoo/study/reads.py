@@ -7,7 +7,11 @@ again (a later change in how it would be computed cannot move it).
   or a majority vote of their predictions), one run: its accuracy and an interval over the test units;
 - a *comparison*: ``b`` against ``a`` over their paired cells (:func:`~tactile_zoo.bench.paired.records_paired`):
   the mean difference, its interval and the one-sided p-value of "b is not better";
-- a *threshold*: a statistic of one of those against its declared bound, and the decision its outcome leads to.
+- a *validation* read (:mod:`.tuning`): a tuning study's validation score of one model's runs, against another arm;
+- a *threshold*: a statistic of one of those against its declared bound, and the decision its outcome leads to
+  (``at_least`` and ``below`` compare with a tolerance of 1e-9, so that a mean difference of exactly two
+  validation recordings is not lost to rounding);
+- a *decision*: several thresholds that must all be met.
 
 ``RESULTS/study/reads.json`` holds each recorded read: its value, its input cells (id and the sha256 of the file
 it was computed from) and when. The audit checks that those inputs are the declared ones and unchanged.
@@ -30,9 +34,14 @@ from ..bench.paired import records_paired
 from ..bench.rundir import RunDir, atomic_write_json
 from ..errors import ResultsError
 from .checks import plans, read_members
-from .schema import ComparisonRead, EnsembleRead, MeanRead, Study, Threshold
+from .schema import READ_KINDS, AllOf, ComparisonRead, EnsembleRead, MeanRead, Study, Threshold, ValidationRead
+from .tuning import validation_value
 
-__all__ = ["seed_ensemble", "reads_path", "recorded_reads", "compute_reads", "threshold_outcome", "cell_digest"]
+__all__ = ["seed_ensemble", "reads_path", "recorded_reads", "compute_reads", "threshold_outcome", "cell_digest",
+           "decision_outcome", "TOLERANCE"]
+
+#: how close to a threshold's bound a statistic counts as on it (means of fractions carry rounding)
+TOLERANCE = 1e-9
 
 
 def seed_ensemble(records: list[dict[str, Any]], split: str = "test", combine: str = "mean_probabilities"
@@ -113,17 +122,20 @@ def _selection(study: Study, read: MeanRead | ComparisonRead, model: str, seeds:
 def _value(study: Study, read: Any, records: dict[str, dict[str, Any]]) -> tuple[dict[str, Any] | None, list[str],
                                                                                  list[str]]:
     """(value or None, input cell ids, the ids missing)."""
+    if isinstance(read, ValidationRead):
+        return validation_value(study, read, records)
     if isinstance(read, EnsembleRead):
         ids = [m[-1] for m in read_members(study, read)]
         found, missing = _cells(study, read.grid, ids, records)
         if missing:
             return None, ids, missing
         result = seed_ensemble(found, read.split, read.combine)
+        members_mean = statistics.fmean(r["metrics"][read.split]["accuracy"] for r in found)
         if result is None:
-            return {"unreadable": f"a member stores no {read.combine.split('_')[-1]} for {read.split!r}"}, ids, []
+            return {"unreadable": f"a member stores no {read.combine.split('_')[-1]} for {read.split!r}",
+                    "members_mean": members_mean}, ids, []
         accuracy, low, high = result
-        return {"accuracy": accuracy, "low": low, "high": high,
-                "members_mean": statistics.fmean(r["metrics"][read.split]["accuracy"] for r in found)}, ids, []
+        return {"accuracy": accuracy, "low": low, "high": high, "members_mean": members_mean}, ids, []
     if isinstance(read, MeanRead):
         ids = _selection(study, read, read.model, read.seeds)
         found, missing = _cells(study, read.grid, ids, records)
@@ -149,10 +161,29 @@ def threshold_outcome(threshold: Threshold, value: dict[str, Any] | None) -> dic
     if value is None or threshold.statistic not in value or value[threshold.statistic] is None:
         return None
     got = float(value[threshold.statistic])
-    met = got >= threshold.at_least if threshold.at_least is not None else got < float(threshold.below)
+    met = got >= threshold.at_least - TOLERANCE if threshold.at_least is not None else \
+        got < float(threshold.below) - TOLERANCE
     bound = f">= {threshold.at_least:g}" if threshold.at_least is not None else f"< {threshold.below:g}"
     return {"statistic": threshold.statistic, "value": got, "bound": bound, "met": met,
             "decision": threshold.decision.met if met else threshold.decision.missed}
+
+
+def decision_outcome(decision: AllOf, outcomes: dict[str, dict[str, Any] | None]) -> dict[str, Any] | None:
+    """``{"met", "decision", "thresholds"}`` of ``decision`` from its thresholds' outcomes; ``None`` while one of them
+    is not decided."""
+    found = [outcomes.get(name) for name in decision.all_of]
+    if any(outcome is None for outcome in found):
+        return None
+    met = all(outcome["met"] for outcome in found if outcome is not None)
+    return {"met": met, "decision": decision.decision.met if met else decision.decision.missed,
+            "thresholds": {name: bool(outcome["met"]) for name, outcome in zip(decision.all_of, found, strict=True)
+                           if outcome is not None}}
+
+
+def _cell_path(folders: dict[str, Path], cell: str) -> Path:
+    """The cell's file in whichever grid folder holds it (a read may span grids)."""
+    paths = [RunDir(folder).cell_path(cell) for folder in dict.fromkeys(folders.values())]
+    return next((path for path in paths if path.is_file()), paths[0])
 
 
 def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dict[str, Path], record: bool = True
@@ -164,18 +195,17 @@ def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dic
     reads = study.reads()
     out: dict[str, dict[str, Any]] = {}
     new = False
-    for kind in ("means", "ensembles", "comparisons"):
+    for kind in READ_KINDS:
         for read in getattr(reads, kind):
             if read.name in recorded:
                 out[read.name] = recorded[read.name]
                 continue
             value, ids, missing = _value(study, read, records)
-            entry: dict[str, Any] = {"kind": kind[:-1], "value": value, "inputs": ids}
+            entry: dict[str, Any] = {"kind": kind.rstrip("s"), "value": value, "inputs": ids}
             if missing:
                 entry["missing"] = missing
             elif value is not None:
-                folder = folders[read.grid or study.grids()[0].name]
-                entry["digests"] = {i: cell_digest(RunDir(folder).cell_path(i)) for i in ids}
+                entry["digests"] = {i: cell_digest(_cell_path(folders, i)) for i in ids}
                 entry["time"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
                 recorded[read.name] = entry
                 new = True
@@ -191,6 +221,17 @@ def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dic
             recorded[threshold.name] = entry
             new = True
         out[threshold.name] = entry
+    for decision in reads.decisions:
+        if decision.name in recorded:
+            out[decision.name] = recorded[decision.name]
+            continue
+        outcome = decision_outcome(decision, {name: (out.get(name) or {}).get("outcome") for name in decision.all_of})
+        entry = {"kind": "decision", "all_of": decision.all_of, "outcome": outcome}
+        if outcome is not None:
+            entry["time"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+            recorded[decision.name] = entry
+            new = True
+        out[decision.name] = entry
     if record and new:
         reads_path(study).parent.mkdir(parents=True, exist_ok=True)
         atomic_write_json(reads_path(study), {"study": study.name, "reads": recorded})

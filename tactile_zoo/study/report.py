@@ -43,8 +43,12 @@ def summary_table(records_by_grid: dict[str, list[dict[str, Any]]]) -> list[dict
             low_high = None
             if cells and all((r.get("predictions") or {}).get("test") for r in cells):
                 low_high = records_interval(cells, "test")
+            val = [r["metrics"]["val"]["accuracy"] for r in records if r.get("status") == "ok"
+                   and r["model"] == row["model"] and r["dataset"] == row["dataset"]
+                   and ((r.get("metrics") or {}).get("val") or {}).get("accuracy") is not None]
             out.append({"grid": grid, **row, "accuracy_low": low_high and low_high[0],
-                        "accuracy_high": low_high and low_high[1]})
+                        "accuracy_high": low_high and low_high[1],
+                        "val_accuracy_mean": sum(val) / len(val) if val else None})
     return out
 
 
@@ -66,13 +70,13 @@ def _results(summary: list[dict[str, Any]]) -> list[str]:
     early = sorted({k for row in summary for k in row if k.startswith("accuracy_at_") and k.endswith("_mean")},
                    key=lambda k: float(k[len("accuracy_at_"):-len("_mean")]))
     head = ["grid", "model", "recipe", "dataset", "runs", "accuracy [95 % interval]", "balanced acc.", "macro-F1",
-            *(f"acc. at {k[len('accuracy_at_'):-len('_mean')]} %" for k in early), "earliness"]
+            *(f"acc. at {k[len('accuracy_at_'):-len('_mean')]} %" for k in early), "earliness", "best val."]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in summary:
         interval = "" if row["accuracy_low"] is None else f" [{row['accuracy_low']:.3f}, {row['accuracy_high']:.3f}]"
         cells = [row["grid"], row["model"], str(row["recipe"]), row["dataset"], str(row["n_cells"]),
                  _f(row["accuracy_mean"]) + interval, _f(row["balanced_accuracy_mean"]), _f(row["macro_f1_mean"]),
-                 *(_f(row.get(k)) for k in early), _f(row.get("earliness_mean"))]
+                 *(_f(row.get(k)) for k in early), _f(row.get("earliness_mean")), _f(row.get("val_accuracy_mean"))]
         lines.append("| " + " | ".join(cells) + " |")
     return [*lines, ""]
 
@@ -101,15 +105,35 @@ def _read_rows(reads: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
         value = entry.get("value") or {}
         outcome = entry.get("outcome") or {}
         rows.append({"name": name, "kind": entry["kind"],
-                     "statistic": outcome.get("statistic") or next((k for k in ("accuracy", "difference")
+                     "statistic": outcome.get("statistic") or next((k for k in ("accuracy", "difference", "mean")
                                                                      if k in value), ""),
-                     "value": outcome.get("value", value.get("accuracy", value.get("difference"))),
+                     "value": outcome.get("value", value.get("accuracy", value.get("difference", value.get("mean")))),
                      "low": value.get("low"), "high": value.get("high"), "p_value": value.get("p_value"),
                      "bound": outcome.get("bound"), "met": outcome.get("met"), "decision": outcome.get("decision"),
                      "recorded": entry.get("time"),
                      "waiting_for": len(entry.get("missing") or []) or None,
-                     "note": value.get("unreadable")})
+                     "note": value.get("unreadable"), **_validation_columns(entry)})
     return rows
+
+
+def _validation_columns(entry: dict[str, Any]) -> dict[str, Any]:
+    """A validation read's own columns (its score, both arms' means, the runs that improved); a decision's
+    thresholds."""
+    value = entry.get("value") or {}
+    if entry["kind"] == "decision":
+        return {"all_of": " ".join(entry.get("all_of") or [])}
+    if entry["kind"] != "validation" or "mean" not in value:
+        return {}
+    return {"score": value["score"], "mean": value["mean"], "against_mean": value.get("against_mean"),
+            "improved": value.get("improved"), "pairs": value.get("pairs"), "runs": value.get("runs")}
+
+
+def _validation_text(row: dict[str, Any]) -> str:
+    text = f"{row['score']} {row['mean']:.4f} over {row['runs']} run(s)"
+    if row.get("against_mean") is not None:
+        text += (f" against {row['against_mean']:.4f}: difference {row['value']:+.4f}, {row['improved']} of "
+                 f"{row['pairs']} paired run(s) above")
+    return text
 
 
 def _reads(rows: list[dict[str, Any]]) -> list[str]:
@@ -119,8 +143,16 @@ def _reads(rows: list[dict[str, Any]]) -> list[str]:
     for row in rows:
         if row["waiting_for"]:
             value, outcome = f"waiting for {row['waiting_for']} cell(s)", "-"
+        elif row["kind"] == "decision":
+            value = f"all of: {row['all_of']}"
+            outcome = "not decided yet" if row["met"] is None else \
+                f"{'met' if row['met'] else 'missed'}: {row['decision']}"
+        elif row["kind"] == "validation" and row.get("score") and not row["note"]:
+            value, outcome = _validation_text(row), "-"
         elif row["kind"] == "threshold":
-            value = "-" if row["value"] is None else f"{row['statistic']} {row['value']:.4f} (bound {row['bound']})"
+            digits = ".0f" if row["statistic"] in ("improved", "epoch") else ".4f"
+            value = "-" if row["value"] is None else \
+                f"{row['statistic']} {row['value']:{digits}} (bound {row['bound']})"
             outcome = "not decided yet" if row["met"] is None else \
                 f"{'met' if row['met'] else 'missed'}: {row['decision']}"
         else:
@@ -160,6 +192,7 @@ def write_report(study: Study, out: str | Path | None = None) -> dict[str, Path]
         lines += [study.spec.notes.strip(), ""]
     superseded = [g for g in study.grids() if g.superseded]
     lines += [f"Superseded: grid {g.name} ({study.folder(g)}): {g.superseded}" for g in superseded]
+    lines += [f"Reused: grid {g.name} ({study.folder(g)}): {g.reused}" for g in study.grids() if g.reused]
     lines += ["## Results", "", *_results(summary), *_external(study, summary)]
     read_rows = _read_rows(reads)
     lines += ["## Declared reads", "", *_reads(read_rows), "## Rules", "", *_rules(result)]
@@ -167,10 +200,14 @@ def write_report(study: Study, out: str | Path | None = None) -> dict[str, Path]
         lines += ["## Published", ""] + [f"- {p.where}" + (f", block `{p.block}`" if p.block else "")
                                          + (f": {', '.join(p.reads)}" if p.reads else "")
                                          for p in study.spec.publishes] + [""]
-    hours = cpu_hours(everything)
-    lines += ["## Cost", "", f"{hours:.3f} CPU-hours over {len(everything)} cell(s) (the cells' own `seconds`, one "
+    reused = {g.name for g in study.grids() if g.reused}
+    own = [r for name, recs in records_by_grid.items() if name not in reused for r in recs]
+    hours = cpu_hours(own)
+    lines += ["## Cost", "", f"{hours:.3f} CPU-hours over {len(own)} cell(s) (the cells' own `seconds`, one "
               f"torch thread each)" + (f", of a budget of {rules.budget_cpu_hours:g}" if rules.budget_cpu_hours
-                                       else "") + f"; CPU: {'; '.join(cpu_types(everything)) or 'none yet'}.", ""]
+                                       else "") + (f" ({len(everything) - len(own)} reused cell(s) not counted)"
+                                                   if len(own) < len(everything) else "")
+              + f"; CPU: {'; '.join(cpu_types(everything)) or 'none yet'}.", ""]
     paths = {"report": folder / "report.md", "summary": folder / "summary.csv", "reads": folder / "reads.csv"}
     atomic_write_text(paths["report"], "\n".join(lines))
     atomic_write_text(paths["summary"], _csv(summary))

@@ -12,8 +12,9 @@ A study is a benchmark decided before it runs::
     results: quickstart-results       # the results folder, relative to this file
     grids:                            # one or more, each the bench settings as ``bench --config`` takes them
       - name: main
-        folder: main                  # its bench folder under ``results`` (default: the name)
+        folder: main                  # its bench folder under ``results`` (default: the name; grids may share one)
         superseded: null              # why this folder's cells no longer count (kept, never read as results)
+        reused: null                  # why the study reads cells it did not run (earlier evidence, a baseline arm)
         settings: {models: [cnn_lstm, dcnn], datasets: sim_evtouch, seeds: [0, 1], quick: true, epochs: 1}
     rules:
       cpu: null                       # the one CPU type every cell runs on (default: whichever the first ran on)
@@ -26,15 +27,19 @@ A study is a benchmark decided before it runs::
            members: [{model: cnn_lstm, seeds: [0, 1]}]}
       comparisons:
         - {name: dcnn_vs_cnn_lstm, grid: main, dataset: sim_evtouch, a: cnn_lstm, b: dcnn, test: paired_bootstrap}
+      validation:                     # a tuning study's reads: validation scores, never a test split
+        - {name: gain, grid: scaled, dataset: ev_objects, model: sgnet, score: final,
+           against: {grid: registered}}
       thresholds:
         - {name: above_chance, read: cnn_lstm_ens2, statistic: accuracy, at_least: 0.1,
            decision: {met: "...", missed: "..."}}
+      decisions: [{name: adopt, all_of: [above_chance, ...], decision: {met: "...", missed: "..."}}]
     publishes: [{where: README.md, block: headline, reads: [cnn_lstm_ens2]}]
     compares_with:
       - {name: paper, source: "Xu et al., X-Tacformer, Table I", figures: [{model: sgnet, dataset: ev_objects,
          value: 0.8944}]}
     amendments:                       # appended after the freeze, each with its reason (:mod:`.freeze`)
-      - {reason: "...", reads: {...}, rules: {...}, grids: [...]}
+      - {reason: "...", reads: {...}, rules: {...}, grids: [...], freeze: null}  # freeze: a migrated one's
 
 :func:`parse_study` reads the file through the bounded YAML reader (:mod:`tactile_zoo._yaml`) and checks its shape
 here, each grid's settings against the bench's own schema (:class:`tactile_zoo.settings.BenchSettings`);
@@ -58,7 +63,11 @@ from ..errors import ConfigError
 from ..settings import BenchSettings, describe_error
 
 __all__ = ["Study", "StudyFile", "GridSpec", "Rules", "Reads", "MeanRead", "EnsembleRead", "ComparisonRead",
-           "Threshold", "Members", "Amendment", "Freeze", "parse_study", "canonical_hash"]
+           "ValidationRead", "Arm", "Threshold", "AllOf", "Members", "Amendment", "Freeze", "parse_study",
+           "canonical_hash", "READ_KINDS"]
+
+#: the kinds of declared read that are computed from cells (thresholds and decisions read them)
+READ_KINDS = ("means", "ensembles", "comparisons", "validation")
 
 Name = Annotated[str, Strict(), Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$", max_length=80)]
 Text = Annotated[str, Strict(), Field(min_length=1)]
@@ -84,6 +93,9 @@ class GridSpec(_Model):
     name: Name
     folder: Text | None = None  # relative to the study's results folder (default: the name)
     superseded: Text | None = None  # why its cells no longer count
+    #: why the study reads cells it did not run (earlier evidence, a baseline arm): the study's freeze and test-split
+    #: rules do not apply to them, and their cost is not the study's (:mod:`.audit`)
+    reused: Text | None = None
     settings: BenchSettings  # the bench's settings schema; :func:`~.plan.bench_config` resolves them as bench does
 
     def given(self) -> dict[str, Any]:
@@ -133,6 +145,30 @@ class ComparisonRead(_Read):
     level: Annotated[float, Strict(), Field(gt=0, lt=1)] = 0.95
 
 
+class Arm(_Model):
+    """One arm of a validation read: a grid's cells of a model (default: the read's grid and model)."""
+
+    grid: Name | None = None
+    model: Text | None = None
+    seeds: list[Seed] | None = None
+
+
+class ValidationRead(_Model):
+    """A tuning read: one model's validation score over its runs (folds and seeds), against another arm's where
+    ``against`` names one. ``score``: ``best`` the accuracy of the epoch the cell selected (``metrics.val``),
+    ``final`` the accuracy at the recipe's last epoch (``max_epochs``, from the curve), ``epoch`` the epoch selected.
+    Gives ``mean`` and ``median``; with ``against`` also ``difference`` (mean minus the other arm's) and
+    ``improved`` (how many runs, paired by fold and seed, score above the other arm's)."""
+
+    name: Name
+    grid: Name | None = None  # default: the study's only grid
+    dataset: Text
+    model: Text
+    seeds: list[Seed] | None = None
+    score: Literal["best", "final", "epoch"] = "best"
+    against: Arm | None = None
+
+
 class Decision(_Model):
     met: Text
     missed: Text
@@ -143,7 +179,7 @@ class Threshold(_Model):
 
     name: Name
     read: Name
-    statistic: Literal["accuracy", "low", "high", "difference", "p_value"] = "accuracy"
+    statistic: Literal["accuracy", "low", "high", "difference", "p_value", "mean", "median", "improved"] = "accuracy"
     at_least: Number | None = None
     below: Number | None = None
     decision: Decision
@@ -155,11 +191,21 @@ class Threshold(_Model):
         return self
 
 
+class AllOf(_Model):
+    """A decision that needs several thresholds met (e.g. a gain on both datasets)."""
+
+    name: Name
+    all_of: Annotated[list[Name], Field(min_length=1)]
+    decision: Decision
+
+
 class Reads(_Model):
     means: list[MeanRead] = Field(default_factory=list)
     ensembles: list[EnsembleRead] = Field(default_factory=list)
     comparisons: list[ComparisonRead] = Field(default_factory=list)
+    validation: list[ValidationRead] = Field(default_factory=list)
     thresholds: list[Threshold] = Field(default_factory=list)
+    decisions: list[AllOf] = Field(default_factory=list)
 
 
 class Publication(_Model):
@@ -185,6 +231,7 @@ class Amendment(_Model):
     refuses one that changes something whose inputs already exist)."""
 
     reason: Text
+    freeze: Freeze | None = None  # a migrated amendment's, read once from the commit that appended it to the plan
     grids: list[GridSpec] = Field(default_factory=list)
     rules: dict[Literal["cpu", "budget_cpu_hours", "test_split"], Any] = Field(default_factory=dict)
     reads: Reads = Field(default_factory=Reads)
@@ -253,7 +300,7 @@ class Study:
 
     def reads(self) -> Reads:
         """Every declared read, the amendments' included (one of an existing name replaces it)."""
-        parts: dict[str, dict[str, Any]] = {k: {} for k in ("means", "ensembles", "comparisons", "thresholds")}
+        parts: dict[str, dict[str, Any]] = {k: {} for k in (*READ_KINDS, "thresholds", "decisions")}
         for reads in (self.spec.reads, *(a.reads for a in self.spec.amendments)):
             for kind in parts:
                 parts[kind].update({r.name: r for r in getattr(reads, kind)})
