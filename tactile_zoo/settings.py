@@ -102,7 +102,8 @@ KEYWORDS = TypeAdapter(dict[Identifier, Any])
 
 class BenchSettings(_Schema):
     """Every setting of a bench run, as a ``--config`` file or :class:`~tactile_zoo.bench.BenchConfig` gives it:
-    the types and ranges (a list may also be written as a comma-separated string, as on the command line)."""
+    the types and ranges (a list may also be written as a comma-separated string, as on the command line). The one
+    list of the settings: ``BenchConfig`` takes its fields, their order and their defaults from this class."""
 
     models: Text | list[Text] = "all"
     datasets: Text | list[Text] = "all"

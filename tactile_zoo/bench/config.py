@@ -75,39 +75,25 @@ OVERSUBSCRIPTION = 4
 MAX_REMOTE_THREADS = 256
 
 
-@dataclass
-class BenchConfig:
-    """Every setting of a bench run (see the module docstring for the YAML form)."""
+def _settings_fields(cls: type) -> type:
+    """Give ``cls`` one field per setting of the schema, :class:`tactile_zoo.settings.BenchSettings`, in its order
+    and with its default: the list of bench settings is written once, there (:meth:`BenchConfig.validate` brings
+    each value to its plain form: ``models="all"`` -> ``["all"]``, ``seeds=0`` -> ``[0]``)."""
+    annotations: dict[str, Any] = {}
+    for name, info in settings.BenchSettings.model_fields.items():
+        annotations[name] = info.annotation  # what may be given; validate() narrows it (a list of names, of seeds)
+        setattr(cls, name, field(default_factory=info.default_factory) if info.default_factory else info.default)
+    cls.__annotations__ = annotations
+    return cls
 
-    models: list[str] = field(default_factory=lambda: ["all"])
-    datasets: list[str] = field(default_factory=lambda: ["all"])
-    root: str | None = None
-    download: bool = False
-    seeds: list[int] = field(default_factory=lambda: [0])
-    folds: int | None = None
-    epochs: int | None = None
-    refit: bool = False
-    quick: bool = False
-    device: str = "auto"
-    out: str | None = None
-    force: bool = False
-    executor: str = "local"
-    workers: int | None = None
-    scheduler: str | None = None
-    retries: int | None = None
-    dashboard: str | None = None
-    save_weights: bool = False
-    tracker: str | None = None
-    tracker_dir: str | None = None
-    threads: int | None = None
-    plugin_modules: list[str] = field(default_factory=list)
-    prefixes: list[float] = field(default_factory=lambda: list(DEFAULT_PREFIXES))
-    recipe_name: str | None = None
-    evaluation: str | None = None  # None: the evaluation the recipe declares, else validation
-    recipe: dict[str, Any] = field(default_factory=dict)
-    hparams: dict[str, Any] = field(default_factory=dict)
-    model_overrides: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
-    dataset_kwargs: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+@dataclass
+@_settings_fields
+class BenchConfig:
+    """Every setting of a bench run (see the module docstring for the YAML form). Its fields are the settings of
+    :class:`tactile_zoo.settings.BenchSettings`, with their defaults; once built (validated), each holds its plain
+    form: ``models``, ``datasets`` and ``plugin_modules`` lists of names, ``seeds`` a sorted list, ``prefixes`` the
+    sorted fractions (default :data:`~tactile_zoo.engine.evaluate.DEFAULT_PREFIXES`), a path a string."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -155,7 +141,7 @@ class BenchConfig:
                                   "you started serves its own dashboard)")
             if not isinstance(self.dashboard, str) or not self.dashboard.strip():
                 raise ConfigError(f"--dashboard must be an address such as :8787, got {self.dashboard!r}")
-        self.prefixes = parse_prefixes(self.prefixes)
+        self.prefixes = parse_prefixes(DEFAULT_PREFIXES if self.prefixes is None else self.prefixes)
         from .trackers import check_tracker  # its optional library is imported only when a cell is logged
 
         self.tracker = check_tracker(self.tracker)
