@@ -6,7 +6,7 @@ from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
 #: folders a run writes inside itself: records, not places that need their own README
-RUN_PARTS = {"cells", "plots", "weights", "progress", "claims", "damaged", "__pycache__"}
+RUN_PARTS = {"cells", "plots", "weights", "progress", "claims", "damaged", "__pycache__", "study"}  # study: its state
 
 
 def folders_without_readme(root: Path) -> list[str]:

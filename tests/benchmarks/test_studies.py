@@ -11,6 +11,8 @@ from tactile_zoo.study.checks import check_study
 
 STUDIES = Path(__file__).resolve().parents[2] / "benchmarks" / "studies"
 FILES = sorted(STUDIES.glob("*.yaml"))
+#: studies whose audit finds a broken rule, kept as found (their notes say why): test_tuning_studies.py asserts each
+FINDINGS = {"tuning-convlstm-ev", "tuning-zoo-ev"}
 
 
 def test_there_are_study_files() -> None:
@@ -22,7 +24,7 @@ def test_study_checks_and_audits(path: Path) -> None:
     study = load_study(path)
     check_study(study)
     result = audit(study)
-    assert not result.failures, result.failures
+    assert not result.failures or path.stem in FINDINGS, result.failures
     # a migrated study points at committed cells: a grid that finds none (a folder misspelt) audits clean, so refuse it
     empty = [line for line in result.lines if line.startswith("grid ") and ": 0 ok cell(s)" in line]
     assert not empty, empty
