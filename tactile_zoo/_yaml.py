@@ -67,16 +67,17 @@ def load_yaml(text: str, where: str, invalid: str = "not valid YAML") -> Any:
         aliases = sum(1 for event in yaml.parse(text, Loader=_Loader) if isinstance(event, yaml.AliasEvent))
         if aliases > MAX_ALIASES:
             raise ConfigError(f"{where}: {aliases} aliases; a settings file may use at most {MAX_ALIASES}")
-        node = loader.get_single_node()
-        if node is None:
-            return None
-        try:
-            _expanded_size(node, {}, set())
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
+        try:  # composing, measuring and building recurse once per level of nesting
+            node = loader.get_single_node()
+            if node is None:
+                return None
+            try:
+                _expanded_size(node, {}, set())
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+            return loader.construct_document(node)
         except RecursionError:
             raise ConfigError(f"{where}: nested too deeply") from None
-        return loader.construct_document(node)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
