@@ -227,7 +227,7 @@ def packaged_sets() -> list[str]:
     """The ids of the sets packaged with tactile-zoo, oldest version first."""
     folder = _packaged()
     found = []
-    for entry in folder.iterdir() if folder.is_dir() else ():
+    for entry in folder.iterdir() if folder.is_dir() else ():  # not a bench folder
         match = _ID.match(entry.name.removesuffix(".json.gz")) if entry.name.endswith(".json.gz") else None
         if match:
             found.append((match["name"], int(match["version"]), entry.name.removesuffix(".json.gz")))
