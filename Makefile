@@ -64,14 +64,14 @@ benchmarks: install
 compact-results: install
 	$(BIN)/python -m tactile_zoo.bench.compact benchmarks/results
 
-# every generated page, checked by the suite: after committing new cells, the fidelity ledger, Table I (docs/table1.md)
-# and the README's headline; after changing a command's flags, the command-line reference (docs/cli.md); after adding
-# or changing a model's registry metadata, the model pages (models table, citing, CITATION.cff, API page, counts)
+# every generated page, checked by the suite: after committing new cells, the fidelity ledger and the published result
+# tables from the studies (README headline, docs/table1.md, docs/published-results.md, the results index); after
+# changing a command's flags, the command-line reference (docs/cli.md); after adding or changing a model's registry
+# metadata, the model pages (models table, citing, CITATION.cff, API page, counts)
 tables: install
 	$(BIN)/python -m tools.model_pages
 	$(BIN)/python -m tools.fidelity
-	$(BIN)/python -m tools.paper_table1 --readme
-	$(BIN)/python -m tools.table1_full --readme
+	$(BIN)/python -m tools.published_tables
 	$(BIN)/python -m tools.cli_reference
 
 # the docs site, into site/ (gitignored); --strict: a broken link or anchor, or a page left out of the nav, fails

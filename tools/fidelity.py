@@ -30,6 +30,9 @@ from typing import Any
 
 from tactile_zoo.bench.intervals import records_interval
 from tactile_zoo.bench.records import qualifying_cells
+from tactile_zoo.study.publish import study_files, study_folder
+from tactile_zoo.study.publish_tables import paper_figures
+from tactile_zoo.study.schema import parse_study
 from tools.model_pages import display, zoo_models
 
 REPO = Path(__file__).resolve().parents[1]
@@ -37,14 +40,18 @@ RESULTS = REPO / "benchmarks" / "results"
 LEDGER = REPO / "docs" / "fidelity.md"
 BEGIN, END = "<!-- ledger tables: begin (python -m tools.fidelity) -->", "<!-- ledger tables: end -->"
 EV = ("ev_objects", "ev_containers")
-#: Table I of the X-Tacformer paper (test accuracy on the released Ev splits; selection protocol not stated).
-XTAC_PAPER = {"sgnet": (0.8944, 0.6417), "convlstm": (0.8611, 0.7333), "cnn_lstm": (0.8472, 0.7167),
-              "tacformer": (0.9027, 0.7500), "x_tacformer": (0.9167, 0.7833)}
+STUDIES = REPO / "benchmarks" / "studies"
 #: TactileSGNet (Gu et al., IROS 2020): mean over runs of each run's best test epoch.
 SGNET_SOURCE = {"ev_objects": 0.8944, "ev_containers": 0.6417}
 SGNET_TARGET = {"ev_objects": 0.02, "ev_containers": 0.03}
 CONVLSTM_SOURCE = 0.8256  # Zapata-Impata, Gil and Torres, Sensors 2019: unseen objects with familiar properties
 DCNN_SOURCE = (871, 1200)  # 0.7258: the mean of the ten released models, the X-Tacformer paper's D-CNN figure
+
+
+def xtac_paper() -> dict[tuple[str, str], float]:
+    """Table I of the X-Tacformer paper, (model, dataset) -> test accuracy, as the studies hold it once
+    (``compares_with`` in ``benchmarks/studies/table1-source.yaml``)."""
+    return paper_figures(parse_study(path) for path in study_files(STUDIES))
 
 
 def cells(folder: Path, evaluation: str = "validation", recipe: str = "source") -> list[dict[str, Any]]:
@@ -81,8 +88,8 @@ def _dcnn_released() -> tuple[int, int] | None:
 
 
 def tables() -> str:
-    honest = cells(RESULTS / "paper-table1")
-    reference = cells(RESULTS / "reference-protocol", "reference")
+    honest = cells(study_folder(STUDIES, "table1-source"))
+    reference = cells(study_folder(STUDIES, "table1-reference", "sgnet"), "reference")
     biotac = cells(RESULTS / "convlstm-biotac" / "e2-source")  # the source setup (EXPERIMENTS.md, E2)
     lines = ["### The sources' own protocols", "",
              "| model | source's figure (its protocol) | ours, same protocol | target | met |", "|---|---|---|---|---|"]
@@ -111,10 +118,11 @@ def tables() -> str:
     lines += ["", "### The zoo's honest protocol (epoch selected on validation, test read once)", "",
               "| model | X-Tacformer paper, Ev-Objects | ours, Ev-Objects | X-Tacformer paper, Ev-Containers | "
               "ours, Ev-Containers |", "|---|---|---|---|---|"]
+    paper = xtac_paper()
     for model in zoo_models():  # every built-in model, from the registry (tools.model_pages)
-        paper = XTAC_PAPER.get(model, (None, None))
         row = [display(model)]
-        for dataset, value in zip(EV, paper):
+        for dataset in EV:
+            value = paper.get((model, dataset))
             row += ["-" if value is None else f"{value:.4f}", figure(_pick(honest, model, dataset))]
         lines.append("| " + " | ".join(row) + " |")
     lines += ["", "Figures: mean ± sample std over seeds [95 % confidence interval of the expected accuracy: one "

@@ -116,18 +116,18 @@ def check_study(study: Study) -> None:
     _check_validation(study, reads)
     for threshold in reads.thresholds:
         key = f"reads.thresholds.{threshold.name}"
-        name = threshold.read
-        if name not in kinds:
-            raise ConfigError(f"{where}: {key}.read {name!r} names no declared mean, ensemble, comparison or "
-                              f"validation read ({', '.join(sorted(kinds)) or 'none declared'})")
-        kind = kinds[name]
-        if kind == "validation" and next(r for r in reads.validation if r.name == name).against is not None:
-            kind = "validation against"
-        allowed = _STATISTICS[kind]
-        if threshold.statistic not in allowed:
-            label = "validation read" if kind.startswith("validation") else kind[:-1]
-            raise ConfigError(f"{where}: {key}.statistic {threshold.statistic!r}: a {label} gives "
-                              f"{', '.join(allowed)}")
+        for name in [threshold.read] if isinstance(threshold.read, str) else threshold.read:
+            if name not in kinds:
+                raise ConfigError(f"{where}: {key}.read {name!r} names no declared mean, ensemble, comparison or "
+                                  f"validation read ({', '.join(sorted(kinds)) or 'none declared'})")
+            kind = kinds[name]
+            if kind == "validation" and next(r for r in reads.validation if r.name == name).against is not None:
+                kind = "validation against"
+            allowed = _STATISTICS[kind]
+            if threshold.statistic not in allowed:
+                label = "validation read" if kind.startswith("validation") else kind[:-1]
+                raise ConfigError(f"{where}: {key}.statistic {threshold.statistic!r}: a {label} gives "
+                                  f"{', '.join(allowed)}")
     thresholds = {t.name for t in reads.thresholds}
     for name in _twice([d.name for d in reads.decisions]):
         raise ConfigError(f"{where}: reads.decisions: the name {name!r} is declared twice")
@@ -140,6 +140,8 @@ def check_study(study: Study) -> None:
                                   f"threshold ({', '.join(sorted(thresholds)) or 'none declared'})")
     known = set(kinds) | thresholds | {d.name for d in reads.decisions}
     for i, publication in enumerate(study.spec.publishes):
+        if publication.grid is not None and publication.grid not in [g.name for g in study.grids()]:
+            raise ConfigError(f"{where}: publishes[{i}].grid {publication.grid!r} names no grid of the study")
         for name in publication.reads:
             if name not in known:
                 raise ConfigError(f"{where}: publishes[{i}].reads: {name!r} names no declared read")

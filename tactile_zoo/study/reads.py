@@ -155,9 +155,22 @@ def _value(study: Study, read: Any, records: dict[str, dict[str, Any]]) -> tuple
             "pairs": paired.n_cells}, ids_a + ids_b, []
 
 
-def threshold_outcome(threshold: Threshold, value: dict[str, Any] | None) -> dict[str, Any] | None:
+def threshold_outcome(threshold: Threshold, value: dict[str, Any] | None | dict[str, dict[str, Any] | None]
+                      ) -> dict[str, Any] | None:
     """``{"statistic", "value", "met", "decision"}`` of ``threshold`` on its read's value; ``None`` while the read
-    is not in."""
+    is not in. A threshold over several reads takes ``{read name: value}`` and judges the best of them (``"of"``
+    names it); ``None`` while any of them is not in, a read without the statistic (unreadable) left out."""
+    best = None
+    if isinstance(threshold.read, list):
+        values = value or {}
+        if any(name not in values or values[name] is None for name in threshold.read):
+            return None
+        found = {name: float(v[threshold.statistic]) for name, v in values.items()
+                 if name in threshold.read and v.get(threshold.statistic) is not None}
+        if not found:
+            return None
+        best = max(found, key=found.__getitem__)
+        value = {threshold.statistic: found[best]}
     if value is None or threshold.statistic not in value or value[threshold.statistic] is None:
         return None
     got = float(value[threshold.statistic])
@@ -165,7 +178,7 @@ def threshold_outcome(threshold: Threshold, value: dict[str, Any] | None) -> dic
         got < float(threshold.below) - TOLERANCE
     bound = f">= {threshold.at_least:g}" if threshold.at_least is not None else f"< {threshold.below:g}"
     return {"statistic": threshold.statistic, "value": got, "bound": bound, "met": met,
-            "decision": threshold.decision.met if met else threshold.decision.missed}
+            **({"of": best} if best else {}), "decision": threshold.decision.met if met else threshold.decision.missed}
 
 
 def decision_outcome(decision: AllOf, outcomes: dict[str, dict[str, Any] | None]) -> dict[str, Any] | None:
@@ -214,7 +227,10 @@ def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dic
         if threshold.name in recorded:
             out[threshold.name] = recorded[threshold.name]
             continue
-        outcome = threshold_outcome(threshold, (out.get(threshold.read) or {}).get("value"))
+        if isinstance(threshold.read, list):
+            outcome = threshold_outcome(threshold, {n: (out.get(n) or {}).get("value") for n in threshold.read})
+        else:
+            outcome = threshold_outcome(threshold, (out.get(threshold.read) or {}).get("value"))
         entry = {"kind": "threshold", "read": threshold.read, "outcome": outcome}
         if outcome is not None:
             entry["time"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")

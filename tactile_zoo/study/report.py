@@ -20,6 +20,7 @@ from ..bench.intervals import records_interval
 from ..bench.tables import leaderboard_rows, summary_rows
 from .audit import AuditResult, audit, cpu_hours, cpu_types, study_records
 from .freeze import read_freeze
+from .publish import study_blocks
 from .reads import compute_reads
 from .schema import Study
 
@@ -200,6 +201,8 @@ def write_report(study: Study, out: str | Path | None = None) -> dict[str, Path]
         lines += ["## Published", ""] + [f"- {p.where}" + (f", block `{p.block}`" if p.block else "")
                                          + (f": {', '.join(p.reads)}" if p.reads else "")
                                          for p in study.spec.publishes] + [""]
+        for page, block, text in study_blocks(study):  # the generated tables it feeds (:mod:`.publish`)
+            lines += [f"### {page}, block `{block}`", "", text, ""]
     reused = {g.name for g in study.grids() if g.reused}
     own = [r for name, recs in records_by_grid.items() if name not in reused for r in recs]
     hours = cpu_hours(own)

@@ -175,10 +175,11 @@ class Decision(_Model):
 
 
 class Threshold(_Model):
-    """An outcome decided in advance: the statistic of a read against a bound, and what each side leads to."""
+    """An outcome decided in advance: the statistic of a read against a bound, and what each side leads to. ``read``
+    may list several reads: the statistic is then the best (highest) of them, e.g. "a declared ensemble >= 0.93"."""
 
     name: Name
-    read: Name
+    read: Name | Annotated[list[Name], Field(min_length=1)]
     statistic: Literal["accuracy", "low", "high", "difference", "p_value", "mean", "median", "improved"] = "accuracy"
     at_least: Number | None = None
     below: Number | None = None
@@ -209,14 +210,22 @@ class Reads(_Model):
 
 
 class Publication(_Model):
+    """A generated block of a page that this study's cells feed (:mod:`.publish`): ``table`` names the part it plays
+    there (e.g. ``source`` in Table I), ``grid`` the grid it reads (default: the first), ``target`` a figure the
+    table states beside its own (a performance issue's CPU-hours)."""
+
     where: Text  # a page, e.g. docs/table1.md
     block: Text | None = None  # its generated block
+    table: Name | None = None
+    grid: Name | None = None
+    target: Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)] | None = None
     reads: list[Name] = Field(default_factory=list)
 
 
 class ExternalFigure(_Model):
     model: Text
     dataset: Text
+    split: Text = "test"  # the test split the figure is of (BioTac-DoS: test_textures)
     value: Annotated[float, Strict(), Field(ge=0, le=1)]
 
 

@@ -17,13 +17,15 @@ from tactile_zoo.bench.records import cell_files, read_cell_bytes
 from tactile_zoo.bench.report import load_run
 from tactile_zoo.bench.tables import leaderboard_rows, record_metrics, rows_to_csv, summary_rows
 from tactile_zoo.engine.metrics import metric_value, registered_metrics
+from tactile_zoo.study.publish import study_folder
 
 RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+FULL = study_folder(RESULTS.parent / "studies", "table1-full-r3")  # Table I's `full` cells, round 3
 FOLDERS = sorted(p.parent for p in RESULTS.rglob("cells") if (p.parent / "leaderboard.csv").is_file())
 
 
 def test_the_committed_folders_are_found() -> None:
-    assert len(FOLDERS) >= 20 and RESULTS / "paper-table1-full" in FOLDERS
+    assert len(FOLDERS) >= 20 and FULL in FOLDERS
 
 
 @pytest.mark.parametrize("folder", FOLDERS, ids=lambda p: str(p.relative_to(RESULTS)))
@@ -43,7 +45,7 @@ def test_recomputed_metrics_equal_the_stored_ones_in_the_table1_cells() -> None:
     fixed = [m for m in registered_metrics() if m.name in ("accuracy", "balanced_accuracy", "macro_f1")]
     assert [m.name for m in fixed] == ["accuracy", "balanced_accuracy", "macro_f1"]
     checked = 0
-    for path in cell_files(RESULTS / "paper-table1-full"):
+    for path in cell_files(FULL):
         record = json.loads(read_cell_bytes(path))
         test = (record.get("metrics") or {}).get("test")
         if record["status"] != "ok" or not test:

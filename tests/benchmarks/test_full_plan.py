@@ -13,8 +13,10 @@ import pytest
 from tactile_zoo.bench.records import cell_files, read_cell_bytes
 from tactile_zoo.engine.config import resolve_model_recipe
 from tactile_zoo.registry import get_model_entry, model_names
+from tactile_zoo.study.publish import study_folder
 
-RESULTS = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+STUDIES = Path(__file__).resolve().parents[2] / "benchmarks" / "studies"
+ZOO = study_folder(STUDIES, "table1-zoo")  # the `zoo` cells whose validation choices declared `full`'s epochs
 DATASETS = ("ev_objects", "ev_containers", "biotac_dos")
 BUILT_IN = [m for m in model_names() if get_model_entry(m).obj.__module__.startswith("tactile_zoo.models.")]
 #: the built-ins with a `full` recipe; one without (DeepTactile, added after the round) has no `zoo` cells yet
@@ -33,7 +35,7 @@ def declared_epochs(folder: Path) -> dict[tuple[str, str], int]:
 
 @pytest.mark.parametrize("model", WITH_FULL)
 def test_full_trains_the_declared_epochs(model: str) -> None:
-    rule = declared_epochs(RESULTS / "paper-table1-zoo")
+    rule = declared_epochs(ZOO)
     meta = get_model_entry(model).meta
     for dataset in DATASETS:
         full = resolve_model_recipe(meta, "full", dataset)
@@ -47,7 +49,7 @@ def test_full_trains_the_declared_epochs(model: str) -> None:
 
 
 def test_a_model_lacks_full_only_where_no_zoo_cell_could_declare_it() -> None:
-    rule = declared_epochs(RESULTS / "paper-table1-zoo")
+    rule = declared_epochs(ZOO)
     assert len(WITH_FULL) >= 6
     for model in set(BUILT_IN) - set(WITH_FULL):
         assert not any(m == model for m, _ in rule), f"{model} has zoo cells: declare its `full` from them"
@@ -55,7 +57,7 @@ def test_a_model_lacks_full_only_where_no_zoo_cell_could_declare_it() -> None:
 
 def test_the_rule_uses_several_seeds_never_one() -> None:
     counts: dict[tuple[str, str], int] = {}
-    for path in cell_files(RESULTS / "paper-table1-zoo"):
+    for path in cell_files(ZOO):
         record = json.loads(read_cell_bytes(path))
         if record.get("status") == "ok":
             counts[record["model"], record["dataset"]] = counts.get((record["model"], record["dataset"]), 0) + 1

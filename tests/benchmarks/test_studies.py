@@ -24,7 +24,9 @@ def test_study_checks_and_audits(path: Path) -> None:
     study = load_study(path)
     check_study(study)
     result = audit(study)
-    assert not result.failures or path.stem in FINDINGS, result.failures
+    # a folder run before any plan (`pre_registered: false`) is audited and reported as it is: its report says it
+    # was not pre-registered, and which rules its cells break
+    assert not result.failures or path.stem in FINDINGS or not study.spec.pre_registered, result.failures
     # a migrated study points at committed cells: a grid that finds none (a folder misspelt) audits clean, so refuse it
     empty = [line for line in result.lines if line.startswith("grid ") and ": 0 ok cell(s)" in line]
     assert not empty, empty

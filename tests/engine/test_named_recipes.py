@@ -39,7 +39,7 @@ def test_every_frozen_builtin_defaults_to_full_and_a_later_one_to_zoo() -> None:
         meta = registry.get_model_entry(name).meta
         assert meta["recipe"] == meta["recipes"][meta["default_recipe"]], name  # the derived default, for older readers
         if name in frozen:
-            # the round-3 plan's rule made `full` the frozen models' default (tools.table1_full --check agrees)
+            # the round-3 plan's rule made `full` the frozen models' default (tools.published_tables --check agrees)
             assert meta["default_recipe"] == "full" and {"source", "zoo", "full"} <= set(meta["recipes"]), name
             assert json.loads(json.dumps(meta["recipes"]["zoo"])) == frozen[name], name  # what full builds on
         else:
