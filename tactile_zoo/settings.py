@@ -134,6 +134,7 @@ class BenchSettings(_Schema):
     hparams: dict[Identifier, Any] = Field(default_factory=dict)
     model_overrides: dict[Text, dict[Literal["recipe", "hparams"], dict[Text, Any]]] = Field(default_factory=dict)
     dataset_kwargs: dict[Text, dict[Identifier, Any]] = Field(default_factory=dict)
+    model_revisions: dict[Text, PositiveInt] = Field(default_factory=dict)  # model ("*": every model) -> revision
 
 
 _PHRASES = {

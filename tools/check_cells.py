@@ -9,8 +9,10 @@ For every cell record in a bench folder this rebuilds the cell through the harne
    revisions, format 2 with them).
 
 A cell that passes was computed by what the current code computes (revision 1 is the code that produced
-hash-format-1 cells). A cell whose model or dataset has since been bumped to a newer revision is reported as
-``stale``: computed by older code, to be rerun (``report.md`` flags it too); any other mismatch is a failure.
+hash-format-1 cells); a cell of an older model revision that the model still builds (registry metadata
+``revisions``) is rebuilt at that revision, so it passes too. A cell whose model or dataset has since been bumped to
+a newer revision that no longer builds its own is reported as ``stale``: computed by older code, to be rerun
+(``report.md`` flags it too); any other mismatch is a failure.
 ``--migrate`` then rewrites such a format-1 record in place under the current format: new hash and file name, the
 revisions in its ``config``, and ``migrated_from`` naming the old hash, so a resumed bench command reuses the cell
 instead of recomputing it.
@@ -36,6 +38,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tactile_zoo import registry
 from tactile_zoo.bench import BenchConfig, build_grid
 from tactile_zoo.bench.grid import cell_id
 from tactile_zoo.bench.records import COMPACT_SUFFIX, InvalidCell, cell_files, read_record, run_records
@@ -51,14 +54,25 @@ def _without(config: dict[str, Any], keys: tuple[str, ...]) -> dict[str, Any]:
     return {**{k: v for k, v in config.items() if k not in keys}, "recipe_name": recipe_name_of(config)}
 
 
+def _replayed_revision(record: dict[str, Any]) -> dict[str, int]:
+    """``--model-revision MODEL=N`` for the record's revision where its model still builds it, else nothing (the
+    default: a record of a revision whose code is gone is then ``stale``)."""
+    recorded = record["config"].get("model_revision")
+    known = registry.model_revisions(registry.get_model_entry(record["model"]))
+    return {record["model"]: recorded} if recorded in known else {}
+
+
 def _rebuilt(record: dict[str, Any], root: str | None) -> dict[str, Any]:
-    """The record's cell as the current grid resolves it (the registered recipe of its name, its stored settings)."""
+    """The record's cell as the current grid resolves it (the registered recipe of its name, its stored settings),
+    at the model revision the record names where the model still builds it (``registry.model_revisions``): the
+    path that trained the cell is replayed, not the model's default."""
     stored = record["config"]
     bench = BenchConfig(models=[record["model"]], datasets=[record["dataset"]], root=root, seeds=[record["seed"]],
                         recipe_name=recipe_name_of(stored),
                         refit=bool(stored.get("refit")), quick=stored.get("subset") is not None,
                         prefixes=list(stored.get("prefixes") or []), hparams=dict(stored.get("hparams") or {}),
-                        dataset_kwargs={record["dataset"]: dict(stored.get("dataset_kwargs") or {})})
+                        dataset_kwargs={record["dataset"]: dict(stored.get("dataset_kwargs") or {})},
+                        model_revisions=_replayed_revision(record))
     cells = [c for c in build_grid(bench).cells if c.fold == record["fold"]]
     if len(cells) != 1:
         raise LookupError(f"the grid has {len(cells)} cells for fold {record['fold']}")

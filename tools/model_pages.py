@@ -188,7 +188,25 @@ def models_table(models_page: str) -> str:
     for name in zoo_models():
         counts = [parameter_count(name, d) for d in sets]
         rows.append(f"| `{name}` | " + " | ".join("-" if c is None else _format_count(c) for c in counts) + " |")
-    return "\n".join(rows)
+    return "\n".join(rows + ["", *revisions_table()])
+
+
+def revisions_table() -> list[str]:
+    """Each model's revisions (registry metadata ``revision`` and ``revisions``): the default, and what every revision
+    it still builds sets its compute keywords to (see docs/revisions.md)."""
+    rows = [_wrap("Revisions, from the registry: a cell records the revision that trained it, and "
+                  "`create_model(name, spec, revision=N)` or `--model-revision NAME=N` builds any revision listed "
+                  "([Revisions](revisions.md)); the default is in bold, and each revision's compute keywords are "
+                  "what its constructor defaults to.", "", ""),
+            "", "| model | revisions | compute keywords of each |", "| --- | --- | --- |"]
+    for name in zoo_models():
+        entry = registry.get_model_entry(name)
+        known, default = registry.model_revisions(entry), registry.revision_of(entry)
+        numbers = ", ".join(f"**{n}**" if n == default else str(n) for n in known)
+        paths = "; ".join(f"{n}: " + (", ".join(f"`{k}={v}`" for k, v in path.items()) or "-")
+                          for n, path in known.items())
+        rows.append(f"| `{name}` | {numbers} | {paths if any(known.values()) else '-'} |")
+    return rows
 
 
 def citing_list() -> str:

@@ -36,6 +36,8 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
     dataset_kwargs:
       sim_evtouch: {n_train_per_class: 40}
       "*": {}                       # every dataset
+    model_revisions: {sgnet: 2}     # build a model at one of its revisions (default: its registered default;
+                                    #   "*": every model); part of the cell hash
 
 Unknown keys anywhere in the file are a :class:`ConfigError` that names them; every value is checked against the
 one settings schema (:class:`tactile_zoo.settings.BenchSettings`, strict: ``quick: "false"`` is refused) as the
@@ -189,6 +191,15 @@ class BenchConfig:
             out.update(self.dataset_kwargs[name])
         return out
 
+    def revision_for(self, model: str, aliases: Iterable[str] = ()) -> int | None:
+        """The revision ``model`` is built at (``model_revisions``: its own entry, else ``"*"``); ``None``: its
+        registered default."""
+        from ..registry import normalize_name
+
+        keys = {normalize_name(model), *(normalize_name(a) for a in aliases)}
+        named = [v for n, v in self.model_revisions.items() if n != "*" and normalize_name(n) in keys]
+        return named[-1] if named else self.model_revisions.get("*")
+
     def check_names(self) -> None:
         """An override aimed at no registered model (``--set nosuch:lr=0.1``, a config file's ``model_overrides``)
         or dataset (``--dataset-arg nosuch:seed=1``, ``dataset_kwargs``) is a :class:`ConfigError` listing the known
@@ -203,6 +214,10 @@ class BenchConfig:
                     continue
                 raise ConfigError(f"{how}: {name!r} names no registered {kind} (an override for it would be "
                                   f"ignored); known {kind}s: {', '.join(listing())}")
+        for name in self.model_revisions:
+            if name != "*" and not _registered("model", name):
+                raise ConfigError(f"--model-revision or a config file's model_revisions: {name!r} names no registered "
+                                  f"model; known models: {', '.join(registry.model_names())}")
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -307,9 +322,11 @@ def load_yaml_config(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def merge_config(yaml_data: Mapping[str, Any] | None, flags: Mapping[str, Any], sets: Sequence[str] = (),
-                 hparams: Sequence[str] = (), dataset_args: Sequence[str] = ()) -> BenchConfig:
+                 hparams: Sequence[str] = (), dataset_args: Sequence[str] = (),
+                 model_revisions: Sequence[str] = ()) -> BenchConfig:
     """A :class:`BenchConfig` from a YAML file's settings overlaid with command-line flags (``None`` = not given)
-    and the ``--set`` / ``--hparam`` / ``--dataset-arg`` assignments (``[NAME:]KEY=VALUE``)."""
+    and the ``--set`` / ``--hparam`` / ``--dataset-arg`` assignments (``[NAME:]KEY=VALUE``) and the
+    ``--model-revision`` ones (``[MODEL=]N``)."""
     import copy
 
     data: dict[str, Any] = copy.deepcopy(dict(yaml_data or {}))
@@ -339,6 +356,12 @@ def merge_config(yaml_data: Mapping[str, Any] | None, flags: Mapping[str, Any], 
             else:
                 over = data["model_overrides"].setdefault(scope, {})
                 over[field_name] = {**(over.get(field_name) or {}), key: value}
+    for text in model_revisions:
+        model, eq, number = text.rpartition("=")
+        value = parse_value(number.strip())
+        if (eq and not model.strip()) or isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ConfigError(f"--model-revision expects [MODEL=]N with N a positive integer, got {text!r}")
+        data["model_revisions"] = {**(data.get("model_revisions") or {}), model.strip() or "*": value}
     for text in dataset_args:
         scope, key, value = parse_assignment("--dataset-arg", text)
         settings.check_keywords({key: value}, f"--dataset-arg {text}", "")
@@ -367,6 +390,12 @@ def plan_cells(config: BenchConfig, models: Sequence[str], datasets: Sequence[st
     settings = config.to_dict()
     per_model = {m: config.overrides_for(m, _aliases(registry.get_model_entry(m))) for m in models}
     kwargs = {d: config.kwargs_for(d) for d in datasets}
+    revisions = {m: config.revision_for(m, _aliases(registry.get_model_entry(m))) for m in models}
+    for model, revision in revisions.items():
+        try:
+            registry.revision_keywords(registry.get_model_entry(model), revision)
+        except ConfigError as exc:  # the model's revisions named, with the setting that asked for another
+            raise ConfigError(f"--model-revision or a config file's model_revisions: {exc}") from None
     common = {"recipe_name": config.recipe_name, "epochs": config.epochs, "quick": config.quick,
               "refit": config.refit, "prefixes": config.prefixes, "evaluation": config.evaluation}
     configs: dict[tuple[str, str], CellConfig] = {}
@@ -374,7 +403,8 @@ def plan_cells(config: BenchConfig, models: Sequence[str], datasets: Sequence[st
         for model in models:
             recipe, hparams = per_model[model]
             configs[model, dataset] = resolve_cell(model, dataset, recipe=recipe, hparams=hparams,
-                                                   dataset_kwargs=kwargs[dataset], **common)
+                                                   dataset_kwargs=kwargs[dataset], model_revision=revisions[model],
+                                                   **common)
             check_hparams(configs[model, dataset], hparams)  # an unknown constructor keyword stops the command here
     return CellPlan(configs, {m: hparams for m, (_, hparams) in per_model.items()}, kwargs, settings,
                     bool(settings["quick"]))

@@ -291,16 +291,22 @@ def run_records(folder: str | os.PathLike, recursive: bool = False) -> list[dict
 def revision_gaps(record: Mapping[str, Any]) -> list[str] | None:
     """How the code that computed ``record`` is older than the code registered now: one line per model or dataset
     whose revision has moved on (``[]``: current), or ``None`` when one of them is no longer registered, so there is
-    nothing to compare with. A record without revisions predates them: revision 1."""
+    nothing to compare with. A record without revisions predates them: revision 1.
+
+    An older model revision the model still builds (:func:`tactile_zoo.registry.model_revisions`) is no gap: its
+    cells rerun as they ran (the revision is part of their hash, so they never pool with another revision's)."""
     config = record.get("config") or {}
     gaps = []
     for kind, lookup in (("model", registry.get_model_entry), ("dataset", registry.get_dataset_entry)):
         try:
-            now = registry.revision_of(lookup(str(record[kind])))
+            entry = lookup(str(record[kind]))
         except TactileZooError:  # an unknown name, or a plugin that no longer loads
             return None
+        now = registry.revision_of(entry)
         then = config.get(f"{kind}_revision")
         then = registry.DEFAULT_REVISION if then is None else then
+        if kind == "model" and then in registry.model_revisions(entry):
+            continue
         if isinstance(then, int) and then < now:
             gaps.append(f"{kind} revision {then}, now {now}")
     return gaps

@@ -41,6 +41,9 @@ def add_recipe_flags(p: argparse.ArgumentParser) -> None:
                    help="a model constructor keyword (for every model or MODEL only); repeatable")
     p.add_argument("--dataset-arg", dest="dataset_args", action="append", default=[], metavar="[DATASET:]KEY=VALUE",
                    help="a dataset keyword argument (e.g. seed=1, augment_factor=2); repeatable")
+    p.add_argument("--model-revision", dest="model_revisions", action="append", default=[], metavar="[MODEL=]N",
+                   help="build every model, or MODEL only, at its revision N (default: its registered default; "
+                        "`tactile-zoo info MODEL` lists them); part of the cell hash; repeatable")
     p.add_argument("--device", default=None, help="auto (CUDA when available, the default), cpu, cuda, cuda:N")
     p.add_argument("--root", default=None, help="data home (default $TACTILE_ZOO_DATA, else ~/.cache/tactile_zoo/data)")
     p.add_argument("--download", action="store_true", default=None, help="download datasets that can be")

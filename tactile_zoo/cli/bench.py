@@ -80,7 +80,7 @@ def _bench_config(args: argparse.Namespace) -> Any:
         "force", "executor", "workers", "scheduler", "threads", "plugin_modules", "prefixes", "recipe_name",
         "evaluation", "retries", "dashboard", "save_weights", "tracker", "tracker_dir")}
     return merge_config(load_yaml_config(args.config) if args.config else None, flags, args.sets, args.hparams,
-                        args.dataset_args)
+                        args.dataset_args, args.model_revisions)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:

@@ -66,6 +66,8 @@ def _jsonable(value: Any) -> Any:
 def _model_info(name: str, args: argparse.Namespace) -> dict[str, Any]:
     entry = registry.get_model_entry(name)
     info: dict[str, Any] = {"kind": "model", "name": entry.qualified_name, **_jsonable(dict(entry.meta))}
+    info["revision"] = registry.revision_of(entry)  # the default; every revision it builds, with its compute path:
+    info["revisions"] = _jsonable(registry.model_revisions(entry))
     ds_name = args.dataset or next(iter(registry.list_datasets("sim_*")), None)
     if ds_name is not None:
         ds = registry.load_dataset(ds_name, root=args.root, split="train")

@@ -46,7 +46,7 @@ def _single_config(args: argparse.Namespace) -> Any:
     flags = {"models": [args.model], "datasets": [args.dataset], "root": args.root, "download": args.download,
              "epochs": args.epochs, "refit": args.refit, "quick": args.quick, "device": args.device,
              "plugin_modules": args.plugin_modules, "recipe_name": args.recipe_name}
-    return merge_config(None, flags, args.sets, args.hparams, args.dataset_args)
+    return merge_config(None, flags, args.sets, args.hparams, args.dataset_args, args.model_revisions)
 
 
 def _cmd_train(args: argparse.Namespace) -> int:

@@ -5,8 +5,8 @@ sit below both: the loop never has to import the cell to build a model.
 
 - :func:`load_splits` is the one place a dataset's splits are loaded (memoised for consecutive cells).
 - :func:`build_model` is the one place a model is built from its registry name (seeded first, so its initial weights
-  depend on the seed only). :class:`~tactile_zoo.errors.ModelCannotConsume` is the one signal that a model
-  cannot take a dataset.
+  depend on the seed only), at the revision a cell records. :class:`~tactile_zoo.errors.ModelCannotConsume` is the
+  one signal that a model cannot take a dataset.
 """
 
 from __future__ import annotations
@@ -47,14 +47,16 @@ def load_splits(name: str, root: Any = None, fold: int = 0, download: bool = Fal
     return {split: cached[split] for split in splits}
 
 
-def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, seed: int = 0) -> torch.nn.Module:
-    """Model ``name`` built for ``spec`` right after seeding, so its initial weights depend on ``seed`` only.
+def build_model(name: str, spec: Any, hparams: Mapping[str, Any] | None = None, seed: int = 0,
+                revision: int | None = None) -> torch.nn.Module:
+    """Model ``name`` built for ``spec`` right after seeding, so its initial weights depend on ``seed`` only, at
+    revision ``revision`` (``None``: the model's default; a cell passes its recorded ``model_revision``).
 
     Raises:
         ModelCannotConsume: the model declares it cannot take this dataset (raised by its constructor, explicitly:
             a :class:`~tactile_zoo.errors.ConfigError` for a bad hyper-parameter value stays what it is, an error).
     """
     seed_everything(seed)
-    return registry.instantiate_model(name, spec, **dict(hparams or {}))
+    return registry.instantiate_model(name, spec, revision=revision, **dict(hparams or {}))
 
 

@@ -88,7 +88,7 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
     rec = config.recipe
     prefix = infer_ms = reference = None
     with PeakMemory(dev) as peak:
-        model = build_model(config.model, train.spec, config.hparams, seed)
+        model = build_model(config.model, train.spec, config.hparams, seed, config.model_revision)
         if config.evaluation == "reference":
             result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback)
         elif config.evaluation == "final":  # the resolved recipe copied without early stopping, not resolved again
@@ -123,7 +123,7 @@ def _tune_cell(config: CellConfig, fold: int, seed: int, root: Any, download: bo
     subset = config.subset or {}
     train, val = take(splits["train"], subset.get("train")), take(splits["val"], subset.get("val"))
     with PeakMemory(dev) as peak:
-        model = build_model(config.model, train.spec, config.hparams, seed)
+        model = build_model(config.model, train.spec, config.hparams, seed, config.model_revision)
         result = train_model(model, train, recipe=config.recipe, seed=seed, val_dataset=val, device=dev,
                              refit=config.refit, progress=progress, callback=callback)
     return CellResult(config=config, fold=fold, seed=seed, fit=result, tests={}, spec=train.spec, n_train=len(train),

@@ -151,9 +151,14 @@ def _why(exc: BaseException) -> str:
 
 
 def build_from_checkpoint(blob: dict[str, Any], spec: Any, where: str = "checkpoint") -> torch.nn.Module:
-    """Rebuild the model of a loaded checkpoint for ``spec`` through the registry and load its weights; the model
-    keeps the checkpoint's ``config`` as ``zoo_checkpoint`` (:func:`tactile_zoo.predict` applies its preprocessing)."""
-    from ..registry import instantiate_model
+    """Rebuild the model of a loaded checkpoint for ``spec`` through the registry, at the model revision its
+    ``config`` records (the path that trained it), and load its weights; the model keeps the checkpoint's ``config``
+    as ``zoo_checkpoint`` (:func:`tactile_zoo.predict` applies its preprocessing).
+
+    Raises:
+        ConfigError: the checkpoint does not fit ``spec`` or the model, or its revision can no longer be built.
+    """
+    from ..registry import get_model_entry, instantiate_model, model_revisions
 
     config = blob["config"]
     trained = config.get("spec") or {}
@@ -161,7 +166,12 @@ def build_from_checkpoint(blob: dict[str, Any], spec: Any, where: str = "checkpo
         if key in trained and trained[key] != getattr(spec, key):
             raise ConfigError(f"{where} was trained on {trained.get('name')!r} with {key}={trained[key]}; dataset "
                               f"{spec.name!r} has {key}={getattr(spec, key)}")
-    model = instantiate_model(config["model"], spec, **(config.get("hparams") or {}))
+    revision = config.get("model_revision")  # None: a checkpoint from before revisions, built at the default
+    known = model_revisions(get_model_entry(config["model"]))
+    if revision is not None and revision not in known:
+        raise ConfigError(f"{where} was trained with revision {revision} of model {config['model']!r}, which the "
+                          f"installed code no longer builds (its revisions: {', '.join(map(str, known))})")
+    model = instantiate_model(config["model"], spec, revision=revision, **(config.get("hparams") or {}))
     try:
         model.load_state_dict(blob["state_dict"])
     except RuntimeError as exc:

@@ -174,7 +174,7 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
                  hparams: Mapping[str, Any] | None = None, epochs: int | None = None,
                  dataset_kwargs: Mapping[str, Any] | None = None, refit: bool = False, quick: bool = False,
                  subset: Mapping[str, int] | None = None, prefixes: Sequence[float] = DEFAULT_PREFIXES,
-                 evaluation: str | None = None) -> CellConfig:
+                 evaluation: str | None = None, model_revision: int | None = None) -> CellConfig:
     """The configuration of ``model`` on ``dataset``.
 
     Args:
@@ -194,12 +194,18 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
         subset: at most this many (class-balanced) samples per split, keyed ``train``/``val``/``test``.
         prefixes: early-classification prefix fractions evaluated on the test split.
         evaluation: one of :data:`EVALUATIONS`; default: the one the named recipe declares, else ``"validation"``.
+        model_revision: which of the model's revisions to build (:func:`tactile_zoo.registry.model_revisions`);
+            default: its registered default. Part of the hash, so cells of two revisions never pool.
+
+    Raises:
+        ConfigError: a bad setting, or a revision the model does not have (naming its revisions).
     """
     if evaluation is not None and evaluation not in EVALUATIONS:
         raise ConfigError(f"--evaluation must be one of {', '.join(EVALUATIONS)}, got {evaluation!r}")
     hparams = settings.check_keywords(hparams or {}, "", "hparams")  # the schema's keyword names, finite values
     dataset_kwargs = settings.check_keywords(dataset_kwargs or {}, "", "dataset_kwargs")
     entry = registry.get_model_entry(model)
+    registry.revision_keywords(entry, model_revision)  # an unknown revision stops here, naming the model's revisions
     data_entry = registry.get_dataset_entry(dataset)
     if isinstance(recipe, str):
         recipe, recipe_name = None, recipe
@@ -215,7 +221,8 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
                       model_source=entry.dist or "builtin", hparams={**named.hparams, **dict(hparams or {})},
                       dataset_kwargs={**named.dataset_kwargs, **dict(dataset_kwargs or {})}, refit=bool(refit),
                       subset=dict(subset) if subset else None, prefixes=tuple(prefixes),
-                      causal=bool(entry.meta.get("causal", False)), model_revision=registry.revision_of(entry),
+                      causal=bool(entry.meta.get("causal", False)),
+                      model_revision=registry.revision_of(entry) if model_revision is None else model_revision,
                       dataset_revision=registry.revision_of(data_entry), evaluation=evaluation)
 
 
@@ -288,7 +295,8 @@ def check_model_builds(resolved: CellConfig, spec: Any, given: Mapping[str, Any]
 
     try:
         with torch.random.fork_rng(devices=[]):  # the check leaves the caller's random state as it found it
-            registry.instantiate_model(resolved.model, spec, **dict(resolved.hparams))
+            registry.instantiate_model(resolved.model, spec, revision=resolved.model_revision,
+                                       **dict(resolved.hparams))
     except ModelCannotConsume:
         return False
     except Exception as exc:  # noqa: BLE001 - whatever a constructor raises for a value it cannot use

@@ -55,7 +55,10 @@ READOUTS = ("gap", "taxels")
     **recipe_file("tactile_zoo", "convlstm"),
     causal=True,
     streaming=True,
+    # 2: the recurrence's numba kernels (backend "compiled"), selectable but not the default: in the one run that
+    # timed both (benchmarks/results/vs_pinned.csv, 2026-12-05) it did not beat "fused" (13.42 s against 13.27 s)
     revision=1,
+    revisions={1: {"backend": "fused"}, 2: {"backend": "compiled"}},
 )
 class ConvLSTMNet(BinnedStreamer):
     """ConvLSTM classifier of Zapata-Impata et al. (2019): sensor images, two ConvLSTM layers, pooled last state.
@@ -74,7 +77,8 @@ class ConvLSTMNet(BinnedStreamer):
         fill_passes: empty-cell fill passes of the sensor image; ``None`` takes the sensor's (BioTac SP: 2).
         backend: the recurrence's implementation, ``"fused"`` (default), ``"autograd"`` (the reference) or
             ``"compiled"`` (opt-in: numba kernels per step on CPU, equal to ``"fused"`` within float32 rounding,
-            not bit for bit); see :mod:`tactile_zoo.nn.convlstm`.
+            not bit for bit: revision 2, ``create_model("convlstm", spec, revision=2)``); see
+            :mod:`tactile_zoo.nn.convlstm`.
         max_frames: the recurrence reads ``ceil(T / k)`` bins of ``k = ceil(T / max_frames)`` averaged frames, ``T``
             the spec's ``num_steps`` (ours, 50); ``None`` reads every frame, as the source did.
         frame_norm: ``None`` (default) feeds the image as is; ``"minmax"`` rescales every image (each frame, or bin,

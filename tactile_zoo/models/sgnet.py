@@ -64,7 +64,13 @@ class SGNetState:
     **recipe_file("tactile_zoo", "sgnet"),
     causal=True,
     streaming=True,
-    revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list
+    # 2: the NeuTouch default graph is the reference's exact edge list; 3: the event products by default (the same
+    # spikes as 2, gradients within 1e-5 of its own: tests/models/test_revision_paths.py)
+    revision=3,
+    revisions={2: {"lif_backend": "fused", "graph_backend": "dense", "graph_weight_grad": "autograd",
+                   "compute": "dense"},
+               3: {"lif_backend": "fused", "graph_backend": "dense", "graph_weight_grad": "autograd",
+                   "compute": "event"}},
 )
 class SGNet(ClassifierMixin, nn.Module):
     """TactileSGNet (Gu et al., IROS 2020): TAGConv on every frame's taxel graph, then a spiking MLP; scores are
@@ -92,11 +98,13 @@ class SGNet(ClassifierMixin, nn.Module):
             another order, which skips a copy of the layer's output gradient (a training step on Ev-Objects at
             batch 8 about 8% faster on 1 CPU thread); the same function, rounded differently
             (:class:`~tactile_zoo.nn.graph.FrameGraphConv`'s ``weight_grad``).
-        compute: ``"dense"`` (default) or ``"event"`` (opt-in, CPU): the graph convolution as one product over the
-            input events (:func:`~tactile_zoo.nn.event_graph_conv.event_graph_conv`) and the first linear layer
-            over the first LIF's spikes (:func:`~tactile_zoo.nn.event_linear.event_linear`); the same function,
-            rounded differently (relative differences around 1e-6), so an hparam of its own, part of the cell hash.
-            Off CPU it runs the dense products, which are its oracle.
+        compute: ``"event"`` (default since revision 3) or ``"dense"`` (revision 2's): the graph convolution as
+            one product over the input events (:func:`~tactile_zoo.nn.event_graph_conv.event_graph_conv`) and the
+            first linear layer over the first LIF's spikes (:func:`~tactile_zoo.nn.event_linear.event_linear`); the
+            same function, rounded differently (the same spikes, gradients within about 1e-6 relative), so each
+            default is its own revision (``create_model("sgnet", spec, revision=2)`` builds the dense one). Off CPU
+            it runs the dense products, which are its oracle; it needs ``graph_backend="dense"`` (with ``"pyg"``,
+            pass ``compute="dense"``).
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> rates ``(B, K)`` in [0, 1]; streaming:
@@ -107,7 +115,7 @@ class SGNet(ClassifierMixin, nn.Module):
                  beta: float = 0.2, threshold: float = 0.5, surrogate: str = "rect", surrogate_width: float = 1.0,
                  detach_reset: bool = False, graph: str = "default", graph_kwargs: dict[str, Any] | None = None,
                  lif_backend: str = "fused", graph_backend: str = "dense", init: str = "he",
-                 graph_weight_grad: str = "autograd", compute: str = "dense") -> None:
+                 graph_weight_grad: str = "autograd", compute: str = "event") -> None:
         super().__init__()
         if init not in ("he", "default"):
             raise ConfigError(f"sgnet: init must be 'he' or 'default', got {init!r}")

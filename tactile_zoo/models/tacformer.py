@@ -117,7 +117,11 @@ class SpatialGraphAttention(nn.Module):
     **recipe_file("tactile_zoo", "tacformer"),
     causal=True,
     streaming=True,
-    revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list
+    # 2: the NeuTouch default graph is the reference's exact edge list; 3: the explicit attention product by default
+    # (the same spikes as 2, gradients within 1e-5 of its own: tests/models/test_revision_paths.py)
+    revision=3,
+    revisions={2: {"graph_backend": "dense", "lif_backend": "fused", "attention": "fused"},
+               3: {"graph_backend": "dense", "lif_backend": "fused", "attention": "explicit"}},
 )
 class Tacformer(BinnedStreamer):
     """Tacformer: X-Tacformer's spatial graph attention module on its own (structure in the module docstring).
@@ -142,9 +146,10 @@ class Tacformer(BinnedStreamer):
         dropout: dropout on the read-out vector; ``attn_dropout`` on the attention weights.
         graph: the sensor graph kind (``"default"``: the sensor's own).
         graph_backend, lif_backend: implementations of the shared operators (same results).
-        attention: the MSA-SNN's attention product (eq. 8): ``"fused"`` (``scaled_dot_product_attention``, the
-            default) or ``"explicit"`` (batched matmuls with the softmax kept for the backward: on CPU faster for
-            the 39 NeuTouch taxels); the same up to float rounding, so opt-in (the revision does not move).
+        attention: the MSA-SNN's attention product (eq. 8): ``"explicit"`` (batched matmuls with the softmax kept
+            for the backward: on CPU faster for the 39 NeuTouch taxels; the default since revision 3) or ``"fused"``
+            (``scaled_dot_product_attention``, revision 2's); the same up to float rounding, each default its own
+            revision (``create_model("tacformer", spec, revision=2)`` builds the fused one).
 
     Shapes:
         ``x (B, T, N, C)``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``; streaming ``x_t (B, N, C)``,
@@ -159,7 +164,7 @@ class Tacformer(BinnedStreamer):
                  hops: int = 3, tau: float = 2.0, v_th: float = 1.0, surrogate: str = "atan",
                  detach_reset: bool = True, bin_size: int = 5, taxel_embedding: bool = True, pool: str = "flatten",
                  readout_norm: bool = True, dropout: float = 0.1, attn_dropout: float = 0.0, graph: str = "default",
-                 graph_backend: str = "dense", lif_backend: str = "fused", attention: str = "fused") -> None:
+                 graph_backend: str = "dense", lif_backend: str = "fused", attention: str = "explicit") -> None:
         super().__init__()
         if bin_size < 1:
             raise ConfigError(f"{type(self).__name__}: bin_size must be >= 1, got {bin_size}")

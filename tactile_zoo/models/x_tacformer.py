@@ -71,7 +71,13 @@ _SIGNATURE = _signature()
     **recipe_file("tactile_zoo", "x_tacformer"),
     causal=True,
     streaming=True,
-    revision=2,  # 2: the NeuTouch default graph is the reference's exact edge list
+    # 2: the NeuTouch default graph is the reference's exact edge list; 3: the explicit attention product by default
+    # (the same spikes as 2, gradients within 1e-5 of its own: tests/models/test_revision_paths.py)
+    revision=3,
+    revisions={2: {"graph_backend": "dense", "lif_backend": "fused", "attention": "fused",
+                   "temporal_backend": "native"},
+               3: {"graph_backend": "dense", "lif_backend": "fused", "attention": "explicit",
+                   "temporal_backend": "native"}},
 )
 class XTacformer(Tacformer):
     """X-Tacformer: Tacformer's spatial branch plus the temporal graph attention branch (structure in the module

@@ -19,13 +19,14 @@ The LIF neurons are the paper's (eqs. 2-4 via :meth:`MultiStepLIF.from_tau`) and
 a leading time axis; attention is within a frame, never across frames, which keeps the block causal in time (the LIF
 membranes are the only state carried between frames; see :meth:`SpikingSelfAttention.run`).
 
-Eq. 8 has two implementations (``attention=``): ``"fused"`` (the default) is ``F.scaled_dot_product_attention``, on
-CPU a flash-attention kernel built for long sequences, which tiles the scores and recomputes them in the backward;
+Eq. 8 has two implementations (``attention=``): ``"fused"`` is ``F.scaled_dot_product_attention``, on CPU a
+flash-attention kernel built for long sequences, which tiles the scores and recomputes them in the backward;
 ``"explicit"`` (:func:`explicit_attention`) forms the whole ``(L, L)`` score matrix with batched matmuls and keeps
 the softmax probabilities for the backward. For Tacformer's 39 taxel tokens (4 heads of 16) the explicit one is
 faster on CPU: forward + backward of the attention 1.26x, a whole Tacformer training step about 1.05x (one thread,
-docs/performance.md). The two agree to float rounding, not bit for bit, so the fused one stays the default and
-the committed results keep their numbers.
+docs/performance.md). The two agree to float rounding, not bit for bit, so each is a model revision of its own:
+Tacformer's and X-Tacformer's revision 2 compute ``"fused"``, revision 3 (their default) ``"explicit"``
+(docs/revisions.md). The class's own default stays ``"fused"``.
 """
 
 from __future__ import annotations
@@ -88,13 +89,28 @@ class _ExplicitAttention(torch.autograd.Function):
         return grad, None, None
 
 
+def _traced(qkv: Tensor) -> bool:
+    """Whether a tracer records this call (TorchScript's trace, the ONNX exporter, ``torch.compile``, a fake or
+    functional tensor): it cannot record a Python autograd Function."""
+    return (torch.jit.is_tracing() or torch.onnx.is_in_onnx_export() or torch.compiler.is_compiling()
+            or type(qkv) is not Tensor)
+
+
 def _packed_attention(qkv: Tensor, dropout_p: float) -> Tensor:
     """Eq. 8 on packed, contiguous ``qkv (3, B, L, d)`` -> ``(B, L, d)``; dropout (training only: the caller passes
-    0 otherwise) draws its mask as ``F.dropout`` does, ``bernoulli(1 - p) / (1 - p)`` on the probabilities."""
+    0 otherwise) draws its mask as ``F.dropout`` does, ``bernoulli(1 - p) / (1 - p)`` on the probabilities.
+
+    Under a tracer the same forward ops run as ordinary differentiable ops (the same numbers; an exported file holds
+    them), since a tracer cannot record the autograd Function."""
     _, b, n, d = qkv.shape
     mask = None
     if dropout_p > 0.0:
         mask = qkv.new_empty(b, n, n).bernoulli_(1.0 - dropout_p).div_(1.0 - dropout_p)
+    if _traced(qkv):
+        q, k, v = qkv.unbind(0)
+        p = torch.softmax(torch.baddbmm(qkv.new_zeros(()), q, k.transpose(1, 2), beta=0.0, alpha=1.0 / math.sqrt(d)),
+                          dim=-1)
+        return torch.bmm(p if mask is None else p * mask, v)
     return _ExplicitAttention.apply(qkv, 1.0 / math.sqrt(d), mask)
 
 

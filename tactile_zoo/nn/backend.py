@@ -17,10 +17,13 @@ trees and fails on a second resolver).
 - ``stats`` of :class:`~tactile_zoo.nn.batch_norm.BatchNorm1d` and ``BatchNorm2d`` (D-CNN: ``bn_stats``):
   :class:`BatchNormStats`, ``native``, ``two_pass`` or ``float64``.
 
-The first choice of each is the default. :func:`resolve` turns a keyword's value into its enumeration's member (a
-``str``, so it still compares equal to the word) or raises one :class:`~tactile_zoo.errors.ConfigError` naming the
-owner, the keyword, the value and the allowed values. Layers keep the member and branch on it (``self.backend is
-LIFBackend.FUSED``); no module compares such a keyword with a string of its own.
+The first choice of each is the oldest path; which one a model builds by default is its registered revision's
+(registry metadata ``revisions``: SGnet's ``compute="event"`` and the transformers' ``attention="explicit"`` since
+revision 3, :func:`tactile_zoo.registry.model_revisions`). :func:`resolve` turns a keyword's value into its
+enumeration's member (a ``str``, so it still compares equal to the word) or raises one
+:class:`~tactile_zoo.errors.ConfigError` naming the owner, the keyword, the value and the allowed values. Layers keep
+the member and branch on it (``self.backend is LIFBackend.FUSED``); no module compares such a keyword with a string of
+its own.
 
 The environment variable ``TACTILE_ZOO_LIF_BACKEND`` (:data:`LIF_KERNEL_ENV`; declared with its choices in
 :data:`tactile_zoo._env.CHOICE_VARIABLES`, which the command line checks before any work) chooses, per call, how the
@@ -110,7 +113,8 @@ class Attention(StrEnum):
 
 
 class Compute(StrEnum):
-    """SGnet's products: dense, or over the input events and the first LIF's spikes (opt-in, CPU)."""
+    """SGnet's products: dense (revision 2), or over the input events and the first LIF's spikes (CPU; the default
+    since revision 3)."""
 
     DENSE = "dense"
     EVENT = "event"
@@ -154,7 +158,7 @@ def resolve_compute(compute: object, graph_backend: object, owner: str) -> Compu
     graph = resolve(GraphBackend, graph_backend, "graph_backend", owner)
     if chosen is Compute.EVENT and graph is not GraphBackend.DENSE:
         raise ConfigError(f"{owner}: compute='event' needs graph_backend='dense' (the event product is built from the "
-                          f"dense hop matrices), got graph_backend={graph_backend!r}")
+                          f"dense hop matrices), got graph_backend={graph_backend!r}; with it, pass compute='dense'")
     return chosen
 
 

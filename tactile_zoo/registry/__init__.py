@@ -61,6 +61,8 @@ from .lookup import (
     listed_name,
     load_dataset,
     model_names,
+    model_revisions,
+    revision_keywords,
     revision_of,
 )
 from .recipe_files import read_recipe_file, recipe_file, recipe_file_path
@@ -70,7 +72,8 @@ __all__ = [
     "model_names", "list_datasets", "list_sensors", "instantiate_model", "load_dataset", "get_sensor",
     "get_model_entry", "get_dataset_entry", "listed_name", "plugins", "normalize_name", "reset_plugins",
     "set_plugin_policy",
-    "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
+    "MODEL_META_KEYS", "DATASET_META_KEYS", "DEFAULT_REVISION", "revision_of",
+    "model_revisions", "revision_keywords", "ENTRY_POINT_GROUPS", "MODEL_INPUTS",
     "RECIPE_KEYS", "import_plugin_modules", "find_entry_points", "FoundEntryPoint", "load_failure",
     "UnknownNameError", "model_recipe", "recipe_file", "read_recipe_file", "recipe_file_path",
 ]

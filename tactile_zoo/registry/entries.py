@@ -22,7 +22,7 @@ T = TypeVar("T")
 #: Keys ``register_model(**meta)`` (and a plugin's ``zoo_meta``) accept; a typo is a ConfigError, not silence.
 MODEL_META_KEYS = frozenset({
     "paper", "citation", "year", "url", "description", "tags", "inputs", "recipe", "recipes", "default_recipe",
-    "causal", "streaming", "revision",
+    "causal", "streaming", "revision", "revisions",
     # optional, for the generated pages (python -m tools.model_pages) and the zoo's tests; never part of a cell hash
     "display_name", "family", "reference", "test_hparams",
 })
@@ -36,6 +36,8 @@ DATASET_META_KEYS = frozenset({
 SENSOR_META_KEYS = frozenset({"description", "citation"})
 #: A model's or dataset's computational revision when its metadata names none. Bump ``revision`` whenever what the
 #: code computes changes (layers, initialisation, a sensor graph, preprocessing): it is part of every cell hash.
+#: A model whose revisions differ only in the defaults of its compute keywords keeps the older ones selectable:
+#: its ``revisions`` metadata maps each revision to those defaults (:func:`~tactile_zoo.registry.model_revisions`).
 DEFAULT_REVISION = 1
 _META_KEYS = {"model": MODEL_META_KEYS, "dataset": DATASET_META_KEYS, "sensor": SENSOR_META_KEYS}
 #: What a model's ``inputs`` metadata may name: the taxel graph, the sensor image grid, the global features.
@@ -147,7 +149,27 @@ def _check_meta(kind: str, name: str, meta: Mapping[str, Any]) -> dict[str, Any]
         raise ConfigError(f"{kind} {name!r}: metadata 'revision' must be a positive integer, got {revision!r}")
     if kind == "model":
         _check_model_meta(name, meta)
+        if "revisions" in meta:
+            _check_revisions(name, meta["revisions"], revision)
     return dict(meta)
+
+
+def _check_revisions(name: str, revisions: Any, default: int) -> None:
+    """``revisions``: revision -> {compute keyword: its default at that revision}, naming the default ``revision``.
+
+    Each entry is a path through the same code: what a revision changes is only which compute path its constructor
+    keywords default to, so every listed revision can still be built (and its cells rerun)."""
+    where = f"model {name!r}: metadata 'revisions'"
+    if not isinstance(revisions, Mapping) or not revisions:
+        raise ConfigError(f"{where} must map revision numbers to dicts of constructor keywords, got {revisions!r}")
+    for number, path in revisions.items():
+        if not isinstance(number, int) or isinstance(number, bool) or number < 1:
+            raise ConfigError(f"{where}: {number!r} is not a positive integer revision")
+        if not isinstance(path, Mapping) or not all(isinstance(k, str) and k.isidentifier() for k in path):
+            raise ConfigError(f"{where}: revision {number} must map keyword names to values, got {path!r}")
+    if default not in revisions:
+        raise ConfigError(f"{where} must list the default revision {default} (metadata 'revision'); it lists "
+                          f"{sorted(revisions)}")
 
 
 def _is_number(value: Any) -> bool:
@@ -209,6 +231,13 @@ def _normalise_recipes(kind: str, meta: dict[str, Any]) -> dict[str, Any]:
     return {**meta, "recipes": recipes, "default_recipe": default, "recipe": dict(recipes[default])}
 
 
+def _copy_revisions(kind: str, meta: dict[str, Any]) -> dict[str, Any]:
+    """A model's ``revisions`` as plain dicts in the order of their numbers (a copy: the caller's dict may change)."""
+    if kind != "model" or "revisions" not in meta:
+        return meta
+    return {**meta, "revisions": {number: dict(meta["revisions"][number]) for number in sorted(meta["revisions"])}}
+
+
 def model_recipe(meta: Mapping[str, Any], name: str | None = None) -> tuple[str, Mapping[str, Any] | None]:
     """(name, recipe) of a model's recipe ``name`` (``None``: its default), as registered; ``(name, None)`` means
     the harness's default recipe for a model that registers none. Resolving it (its dataset section, the epoch budget,
@@ -229,7 +258,7 @@ def _register(kind: str, obj: Any, name: str | None, meta: Mapping[str, Any]) ->
     canonical = _snake_case(name or getattr(obj, "name", None) or getattr(obj, "__name__", ""))
     if not canonical:
         raise ConfigError(f"cannot derive a {kind} name from {obj!r}; pass name=")
-    meta = _normalise_recipes(kind, _check_meta(kind, canonical, meta))
+    meta = _copy_revisions(kind, _normalise_recipes(kind, _check_meta(kind, canonical, meta)))
     dist, version = _LOADING_DIST[-1] if _LOADING_DIST else (None, None)
     with _LOCK:
         return _TABLES[kind].add(Entry(kind, canonical, obj, MappingProxyType(meta), dist, version))

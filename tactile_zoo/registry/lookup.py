@@ -9,7 +9,7 @@ import re
 from collections.abc import Iterable
 from typing import Any
 
-from ..errors import PluginError, UnknownNameError
+from ..errors import ConfigError, PluginError, UnknownNameError
 from .discovery import _ensure_discovered
 from .entries import _TABLES, DEFAULT_REVISION, Entry, _describe, normalize_name
 
@@ -59,6 +59,32 @@ def listed_name(entry: Entry) -> str:
 def revision_of(entry: Entry) -> int:
     """The computational revision of a model or dataset entry (``DEFAULT_REVISION`` when its metadata has none)."""
     return int(entry.meta.get("revision", DEFAULT_REVISION))
+
+
+def model_revisions(entry: Entry) -> dict[int, dict[str, Any]]:
+    """Every revision model ``entry`` can still be built at, in order, each with its path: the constructor keywords
+    whose defaults that revision fixes (its compute path; ``{}``: the constructor's own defaults).
+
+    A model without ``revisions`` metadata has one, its ``revision``; every revision a model lists stays selectable
+    (:func:`instantiate_model`'s ``revision``), so a cell trained at it can be rebuilt."""
+    declared = entry.meta.get("revisions") or {}
+    out = {int(number): dict(path) for number, path in declared.items()}
+    out.setdefault(revision_of(entry), {})
+    return dict(sorted(out.items()))
+
+
+def revision_keywords(entry: Entry, revision: int | None = None) -> dict[str, Any]:
+    """The constructor keywords that select revision ``revision`` of model ``entry`` (``None``: its default one).
+
+    Raises:
+        ConfigError: ``revision`` is not one of the model's revisions; the message names the model and its revisions.
+    """
+    known = model_revisions(entry)
+    number = revision_of(entry) if revision is None else revision
+    if isinstance(number, bool) or not isinstance(number, int) or number not in known:
+        listed = ", ".join(f"{n} (default)" if n == revision_of(entry) else str(n) for n in known)
+        raise ConfigError(f"model {entry.qualified_name!r} has no revision {revision!r}; its revisions: {listed}")
+    return known[number]
 
 
 def get_model_entry(name: str) -> Entry:
@@ -114,15 +140,21 @@ def get_sensor(name: str) -> Any:
     return _resolve("sensor", name).obj
 
 
-def instantiate_model(name: str, spec: Any, **hparams: Any) -> Any:
-    """Build model ``name`` for a dataset ``spec``: ``Model(spec, **hparams)``: a fresh ``torch.nn.Module``.
+def instantiate_model(name: str, spec: Any, *, revision: int | None = None, **hparams: Any) -> Any:
+    """Build model ``name`` for a dataset ``spec`` at revision ``revision`` (``None``: the model's default one):
+    ``Model(spec, **path, **hparams)``, a fresh ``torch.nn.Module``, where ``path`` is the revision's compute keywords
+    (:func:`revision_keywords`; ``hparams`` win over them).
 
     The registry's constructor call; :func:`tactile_zoo.create_model` is the public one (it loads pretrained weights
-    too)."""
+    too).
+
+    Raises:
+        ConfigError: an unknown ``revision``, naming the model's revisions.
+    """
     import torch
 
     entry = get_model_entry(name)
-    model = entry.obj(spec, **hparams)
+    model = entry.obj(spec, **{**revision_keywords(entry, revision), **hparams})
     if not isinstance(model, torch.nn.Module):
         where = f"plugin distribution {entry.dist!r}" if entry.dist else _describe(entry.obj)
         raise PluginError(f"model {entry.qualified_name!r} from {where} returned a {type(model).__name__}, "

@@ -193,19 +193,30 @@ def load_state(path: Path, entry: WeightEntry) -> dict[str, torch.Tensor]:
         raise DatasetError(f"weights {entry.tag!r}: {path} is not a readable safetensors file ({exc})") from None
 
 
-def _check_revision(entry: WeightEntry) -> None:
-    if entry.model_revision is None:
-        return
-    current = registry.revision_of(registry.get_model_entry(entry.model))
-    if current != entry.model_revision:
+def weights_revision(entry: WeightEntry, revision: int | None = None) -> int:
+    """The revision of model ``entry.model`` that weights ``entry`` load into: the one their manifest records (the
+    path that trained them; the model's default for an entry that records none).
+
+    Raises:
+        ConfigError: that revision can no longer be built (its code is gone), or ``revision`` asks for another one.
+    """
+    model = registry.get_model_entry(entry.model)
+    recorded = registry.revision_of(model) if entry.model_revision is None else entry.model_revision
+    known = registry.model_revisions(model)
+    if recorded not in known:
         made = f" (commit {entry.commit})" if entry.commit else ""
-        raise ConfigError(f"weights {entry.tag!r} were trained with revision {entry.model_revision} of model "
-                          f"{entry.model!r}{made}; the installed model is revision {current} and computes "
-                          f"differently, so they cannot be loaded into it")
+        raise ConfigError(f"weights {entry.tag!r} were trained with revision {recorded} of model {entry.model!r}"
+                          f"{made}; the installed model is revision {registry.revision_of(model)} (it builds "
+                          f"revision(s) {', '.join(map(str, known))}) and computes differently, so they cannot be "
+                          f"loaded into it")
+    if revision is not None and revision != recorded:
+        raise ConfigError(f"revision={revision!r}: weights {entry.tag!r} were trained with revision {recorded} of "
+                          f"model {entry.model!r} and load into that revision only (leave revision out)")
+    return recorded
 
 
 def load_pretrained(name: str, pretrained: Any, spec: Any = None, *, new_head: bool = False, download: bool = True,
-                    **hparams: Any) -> nn.Module:
+                    revision: int | None = None, **hparams: Any) -> nn.Module:
     """Model ``name`` with the weights ``pretrained`` names (see the module docstring).
 
     Args:
@@ -215,22 +226,24 @@ def load_pretrained(name: str, pretrained: Any, spec: Any = None, *, new_head: b
         new_head: keep every layer but the final classifier, which the model initialises afresh for ``spec``'s
             classes (``spec`` required).
         download: fetch a URL entry that is not in the cache.
+        revision: the model revision to build; the weights' own (what their manifest records) is the only one
+            accepted, and the one built when it is left out.
         **hparams: override the entry's constructor keywords (a change of shape fails to load).
 
     Returns:
         the model, in training mode, with ``zoo_pretrained`` (the entry) and ``zoo_loss`` set.
     """
     entry = resolve_weights(name, pretrained)
-    _check_revision(entry)
+    revision = weights_revision(entry, revision)
     if new_head and spec is None:
         raise ConfigError("new_head=True starts a classifier for your classes: pass the spec of your data")
     trained = entry.dataset_spec()
     target = trained if spec is None else spec
     check_fit(entry, target, new_head=new_head)
     options = {**entry.hparams, **hparams}
-    model = registry.instantiate_model(entry.model, target, **options)
+    model = registry.instantiate_model(entry.model, target, revision=revision, **options)
     if target.num_steps != trained.num_steps and not new_head:
-        reference = registry.instantiate_model(entry.model, trained, **options)
+        reference = registry.instantiate_model(entry.model, trained, revision=revision, **options)
         if _time_dependence(model) != _time_dependence(reference):
             raise _misfit(entry, target, [f"steps: the weights were trained on {trained.num_steps} steps, your data "
                                           f"has {target.num_steps}, and model {entry.model!r} depends on the length "
@@ -312,7 +325,8 @@ def _with_classes(spec: Any, num_classes: int) -> Any:
 
 
 def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: bool = False, *,
-                 num_classes: int | None = None, dataset: str | None = None, **hparams: Any) -> nn.Module:
+                 num_classes: int | None = None, dataset: str | None = None, revision: int | None = None,
+                 **hparams: Any) -> nn.Module:
     """Build model ``name`` for a dataset ``spec``, optionally with pretrained weights (timm's calls).
 
     Without ``pretrained`` this is the registry's ``Model(spec, **hparams)``. With it, the weights are loaded (see
@@ -334,7 +348,13 @@ def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: 
             named ``class_<i>`` when the count changes). With ``pretrained``: every other layer is loaded; without
             ``spec``, a count equal to the weights' keeps their classifier too (as timm).
         dataset: with ``pretrained=True``: the dataset whose weights to load.
-        **hparams: the model's constructor keywords.
+        revision: which of the model's revisions to build (``registry.model_revisions``; default: its registered
+            default). With weights (``pretrained``, or a tag in ``name``), the revision their manifest records is
+            built, and another one is refused.
+        **hparams: the model's constructor keywords (they win over the revision's compute keywords).
+
+    Raises:
+        ConfigError: a revision the model does not have (the message lists its revisions), among the other checks.
     """
     model_name, tag = _split_tag(name)
     if dataset is not None and pretrained is not True:
@@ -347,9 +367,10 @@ def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: 
         entry = resolve_weights(model_name, tag)
         if pretrained is True:
             pretrained = entry
-        else:  # timm: the tag's configuration, random weights
+        else:  # timm: the tag's configuration (its revision too), random weights
             hparams = {**entry.hparams, **hparams}
             spec = entry.dataset_spec() if spec is None else spec
+            revision = weights_revision(entry, revision)
     if pretrained is True:
         pretrained = _pick(model_name, spec, dataset, new_head or num_classes is not None)
     if pretrained is None or pretrained is False:
@@ -360,15 +381,16 @@ def create_model(name: str, spec: Any = None, pretrained: Any = None, new_head: 
                               f"then used)")
         if num_classes is not None:
             spec = _with_classes(spec, num_classes)
-        return registry.instantiate_model(model_name, spec, **hparams)
+        return registry.instantiate_model(model_name, spec, revision=revision, **hparams)
     if num_classes is not None:
         entry = resolve_weights(model_name, pretrained)
         base = entry.dataset_spec() if spec is None else spec
         target = _with_classes(base, num_classes)
         # a classifier of the weights' own size loads as it is (timm keeps it too); any other gets a fresh one
         keep = spec is None and num_classes == entry.num_classes
-        return load_pretrained(model_name, entry, None if keep else target, new_head=not keep, **hparams)
-    return load_pretrained(model_name, pretrained, spec, new_head=new_head, **hparams)
+        return load_pretrained(model_name, entry, None if keep else target, new_head=not keep, revision=revision,
+                               **hparams)
+    return load_pretrained(model_name, pretrained, spec, new_head=new_head, revision=revision, **hparams)
 
 
 def list_models(pattern: str | Iterable[str] = "*", tags: Iterable[str] | None = None, pretrained: bool = False

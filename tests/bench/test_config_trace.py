@@ -30,7 +30,7 @@ PACKAGE = Path(__file__).resolve().parents[2] / "tactile_zoo"
 TRACKED = (BenchConfig, CellConfig, Recipe)
 #: the BenchConfig settings that become a cell's configuration (every other setting says where and how cells run)
 CELL_SETTINGS = frozenset({"recipe", "recipe_name", "hparams", "model_overrides", "dataset_kwargs", "epochs",
-                           "quick", "refit", "prefixes", "evaluation"})
+                           "quick", "refit", "prefixes", "evaluation", "model_revisions"})
 MAX_FILES = 5
 
 

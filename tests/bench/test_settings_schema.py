@@ -97,6 +97,8 @@ BENCH_BAD: dict[str, st.SearchStrategy[Any]] = {
                                  st.just({"tiny_mlp": 3}), st.just({"tiny_mlp": {"hparams": {"dim": "x", "b c": 1}}})),
     "dataset_kwargs": st.one_of(st.just({"tiny_blobs": 3}), st.just({"*": {"seed": math.inf}}),
                                 st.just({"tiny_blobs": {"": 1}})),
+    "model_revisions": st.one_of(st.integers(), st.just({"tiny_mlp": 0}), st.just({"tiny_mlp": "2"}),
+                                 st.just({"tiny_mlp": 2.0}), st.just({"*": True}), st.just({"tiny_mlp": {"r": 1}})),
 }
 SEEN = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 

@@ -50,13 +50,15 @@ def test_every_committed_record_hashes_to_its_config_hash() -> None:
     assert config_hash(changed, hash_format=form) != record["config_hash"]  # a changed setting is a new hash
 
 
-def _from_cli_settings(record: dict, recipe: str | None = None) -> str:
-    """The hash ``tactile-zoo bench --models M --datasets D --recipe R`` gives the record's cell today (BioTac-DoS
-    with its ``--dataset-arg validation=...``, as the Table I commands ran it)."""
+def _from_cli_settings(record: dict, recipe: str | None = None, revision: int | None = None) -> str:
+    """The hash ``tactile-zoo bench --models M --datasets D --recipe R --model-revision M=N`` gives the record's cell
+    today (BioTac-DoS with its ``--dataset-arg validation=...``, as the Table I commands ran it; ``N``: the revision
+    the record names, replayed)."""
     stored, model, dataset = record["config"], record["model"], record["dataset"]
     kwargs = {k: v for k, v in stored["dataset_kwargs"].items() if k == "validation"}
     config = BenchConfig(models=[model], datasets=[dataset], recipe_name=recipe or recipe_name_of(stored),
-                         dataset_kwargs={dataset: kwargs} if kwargs else {})
+                         dataset_kwargs={dataset: kwargs} if kwargs else {},
+                         model_revisions={model: revision or stored["model_revision"]})
     return config_hash(plan_cells(config, [model], [dataset]).configs[model, dataset])
 
 
@@ -68,6 +70,18 @@ def test_table1_cells_resolve_from_their_command_line_settings(folder: str) -> N
     full = next(r for r in records if recipe_name_of(r["config"]) == "full") if folder.endswith("full") else None
     if full is not None:  # another recipe's settings give another hash: the check can fail
         assert _from_cli_settings(full, recipe="zoo") != full["config_hash"]
+
+
+def test_a_cell_of_an_older_revision_resolves_at_it_and_the_default_hashes_apart() -> None:
+    """SGnet's Table I cells ran revision 2 (the dense products); the default is now revision 3, so today's plain
+    command plans another cell (no silent pooling) and ``--model-revision sgnet=2`` plans the committed one."""
+    from tactile_zoo import registry
+
+    record = next(r for r in (json.loads(read_cell_bytes(p)) for p in cell_files(RESULTS / "paper-table1-full"))
+                  if r["model"] == "sgnet")
+    assert record["config"]["model_revision"] == 2 < registry.revision_of(registry.get_model_entry("sgnet"))
+    assert _from_cli_settings(record) == record["config_hash"]
+    assert _from_cli_settings(record, revision=3) != record["config_hash"]
 
 
 def test_there_are_committed_cells() -> None:

@@ -109,7 +109,7 @@ def test_backends_agree_on_outputs_and_gradients() -> None:
     results = []
     for lif_backend, graph_backend in [("fused", "dense"), ("snntorch", "pyg")]:
         torch.manual_seed(4)
-        model = _lively(SGNet(spec, lif_backend=lif_backend, graph_backend=graph_backend)).double()
+        model = _lively(SGNet(spec, lif_backend=lif_backend, graph_backend=graph_backend, compute="dense")).double()
         out = model(x)
         F.mse_loss(out, F.one_hot(torch.tensor([1, 4]), spec.num_classes).double()).backward()
         results.append((out.detach(), {n: p.grad for n, p in model.named_parameters()}))
@@ -129,7 +129,7 @@ def test_fast_graph_weight_gradient_is_the_same_function() -> None:
     results = []
     for weight_grad in ("autograd", "fast"):
         torch.manual_seed(8)
-        model = _lively(SGNet(spec, graph_weight_grad=weight_grad))
+        model = _lively(SGNet(spec, graph_weight_grad=weight_grad, compute="dense"))  # the dense graph convolution
         out = model(x, g)
         F.mse_loss(out, F.one_hot(torch.tensor([0, 2, 5]), spec.num_classes).float()).backward()
         results.append((out.detach(), {n: p.grad for n, p in model.named_parameters()}))
@@ -138,7 +138,7 @@ def test_fast_graph_weight_gradient_is_the_same_function() -> None:
     for name in grads_a:
         torch.testing.assert_close(grads_f[name], grads_a[name], rtol=1e-4, atol=1e-6, msg=name)
     with pytest.raises(ConfigError, match="weight_grad"):
-        SGNet(spec, graph_weight_grad="fast", graph_backend="pyg")
+        SGNet(spec, graph_weight_grad="fast", graph_backend="pyg", compute="dense")
 
 
 def test_bad_inputs_and_hparams() -> None:

@@ -1,5 +1,5 @@
-"""SGnet's opt-in event-driven computation (``compute="event"``): the dense model's spikes, its gradients to
-rounding, its own cell hash, and the default computation untouched."""
+"""SGnet's event-driven computation (``compute="event"``, the default since revision 3; revision 2 computes
+densely): the dense model's spikes, its gradients to rounding, and its own cell hash."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def _spec(sensor: str = "neutouch", channels: int = 2, globals_: int = 0, classe
 def _pair(spec: DatasetSpec, seed: int) -> tuple[SGNet, SGNet]:
     """A dense and an event-driven model with the same (livelier: every layer spikes) weights."""
     torch.manual_seed(seed)
-    dense = SGNet(spec)
+    dense = SGNet(spec, compute="dense")
     with torch.no_grad():
         for fc in dense.fcs:
             fc.weight.mul_(3.0)
@@ -82,7 +82,7 @@ def test_streaming_equals_forward() -> None:
 
 
 def test_event_products_run_only_where_promised(monkeypatch: pytest.MonkeyPatch) -> None:
-    """compute="event" on CPU: two event products per forward (graph convolution, first linear layer); the default
+    """compute="event" on CPU: two event products per forward (graph convolution, first linear layer); the dense
     model: none; under a TorchScript trace and off CPU (meta here) the event model runs the dense products."""
     calls = []
     apply = el._EventLinear.apply
@@ -103,26 +103,28 @@ def test_event_products_run_only_where_promised(monkeypatch: pytest.MonkeyPatch)
     assert meta(x.to("meta")).shape == (2, spec.num_classes) and len(calls) == 2
 
 
-def test_default_is_dense_and_the_option_is_checked() -> None:
+def test_default_is_event_and_the_option_is_checked() -> None:
     spec = _spec()
-    assert SGNet(spec).compute == "dense"
+    assert SGNet(spec).compute == "event"
     with pytest.raises(ConfigError, match="compute"):
         SGNet(spec, compute="sparse")
-    with pytest.raises(ConfigError, match="compute"):
-        SGNet(spec, compute="event", graph_backend="pyg")  # the event product needs the dense hop matrices
+    with pytest.raises(ConfigError, match="with it, pass compute='dense'"):
+        SGNet(spec, graph_backend="pyg")  # the event product needs the dense hop matrices
+    assert SGNet(spec, compute="dense", graph_backend="pyg").compute == "dense"
 
 
-def test_its_cells_hash_apart_and_the_default_cells_do_not_move() -> None:
-    """The option is an hparam, so its cells have their own hash; the default cell's configuration names no
-    ``compute`` at all, so every committed hash stays as it was."""
+def test_its_cells_hash_apart() -> None:
+    """The default is revision 3's event path; revision 2's dense cells, and a cell that names ``compute`` as an
+    hparam, each have a hash of their own (the default cell's configuration names no ``compute`` at all)."""
     from tactile_zoo.engine.config import config_hash, resolve_cell
 
     default = resolve_cell("sgnet", "sim_evtouch")
+    dense = resolve_cell("sgnet", "sim_evtouch", model_revision=2)
     event = resolve_cell("sgnet", "sim_evtouch", hparams={"compute": "event"})
     assert "compute" not in default.hparams and event.hparams["compute"] == "event"
-    assert event.model_revision == default.model_revision
-    assert config_hash(event) != config_hash(default)
-    assert config_hash(resolve_cell("sgnet", "sim_evtouch", hparams={"compute": "dense"})) != config_hash(default)
+    assert (default.model_revision, dense.model_revision) == (3, 2)
+    assert len({config_hash(c) for c in (default, dense, event)}) == 3
+    assert config_hash(resolve_cell("sgnet", "sim_evtouch", hparams={"compute": "dense"})) != config_hash(dense)
 
 
 def test_trains_on_real_ev_objects_like_the_dense_model(shared_data) -> None:
@@ -130,8 +132,8 @@ def test_trains_on_real_ev_objects_like_the_dense_model(shared_data) -> None:
     data = tz.load_dataset("ev_objects", root=shared_data, split="train")
     x, y = data.x[:2].float(), data.y[:2].long()
     torch.manual_seed(0)
-    dense = tz.create_model("sgnet", data.spec)
-    event = tz.create_model("sgnet", data.spec, compute="event")
+    dense = tz.create_model("sgnet", data.spec, revision=2)
+    event = tz.create_model("sgnet", data.spec)
     event.load_state_dict(dense.state_dict())
     spikes_d, out_d, grads_d = _step(dense, x, None, y)
     spikes_e, out_e, grads_e = _step(event, x, None, y)

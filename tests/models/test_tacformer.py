@@ -84,10 +84,12 @@ def test_registered_with_recipe_and_streaming_meta() -> None:
 
 
 def check_attention_hparam(name: str, spec_: DatasetSpec, x: torch.Tensor, **small: object) -> None:
-    """``attention=`` reaches every MSA block of model ``name`` (the default stays ``"fused"``); with the same weights
-    the explicit model's logits and gradients equal the fused one's (float64); a bad value is a ConfigError naming
-    the argument, also where no attention block is built (``depth=0``)."""
-    assert [blk.attention for blk in instantiate_model(name, spec_, **small).spatial.attn] == ["fused"]
+    """``attention=`` reaches every MSA block of model ``name`` (the default: ``"explicit"``, revision 3's; revision
+    2's: ``"fused"``); with the same weights the explicit model's logits and gradients equal the fused one's
+    (float64); a bad value is a ConfigError naming the argument, also where no attention block is built
+    (``depth=0``)."""
+    assert [blk.attention for blk in instantiate_model(name, spec_, **small).spatial.attn] == ["explicit"]
+    assert [blk.attention for blk in instantiate_model(name, spec_, revision=2, **small).spatial.attn] == ["fused"]
     results = []
     for attention in ("fused", "explicit"):
         torch.manual_seed(5)

@@ -91,7 +91,7 @@ SIGNATURE = [
     ("hidden", 16, "int"), ("temporal_pool", "mean", "str"), ("attn_dim", 32, "int"),
     ("temporal_backend", "native", "str"), ("dropout", 0.1, "float"), ("attn_dropout", 0.0, "float"),
     ("graph", "default", "str"), ("graph_backend", "dense", "str"), ("lif_backend", "fused", "str"),
-    ("attention", "fused", "str")]
+    ("attention", "explicit", "str")]  # the default since revision 3
 
 
 class _WrittenOut(Tacformer):
@@ -103,7 +103,7 @@ class _WrittenOut(Tacformer):
                  readout_norm: bool = True, hidden: int = 16, temporal_pool: str = "mean", attn_dim: int = 32,
                  temporal_backend: str = "native", dropout: float = 0.1, attn_dropout: float = 0.0,
                  graph: str = "default", graph_backend: str = "dense", lif_backend: str = "fused",
-                 attention: str = "fused") -> None:
+                 attention: str = "explicit") -> None:
         super().__init__(spec, dim=dim, heads=heads, depth=depth, mlp_ratio=mlp_ratio, hops=hops, tau=tau, v_th=v_th,
                          surrogate=surrogate, detach_reset=detach_reset, bin_size=bin_size,
                          taxel_embedding=taxel_embedding, pool=pool, readout_norm=readout_norm, dropout=dropout,

@@ -3,9 +3,11 @@
 Every model and dataset carries a computational ``revision`` (``tactile_zoo.registry.revision_of``) that is part of
 every benchmark cell's hash, so committed results computed by old code are never reused. That only works if the
 revision is bumped whenever the numbers change. ``test_revisions.py`` recomputes what this module records and fails
-when the numbers moved while the revision did not. Recorded per built-in model: its revision, and, for every simulated
-dataset's spec the model accepts, a fingerprint of its seeded initial state, its eval-mode logits on a seeded batch
-and a fingerprint of the gradients they give. Recorded per simulated dataset: its revision, its spec, and a
+when the numbers moved while the revision did not. Recorded per built-in model and per revision it still builds
+(``tactile_zoo.registry.model_revisions``; the lowest under the model's name, each later one under ``NAME@REVISION``,
+so adding a revision leaves the earlier entries as they are): the revision, and, for every simulated dataset's spec
+the model accepts, a fingerprint of its seeded initial state, its eval-mode logits on a seeded batch and a fingerprint
+of the gradients they give. Recorded per simulated dataset: its revision, its spec, and a
 fingerprint of every split of fold 0.
 
 The same command writes the other generated fixture, ``tests/models/fixtures/registered_recipes.json``: every
@@ -86,7 +88,24 @@ def sim_datasets() -> list[str]:
 
 
 def model_revision(name: str) -> int:
+    """The default revision of model ``name``."""
     return registry.revision_of(registry.get_model_entry(name))
+
+
+def model_revisions(name: str) -> list[int]:
+    """Every revision model ``name`` still builds, lowest first."""
+    return list(registry.model_revisions(registry.get_model_entry(name)))
+
+
+def record_key(name: str, revision: int) -> str:
+    """Where revision ``revision`` of model ``name`` is recorded: its lowest revision under the bare name, every later
+    one under ``NAME@REVISION``."""
+    return name if revision == min(model_revisions(name)) else f"{name}@{revision}"
+
+
+def builtin_records() -> list[tuple[str, int]]:
+    """(model, revision) of every record the zoo needs: each built-in model at each revision it builds."""
+    return [(name, revision) for name in builtin_models() for revision in model_revisions(name)]
 
 
 def dataset_revision(name: str) -> int:
@@ -182,18 +201,20 @@ def grad_fingerprint(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor) -
     return {"abs_sum": sum(_f64_sum(t.abs()) for t in grads), "sumsq": sum(_f64_sum(t, square=True) for t in grads)}
 
 
-def model_record(name: str, specs: Mapping[str, DatasetSpec]) -> dict[str, Any]:
-    """Revision of model ``name`` and, per simulated spec it accepts, its initial state, logits and gradients.
+def model_record(name: str, specs: Mapping[str, DatasetSpec], revision: int | None = None) -> dict[str, Any]:
+    """Revision ``revision`` (``None``: the default) of model ``name`` and, per simulated spec it accepts, its initial
+    state, logits and gradients.
 
     The model is built through ``registry.instantiate_model`` (looked up at call time, so a test can wrap it).
     """
+    revision = model_revision(name) if revision is None else revision
     cases: dict[str, Any] = {}
     rejected: dict[str, str] = {}
     for dataset, spec in specs.items():
         x, g, about = model_input(spec)
         seed_everything(MODEL_SEED)
         try:
-            model = registry.instantiate_model(name, spec).eval()
+            model = registry.instantiate_model(name, spec, revision=revision).eval()
             with torch.no_grad():
                 logits = model(x, g)
         except ConfigError as exc:  # a model built for other sensors: try the next simulated dataset
@@ -203,7 +224,7 @@ def model_record(name: str, specs: Mapping[str, DatasetSpec]) -> dict[str, Any]:
                           "logits": logits.tolist(), "grad": grad_fingerprint(model, x, g)}
     if not cases:
         raise ConfigError(f"model {name!r} accepts none of the simulated datasets' specs: {rejected}")
-    return {"revision": model_revision(name), "cases": cases, "rejected": rejected}
+    return {"revision": revision, "cases": cases, "rejected": rejected}
 
 
 def build_expected(root: str | os.PathLike, only: Mapping[str, Any] | None = None,
@@ -212,11 +233,16 @@ def build_expected(root: str | os.PathLike, only: Mapping[str, Any] | None = Non
     computed and every other entry is taken from ``only`` (the stored record)."""
     specs = sim_specs(root)
     if models is None or only is None:
-        recorded_models = {name: model_record(name, specs) for name in builtin_models()}
+        recorded_models = {record_key(name, rev): model_record(name, specs, rev) for name, rev in builtin_records()}
         recorded_datasets = {name: dataset_record(name, root) for name in sim_datasets()}
     else:
-        recorded_models = {name: model_record(name, specs) if name in models else only["models"][name]
-                           for name in builtin_models() if name in models or name in only["models"]}
+        recorded_models = {}
+        for name, rev in builtin_records():
+            key = record_key(name, rev)
+            if name in models:
+                recorded_models[key] = model_record(name, specs, rev)
+            elif key in only["models"]:
+                recorded_models[key] = only["models"][key]
         recorded_datasets = dict(only["datasets"])
     return {
         "_about": f"what the built-in models and simulated datasets compute, per revision; generated by {REGENERATE} "

@@ -25,7 +25,8 @@ from tactile_zoo import registry
 from tactile_zoo.data.spec import DatasetSpec
 
 EXPECTED = rg.load_expected()
-MODELS = sorted(set(rg.builtin_models()) | set(EXPECTED["models"]))
+#: every record key: each built-in model at each revision it builds (``NAME`` or ``NAME@REVISION``), and the file's
+MODELS = sorted({rg.record_key(name, rev) for name, rev in rg.builtin_records()} | set(EXPECTED["models"]))
 DATASETS = sorted(set(rg.sim_datasets()) | set(EXPECTED["datasets"]))
 
 
@@ -40,15 +41,23 @@ def specs(sim_root: Path) -> dict[str, DatasetSpec]:
     return rg.sim_specs(sim_root)
 
 
-def check_model(name: str, expected: Mapping[str, Any], specs: Mapping[str, DatasetSpec]) -> list[str]:
-    """Problems of model ``name`` against ``expected["models"]``; outputs are only recomputed at an equal revision."""
+def check_model(key: str, expected: Mapping[str, Any], specs: Mapping[str, DatasetSpec]) -> list[str]:
+    """Problems of record ``key`` (a model's name: its lowest revision; ``NAME@REVISION``: a later one) against
+    ``expected["models"]``; outputs are only recomputed at an equal revision."""
+    name, at, number = key.partition("@")
     if name not in rg.builtin_models():
         return [f"model {name} is in tests/revisions/expected_outputs.json but is no built-in model any more: rerun "
                 f"{rg.REGENERATE}"]
-    stored, revision = expected["models"].get(name), rg.model_revision(name)
+    revisions = rg.model_revisions(name)
+    revision = int(number) if at else min(revisions)
+    if revision not in revisions or rg.record_key(name, revision) != key:
+        return [f"model {name}: tests/revisions/expected_outputs.json records {key!r}, but the model builds "
+                f"revision(s) {revisions} only (recorded as {[rg.record_key(name, r) for r in revisions]}): rerun "
+                f"{rg.REGENERATE}"]
+    stored = expected["models"].get(key)
     if stored is None or stored["revision"] != revision:
-        return [rg.stale_message("model", name, revision, None if stored is None else stored["revision"])]
-    return rg.model_problems(name, stored, rg.model_record(name, specs))
+        return [rg.stale_message("model", key, revision, None if stored is None else stored["revision"])]
+    return rg.model_problems(key, stored, rg.model_record(name, specs, revision))
 
 
 def check_dataset(name: str, expected: Mapping[str, Any], root: Path) -> list[str]:

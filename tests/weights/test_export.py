@@ -197,7 +197,8 @@ def test_onnx_forward_matches_eager_under_onnxruntime(exported: Any, name: str) 
 @pytest.mark.parametrize("name", _grouped(STREAMING))
 def test_torchscript_step_is_the_eager_step_on_every_frame(exported: Any, name: str) -> None:
     """Frame by frame from the JSON file's initial state: the scores are ``step()``'s bit for bit, the state tensors
-    those of the eager flat-state step, and after frame t the scores are the forward on frames 0..t."""
+    those of the eager flat-state step (SGnet's to rounding: its exported graph holds the dense products, its eager
+    step the event ones), and after frame t the scores are the forward on frames 0..t."""
     e = exported(name)
     step = torch.jit.load(str(e.file("torchscript", "step")))
     flat = StepGraph(e.model, e.spec, BATCH, name)
@@ -208,7 +209,10 @@ def test_torchscript_step_is_the_eager_step_on_every_frame(exported: Any, name: 
             want, own = e.model.step(*e.eager(t), own)
             out, ref = step(*e.frame(t), *state), flat(*e.frame(t), *state_eager)
             assert torch.equal(out[0], want), (t, _max_diff(out[0], want))
-            assert all(torch.equal(a, b) for a, b in zip(out[1:], ref[1:])), t
+            if name == "sgnet":  # eager: the event products (revision 3); exported: the dense ones, its oracle
+                assert all(_max_diff(a, b) <= 1e-5 for a, b in zip(out[1:], ref[1:])), t
+            else:
+                assert all(torch.equal(a, b) for a, b in zip(out[1:], ref[1:])), t
             prefix = e.model(e.x[:, :t + 1], None if e.g is None else e.g[:, :t + 1])
             assert _max_diff(out[0], prefix) <= 1e-5, t  # the streaming guarantee, through the exported step
             state, state_eager = out[1:], ref[1:]
