@@ -203,9 +203,10 @@ def note(experiments: int = 1000) -> str:
     lines += ["", "## The issue's table, on the committed `zoo` cells", "",
               "| dataset, model | interval at b84155b | shared draw, percentile (the issue) | now |",
               "|---|---|---|---|"]
-    from tools.fidelity import cells
+    from tactile_zoo.study.publish import study_folder
+    from tools.fidelity import STUDIES, cells
 
-    zoo = cells(RESULTS / "paper-table1-zoo", recipe="zoo")
+    zoo = cells(study_folder(STUDIES, "table1-zoo"), recipe="zoo")
     for dataset, model, then, issue in ISSUE_ROWS:
         recs = sorted((r for r in zoo if r["model"] == model and r["dataset"] == dataset), key=lambda r: r["seed"])
         low, high = shared_percentile(recs)

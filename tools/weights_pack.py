@@ -66,13 +66,16 @@ from tactile_zoo.bench.tables import leaderboard_rows
 from tactile_zoo.data.base import file_sha256
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.recipe import recipe_name_of
+from tactile_zoo.study.publish import study_folder
 from tactile_zoo.weights import WeightEntry, entry_from_record, make_tag, read_manifest, write_manifest
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
-TABLE = RESULTS / "paper-table1"
+STUDIES = REPO / "benchmarks" / "studies"  # each Table I recipe's cells: its study's folder
+TABLE = study_folder(STUDIES, "table1-source")
 #: the Table I folder of each recipe: a model's entries come from the folder of its default recipe
-TABLES = {"source": TABLE, "zoo": RESULTS / "paper-table1-zoo", "full": RESULTS / "paper-table1-full"}
+TABLES = {"source": TABLE, "zoo": study_folder(STUDIES, "table1-zoo"),
+          "full": study_folder(STUDIES, "table1-full-r3")}
 #: folders of reruns with ``--save-weights`` that are read by default (``benchmarks/results/weights-<name>/``)
 RERUNS = "weights-*"
 PLUGIN = REPO / "plugins" / "tactile-zoo-weights"
