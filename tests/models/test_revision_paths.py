@@ -232,3 +232,35 @@ def test_convlstms_revisions_are_within_the_tolerances_of_a_float64_copy(revisio
     assert float((out.double() - out64).abs().max() / out64.abs().max()) <= 1e-4
     for key, ref in grads64.items():
         assert float((grads[key].double() - ref).abs().max() / ref.abs().max()) <= 1e-3, key
+
+
+def test_pretrained_weights_build_the_revision_their_manifest_records(tmp_path) -> None:
+    """Weights trained at SGnet's revision 2 load into revision 2's dense path, the default being 3; hparams still
+    win, and asking for another revision with them is refused."""
+    import hashlib
+    import json
+
+    from safetensors.torch import save_file
+
+    spec = _spec(classes=3)
+    torch.manual_seed(0)
+    trained = tz.create_model("sgnet", spec, revision=2)
+    file = tmp_path / "w.safetensors"
+    save_file({k: v.contiguous() for k, v in trained.state_dict().items()}, str(file))
+    entry = {"tag": "sgnet.toy", "model": "sgnet", "dataset": spec.name, "spec": spec.to_dict(), "hparams": {},
+             "file": file.name, "sha256": hashlib.sha256(file.read_bytes()).hexdigest(), "model_revision": 2}
+    manifest = tmp_path / "manifest.json"
+    manifest.write_text(json.dumps({"format": "tactile-zoo-weights/1", "weights": [entry]}))
+    loaded = tz.create_model("sgnet", pretrained=str(manifest))
+    assert loaded.compute == "dense" and tz.create_model("sgnet", spec).compute == "event"
+    x, _ = _events(spec)
+    with torch.no_grad():
+        assert torch.equal(loaded.eval()(x), trained.eval()(x))
+    assert tz.create_model("sgnet", pretrained=str(manifest), compute="event").compute == "event"
+    with pytest.raises(ConfigError, match="were trained with revision 2 of model 'sgnet' and load into that "
+                                          "revision only"):
+        tz.create_model("sgnet", pretrained=str(manifest), revision=3)
+    manifest.write_text(json.dumps({"format": "tactile-zoo-weights/1", "weights": [{**entry, "model_revision": 1}]}))
+    with pytest.raises(ConfigError, match=r"revision 1 of model 'sgnet'; the installed model is revision 3 \(it "
+                                          r"builds revision\(s\) 2, 3\)"):
+        tz.create_model("sgnet", pretrained=str(manifest))
