@@ -88,7 +88,9 @@ def load_comparison(path: str | Path) -> tuple[Study, Against | None]:
         spec = StudyFile.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(_describe(exc, str(path))) from None
-    study = Study(path, path.read_text(encoding="utf-8"), data, spec)
+    # ``against`` goes back into the study's data, so that the freeze fixes it with the grids (a set or baselines
+    # changed after the cells ran are refused by ``run``, as a changed grid is)
+    study = Study(path, path.read_text(encoding="utf-8"), data if against is None else {**data, "against": raw}, spec)
     check_study(study)
     return study, against
 

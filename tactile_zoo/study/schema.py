@@ -316,8 +316,12 @@ class Study:
         return Reads(**{kind: list(found.values()) for kind, found in parts.items()})
 
     def frozen_parts(self) -> dict[str, Any]:
-        """What a freeze fixes: the grids, rules and reads as written before the amendments (the raw data)."""
-        return {key: self.data.get(key) for key in ("grids", "rules", "reads")}
+        """What a freeze fixes: the grids, rules and reads as written before the amendments (the raw data), and a
+        comparison study's ``against`` (the set, recipe and baselines it is read against: :mod:`.compare`)."""
+        parts = {key: self.data.get(key) for key in ("grids", "rules", "reads")}
+        if "against" in self.data:  # absent from other studies, so their freezes stay as they were
+            parts["against"] = self.data["against"]
+        return parts
 
 
 def _location(loc: tuple[Any, ...]) -> str:

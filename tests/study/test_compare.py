@@ -234,6 +234,18 @@ def test_a_quick_grid_compares_with_a_quick_set_whatever_the_order_of_its_subset
         ("tiny_rate", ["tiny_mlp"], {"tiny_mlp": True})]
 
 
+def test_the_against_section_is_frozen_with_the_grids(compared: Path, published: Path, tmp_path: Path) -> None:
+    """Switching the set (or recipe, or baselines) after the cells ran is refused, as a changed grid is."""
+    path = _study(compared.parent, published, against=", baselines: [tiny_mlp]")
+    tiny_zoo.register()
+    try:
+        code, out, err = tz("study", "compare", str(path), "-q")
+    finally:
+        tiny_zoo.unregister()
+        _study(compared.parent, published)  # the module's other tests read the file as it was
+    assert code == 2 and "changed after cells exist" in err and "against" in err, err
+
+
 def test_a_baseline_on_the_same_recordings_cut_otherwise_is_shown_not_paired(compared: Path, published: Path
                                                                               ) -> None:
     """Each test recording as two samples for the baseline (as BioTac-DoS's sliding windows are for SGnet): its mean
