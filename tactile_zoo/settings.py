@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import math
 import re
+import struct
 from collections.abc import Mapping
 from functools import cache
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, TypeAdapter, ValidationError
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, Strict, TypeAdapter, ValidationError
 
 from .errors import ConfigError
 
@@ -29,16 +30,28 @@ __all__ = ["RecipeSchema", "ScheduleSchema", "BenchSettings", "KEYWORDS", "EVALU
            "MONITORS", "SCHEDULES", "check_value", "check_field", "check_keywords", "check_prefixes", "prefix_label",
            "describe_error"]
 
+def _not_subnormal(value: Any) -> Any:
+    """Refuse a subnormal float (below 2.2e-308 in size, not 0). Training flushes it to zero, and so does every
+    command's flush-to-zero block, in which a range check misreads it (``-1e-310 >= 0`` holds there); so it is
+    refused before any comparison, from its bits."""
+    if type(value) is float:
+        bits = struct.unpack("<Q", struct.pack("<d", value))[0]
+        if (bits >> 52) & 0x7FF == 0 and bits & ((1 << 52) - 1):
+            raise ValueError("must be 0 or at least 2.2e-308 in size (a subnormal number is flushed to zero)")
+    return value
+
+
+_Normal = BeforeValidator(_not_subnormal)
 Int = Annotated[int, Strict()]
 PositiveInt = Annotated[int, Strict(), Field(ge=1)]
 NonNegativeInt = Annotated[int, Strict(), Field(ge=0)]
-Number = Annotated[float, Strict(), Field(allow_inf_nan=False)]
-PositiveNumber = Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)]
-NonNegativeNumber = Annotated[float, Strict(), Field(ge=0, allow_inf_nan=False)]
-Fraction = Annotated[float, Strict(), Field(ge=0, lt=1, allow_inf_nan=False)]  # [0, 1)
-OpenFraction = Annotated[float, Strict(), Field(gt=0, lt=1, allow_inf_nan=False)]  # (0, 1)
-Rate = Annotated[float, Strict(), Field(ge=0, le=1, allow_inf_nan=False)]  # [0, 1]
-Decay = Annotated[float, Strict(), Field(gt=0, le=1, allow_inf_nan=False)]  # (0, 1]
+Number = Annotated[float, Strict(), Field(allow_inf_nan=False), _Normal]
+PositiveNumber = Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False), _Normal]
+NonNegativeNumber = Annotated[float, Strict(), Field(ge=0, allow_inf_nan=False), _Normal]
+Fraction = Annotated[float, Strict(), Field(ge=0, lt=1, allow_inf_nan=False), _Normal]  # [0, 1)
+OpenFraction = Annotated[float, Strict(), Field(gt=0, lt=1, allow_inf_nan=False), _Normal]  # (0, 1)
+Rate = Annotated[float, Strict(), Field(ge=0, le=1, allow_inf_nan=False), _Normal]  # [0, 1]
+Decay = Annotated[float, Strict(), Field(gt=0, le=1, allow_inf_nan=False), _Normal]  # (0, 1]
 Bool = Annotated[bool, Strict()]
 Text = Annotated[str, Strict(), Field(min_length=1)]
 Identifier = Annotated[str, Strict(), Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]

@@ -7,6 +7,7 @@ range, and checks that each is refused naming the key: a ConfigError from the Py
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import tempfile
@@ -26,7 +27,7 @@ from tactile_zoo.cli import main
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.recipe import resolve_recipe
 from tactile_zoo.registry.recipe_files import read_recipe_file
-from tactile_zoo.settings import BenchSettings, RecipeSchema, ScheduleSchema
+from tactile_zoo.settings import BenchSettings, RecipeSchema, ScheduleSchema, check_field
 
 DRY = ["--models", "tiny_mlp", "--datasets", "tiny_blobs", "--dry-run"]
 texts_of_numbers = st.one_of(st.integers(-5, 500).map(str), st.sampled_from(["1e-3", "0.5", "-1", "2.0"]))
@@ -41,11 +42,15 @@ def ints(low: int) -> st.SearchStrategy[Any]:
 
 
 def numbers(low: float, high: float, low_open: bool, high_open: bool) -> st.SearchStrategy[Any]:
-    """Not a number in the range: text, booleans, NaN, infinities, numbers outside it."""
-    below = st.floats(max_value=low, exclude_max=not low_open, allow_nan=False, allow_infinity=False)
+    """Not a number in the range: text, booleans, NaN, infinities, numbers outside it. No subnormal: every command
+    runs under flush-to-zero, where the text ``-2.2e-309`` parses to -0.0, a valid 0 (a subnormal given as a float
+    is refused by its bits: test_a_subnormal_number_is_refused_before_any_range_check)."""
+    below = st.floats(max_value=low, exclude_max=not low_open, allow_nan=False, allow_infinity=False,
+                      allow_subnormal=False)
     out = [texts_of_numbers, st.booleans(), st.just(math.nan), st.just(math.inf), st.just(-math.inf), below]
     if high != math.inf:
-        out.append(st.floats(min_value=high, exclude_min=not high_open, allow_nan=False, allow_infinity=False))
+        out.append(st.floats(min_value=high, exclude_min=not high_open, allow_nan=False, allow_infinity=False,
+                             allow_subnormal=False))
     return st.one_of(*out)
 
 
@@ -178,6 +183,20 @@ def test_items_1_and_11_strings_are_not_booleans_or_numbers(tmp_path: Path, text
     (tmp_path / "c.yaml").write_text(text + "\n")
     assert run_cli([*DRY, "--config", str(tmp_path / "c.yaml")]) == 2
     assert f"--config {tmp_path / 'c.yaml'}: {key}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", [-2.225073858507203e-309, 1e-310, -5e-324])
+@pytest.mark.parametrize("flush", [False, True])
+def test_a_subnormal_number_is_refused_before_any_range_check(value: float, flush: bool) -> None:
+    """Under flush-to-zero (every command, every training step) ``-1e-310 >= 0`` holds and a learning rate of 1e-310
+    trains as 0: a subnormal is refused from its bits, with or without the flush."""
+    from tactile_zoo.engine.runtime import flush_denormals
+
+    with flush_denormals() if flush else contextlib.nullcontext():
+        for key in ("label_smoothing", "lr", "weight_decay"):
+            with pytest.raises(ConfigError, match=f"{key} must be 0 or at least 2.2e-308 in size"):
+                check_field(RecipeSchema, key, value, "x")
+        assert check_field(RecipeSchema, "label_smoothing", 0.0, "x") == 0.0
 
 
 def test_python_sequences_are_lists() -> None:
