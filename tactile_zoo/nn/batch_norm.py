@@ -115,7 +115,7 @@ class _StatsChoice:
             return super().forward(x)  # type: ignore[misc]
         bn._check_input_dim(x)
         c = bn.num_features
-        # rows (M, C): a view of a channels-last map ((B, H, W, C) in memory), a copy of an NCHW one
+        # rows (M, C): a view of a channels-last map ((B, H, W, C) in memory), a copy of an NCHW or (B, C, L) one
         rows = x if x.dim() == 2 else x.movedim(1, -1).reshape(-1, c)
         if rows.shape[0] < 2:
             return super().forward(x)  # type: ignore[misc]  # torch's error: one value per channel
@@ -130,13 +130,14 @@ class _StatsChoice:
             bn.running_var.lerp_((var * (m / (m - 1))).to(bn.running_var.dtype), momentum)
         if x.dim() == 2:
             return out
-        y = out.view(x.shape[0], *x.shape[2:], c).movedim(-1, 1)  # (B, C, H, W) with channels-last strides
-        # the input's layout, as nn.BatchNorm2d keeps it (a copy for an NCHW input)
-        return y if x.is_contiguous(memory_format=torch.channels_last) else y.contiguous()
+        y = out.view(x.shape[0], *x.shape[2:], c).movedim(-1, 1)  # (B, C, ...) with channels-last strides
+        # the input's layout, as nn.BatchNorm keeps it (a copy for an NCHW or (B, C, L) input)
+        return y if x.dim() == 4 and x.is_contiguous(memory_format=torch.channels_last) else y.contiguous()
 
 
 class BatchNorm1d(_StatsChoice, nn.BatchNorm1d):
-    """``nn.BatchNorm1d`` of ``(B, C)`` inputs with a choice of training statistics (module docstring).
+    """``nn.BatchNorm1d`` (``(B, C)`` or ``(B, C, L)`` inputs) with a choice of training statistics (module
+    docstring).
 
     Args:
         num_features, eps, momentum, affine: as ``nn.BatchNorm1d`` (running statistics are always tracked).
@@ -147,12 +148,6 @@ class BatchNorm1d(_StatsChoice, nn.BatchNorm1d):
                  stats: BatchNormStats | str = "native") -> None:
         super().__init__(num_features, eps=eps, momentum=momentum, affine=affine)
         self.stats = resolve(BatchNormStats, stats, "stats", type(self).__name__)
-
-    def _check_input_dim(self, x: Tensor) -> None:
-        super()._check_input_dim(x)
-        if self.stats is not BatchNormStats.NATIVE and x.dim() != 2:
-            raise ValueError(f"{type(self).__name__}(stats={self.stats.value!r}) takes (B, C) inputs, got "
-                             f"{tuple(x.shape)}")
 
 
 class BatchNorm2d(_StatsChoice, nn.BatchNorm2d):

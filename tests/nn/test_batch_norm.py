@@ -22,14 +22,15 @@ def _pair(cls: type, ref_cls: type, momentum: float | None) -> tuple[nn.Module, 
 
 
 @pytest.mark.parametrize("momentum", [0.1, None])
-@pytest.mark.parametrize("layout", ["nchw", "channels_last", "rows"])
+@pytest.mark.parametrize("layout", ["nchw", "channels_last", "rows", "sequence"])
 @pytest.mark.parametrize("stats", ["two_pass", "float64"])
 def test_training_matches_float64_batch_norm(stats: str, layout: str, momentum: float | None) -> None:
-    cls, ref_cls = (BatchNorm1d, nn.BatchNorm1d) if layout == "rows" else (BatchNorm2d, nn.BatchNorm2d)
+    one_d = layout in ("rows", "sequence")
+    cls, ref_cls = (BatchNorm1d, nn.BatchNorm1d) if one_d else (BatchNorm2d, nn.BatchNorm2d)
     ours, ref = _pair(cls, ref_cls, momentum)
     ours.stats = type(ours.stats)(stats)
     for step in range(2):  # the running statistics over two batches (the cumulative average needs two)
-        shape = (40, 6) if layout == "rows" else (3, 6, 9, 7)
+        shape = {"rows": (40, 6), "sequence": (5, 6, 8)}.get(layout, (3, 6, 9, 7))
         x = (torch.randn(shape) * torch.linspace(0.01, 3, 6).view(1, 6, *([1] * (len(shape) - 2))) + 5 * step)
         if layout == "channels_last":
             x = x.contiguous(memory_format=torch.channels_last)
