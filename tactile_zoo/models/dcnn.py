@@ -167,6 +167,9 @@ class _ConvBlock(nn.Sequential):
     causal=False,
     streaming=False,
     revision=1,
+    # revision 2: batch statistics accurate to a float64 copy on the CPU (issue 53), selectable; not yet the default
+    # (nothing has timed it on quiet cores: docs/revisions.md)
+    revisions={1: {"bn_stats": "native"}, 2: {"bn_stats": "two_pass"}},
 )
 class DCNN(ClassifierMixin, nn.Module):
     """D-CNN of Maus et al.: three conv blocks and two dense layers over the time x feature image.

@@ -93,6 +93,23 @@ def test_convlstms_compiled_recurrence_is_selectable_and_not_the_default() -> No
     assert {layer.backend for layer in tz.create_model("convlstm", spec, revision=2).convlstm.layers} == {"compiled"}
 
 
+def test_dcnns_accurate_batch_statistics_are_selectable_and_not_the_default() -> None:
+    """Revision 2 computes batch norm's training statistics in two float32 passes (tests/models/test_dcnn_precision.py
+    holds it to a float64 copy); untimed on quiet cores, so revision 1 stays the default."""
+    from tactile_zoo.nn.backend import BatchNormStats
+
+    entry = registry.get_model_entry("dcnn")
+    assert registry.revision_of(entry) == 1 and registry.model_revisions(entry) == {1: {"bn_stats": "native"},
+                                                                                    2: {"bn_stats": "two_pass"}}
+    spec = _spec()
+
+    def stats(model: torch.nn.Module) -> set[BatchNormStats]:
+        return {m.stats for m in model.modules() if hasattr(m, "stats") and isinstance(m, torch.nn.Module)}
+
+    assert stats(tz.create_model("dcnn", spec)) == {BatchNormStats.NATIVE}
+    assert stats(tz.create_model("dcnn", spec, revision=2)) == {BatchNormStats.TWO_PASS}
+
+
 def test_an_unknown_revision_is_one_error_naming_the_model_and_its_revisions(capsys: pytest.CaptureFixture) -> None:
     message = r"model 'sgnet' has no revision 1; its revisions: 2, 3 \(default\)"
     with pytest.raises(ConfigError, match=message):
