@@ -8,7 +8,9 @@ Protocol:
 1. seed Python/NumPy/torch with ``seed`` (so a model built here, its dropout and the shuffling repeat exactly on CPU);
 2. train up to ``max_epochs``; after every epoch evaluate on the validation split and keep the best state (see
    `tactile_zoo.recipe` for what "best" means); stop after ``patience`` epochs without improvement;
-3. restore the best state (test data is never looked at before this point);
+3. restore the best state (test data is never looked at before this point); a model whose ``precise_bn`` is True
+   gets its batch norms' running statistics recomputed over the training split for that state
+   (:func:`recompute_bn_stats`; after a refit, over train + val for the refit state);
 4. with ``refit=True``, restart from the initial weights and train on train + val for the selected number of epochs
    (same seed, same schedule), and use that model;
 5. evaluate on the test split when one is given.
@@ -189,6 +191,38 @@ def _clone_state(model: torch.nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().clone() for k, v in model.state_dict().items()}
 
 
+class _Pair(torch.nn.Module):
+    """A model called on one ``(x, g)`` pair: the one-input model ``torch.optim.swa_utils.update_bn`` feeds."""
+
+    def __init__(self, model: torch.nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, pair: tuple[torch.Tensor, torch.Tensor | None]) -> torch.Tensor:
+        return self.model(*pair)
+
+
+def recompute_bn_stats(model: torch.nn.Module, split: TensorSplit, batch_size: int, device: torch.device) -> None:
+    """Recompute every batch norm's running statistics over ``split`` with the model's present weights.
+
+    ``torch.optim.swa_utils.update_bn``: each batch norm's statistics are reset and, with ``momentum=None``, become
+    the cumulative (equal per batch) average of the batch statistics of one pass in training mode without gradients;
+    the momenta are restored after. The batches are the training loop's (``batch_size``, a lone last sample joined to
+    the batch before it), in split order, so nothing random is drawn. Every module's training flag is restored.
+    """
+    modes = {m: m.training for m in model.modules()}
+    x = split.x.to(device)
+    g = split.g.to(device) if split.g.shape[-1] > 0 else None
+    order = torch.arange(x.shape[0], device=device)
+    # update_bn calls the model on the first element of a list: each batch is a one-element list of its (x, g) pair
+    batches = ([(x[idx], None if g is None else g[idx])] for idx in _batches(order, batch_size))
+    try:
+        torch.optim.swa_utils.update_bn(batches, _Pair(model))
+    finally:
+        for m, mode in modes.items():
+            m.training = mode
+
+
 @flush_denormals()
 def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int = 0, val_dataset: Any = None,
                 device: str | torch.device = "auto", *, test_dataset: Any = None, refit: bool = False,
@@ -252,6 +286,11 @@ def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int 
         raise TrainingError("no epoch produced a finite validation loss")
     elif trainer.average is not None:  # nothing selected: the last epoch's average is the model
         module.load_state_dict(trainer.evaluated.state_dict())
+    # a model that asks for it (``precise_bn = True``) is handed on, validated and tested with its batch norms'
+    # statistics recomputed for the kept weights; selection above read the moving averages of each epoch
+    precise = getattr(module, "precise_bn", False) is True
+    if precise:
+        recompute_bn_stats(module, train, rec.batch_size, dev)
     val_result = (evaluate(module, val, loss=rec.loss, batch_size=rec.eval_batch_size, progress=False)
                   if val is not None else None)
 
@@ -271,6 +310,8 @@ def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int 
                 bar.update(1, f"loss {loss:.3f}")
         if trainer.average is not None:
             module.load_state_dict(trainer.evaluated.state_dict())
+        if precise:  # the refit model's statistics, over what it was trained on
+            recompute_bn_stats(module, both, rec.batch_size, dev)
     train_seconds = time.perf_counter() - start
     test_result = None
     if test_dataset is not None:

@@ -167,9 +167,9 @@ class _ConvBlock(nn.Sequential):
     causal=False,
     streaming=False,
     revision=1,
-    # revision 2: batch statistics accurate to a float64 copy on the CPU (issue 53), selectable; not yet the default
-    # (nothing has timed it on quiet cores: docs/revisions.md)
-    revisions={1: {"bn_stats": "native"}, 2: {"bn_stats": "two_pass"}},
+    # revision 2: batch statistics accurate to a float64 copy on the CPU, and the running statistics recomputed over
+    # the training split after training (issue 53), selectable; not yet the default (docs/revisions.md)
+    revisions={1: {"bn_stats": "native", "precise_bn": False}, 2: {"bn_stats": "two_pass", "precise_bn": True}},
 )
 class DCNN(ClassifierMixin, nn.Module):
     """D-CNN of Maus et al.: three conv blocks and two dense layers over the time x feature image.
@@ -188,6 +188,9 @@ class DCNN(ClassifierMixin, nn.Module):
             (:class:`~tactile_zoo.nn.backend.BatchNormStats`): ``"native"`` (torch's kernel; on the CPU, over the
             channels-last maps, scores 3e-2 from a float64 copy of the step), ``"two_pass"`` (float32 pairwise sums,
             two-pass variance) or ``"float64"`` (the same sums in float64); see :mod:`tactile_zoo.nn.batch_norm`.
+        precise_bn: after training, the engine recomputes every batch norm's running statistics over the training
+            split with the final weights (:func:`tactile_zoo.engine.train.recompute_bn_stats`), so evaluation does
+            not read moving averages that lag the weights (seed 6 of the ``full`` recipe on Ev-Objects; revision 2).
 
     Shapes:
         ``x (B, T, N, C)`` with ``T <= num_steps``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``.
@@ -195,13 +198,18 @@ class DCNN(ClassifierMixin, nn.Module):
 
     def __init__(self, spec: DatasetSpec, filters: tuple[int, int, int] = (31, 128, 57),
                  kernels: tuple[tuple[int, int], ...] = ((1, 2), (2, 3), (3, 1)),
-                 dense: tuple[int, int] = (103, 138), bn_momentum: float = 0.1, bn_stats: str = "native") -> None:
+                 dense: tuple[int, int] = (103, 138), bn_momentum: float = 0.1, bn_stats: str = "native",
+                 precise_bn: bool = False) -> None:
         super().__init__()
         if len(filters) != 3 or len(kernels) != 3 or len(dense) != 2:
             raise ConfigError(f"dcnn: need 3 filters, 3 kernels and 2 dense widths, got {filters}, {kernels}, {dense}")
         if not 0.0 < bn_momentum <= 1.0:
             raise ConfigError(f"dcnn: bn_momentum must lie in (0, 1], got {bn_momentum}")
+        if not isinstance(precise_bn, bool):
+            raise ConfigError(f"dcnn: precise_bn must be true or false, got {precise_bn!r}")
         stats = resolve(BatchNormStats, bn_stats, "bn_stats", "dcnn")
+        #: read by the engine after training (tactile_zoo.engine.train): recompute the running statistics
+        self.precise_bn = precise_bn
         bn = {"eps": BN_EPS, "momentum": bn_momentum, "stats": stats}
         self.spec = spec
         self.num_steps = spec.num_steps

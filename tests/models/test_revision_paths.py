@@ -95,12 +95,13 @@ def test_convlstms_compiled_recurrence_is_selectable_and_not_the_default() -> No
 
 def test_dcnns_accurate_batch_statistics_are_selectable_and_not_the_default() -> None:
     """Revision 2 computes batch norm's training statistics in two float32 passes (tests/models/test_dcnn_precision.py
-    holds it to a float64 copy); untimed on quiet cores, so revision 1 stays the default."""
+    holds it to a float64 copy) and has its running statistics recomputed after training (precise_bn:
+    tests/engine/test_precise_bn.py); untimed on quiet cores, so revision 1 stays the default."""
     from tactile_zoo.nn.backend import BatchNormStats
 
     entry = registry.get_model_entry("dcnn")
-    assert registry.revision_of(entry) == 1 and registry.model_revisions(entry) == {1: {"bn_stats": "native"},
-                                                                                    2: {"bn_stats": "two_pass"}}
+    assert registry.revision_of(entry) == 1 and registry.model_revisions(entry) == {
+        1: {"bn_stats": "native", "precise_bn": False}, 2: {"bn_stats": "two_pass", "precise_bn": True}}
     spec = _spec()
 
     def stats(model: torch.nn.Module) -> set[BatchNormStats]:
@@ -108,6 +109,7 @@ def test_dcnns_accurate_batch_statistics_are_selectable_and_not_the_default() ->
 
     assert stats(tz.create_model("dcnn", spec)) == {BatchNormStats.NATIVE}
     assert stats(tz.create_model("dcnn", spec, revision=2)) == {BatchNormStats.TWO_PASS}
+    assert not tz.create_model("dcnn", spec).precise_bn and tz.create_model("dcnn", spec, revision=2).precise_bn
 
 
 def test_an_unknown_revision_is_one_error_naming_the_model_and_its_revisions(capsys: pytest.CaptureFixture) -> None:
