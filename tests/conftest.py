@@ -16,6 +16,30 @@ SHARED_DATA = Path(os.environ.get("TACTILE_ZOO_SHARED_DATA", REPO.parent / "shar
 torch.set_num_threads(1)  # pytest-xdist runs one worker per core
 
 
+def _xdist_group(item: pytest.Item) -> str | None:
+    """The group ``--dist loadgroup`` sends to one worker: the item's ``xdist_group`` names, sorted and joined by
+    ``_`` (as pytest-xdist names them)."""
+    names = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                    for m in item.iter_markers("xdist_group")})
+    return "_".join(names) or None
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """``--dist loadgroup`` groups again under pytest 9.2: pytest-xdist (3.8) names a test's group by appending
+    ``@group`` to its node id through the attribute ``_nodeid``, which pytest 9.2's structured node ids no longer
+    read, so every ``xdist_group`` mark was silently ignored (pytest-dev/pytest-xdist#1386): a module's fixtures
+    (an export, the docs site, an installed plugin) were made again on each worker that ran one of its tests, and the
+    blocks of a documentation page ran on either worker, in any order. A worker's test whose id has no group yet gets
+    it here, in the structured id; with a pytest whose ``_nodeid`` still works, pytest-xdist has added it already."""
+    if not getattr(config.option, "loadgroup", False):
+        return
+    for item in items:
+        group = _xdist_group(item)
+        if group and "@" not in item.nodeid.rpartition("]")[2] and hasattr(item, "_id"):
+            item._id = type(item._id).parse(f"{item.nodeid}@{group}")
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _private_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Processed caches go to a throw-away folder: tests never write into ~/.cache or the shared data home."""

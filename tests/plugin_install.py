@@ -4,12 +4,16 @@ pip builds it with the test environment's setuptools (``--no-index --no-deps --n
 temporary ``--target`` folder, which the caller puts on ``sys.path``: entry points then come from the plugin's own
 ``pyproject.toml`` and the code from the installed copy. The source is copied first, because building in place would
 leave ``build/`` and ``*.egg-info`` in the repository.
+
+:func:`installed_once` installs each distribution once per test run, whatever the number of modules that use it and
+of xdist workers: the weight pack is 54 MB, which pip copies, zips into a wheel and unpacks again on every install.
 """
 
 from __future__ import annotations
 
 import importlib.metadata
 import importlib.util
+import os
 import shutil
 import subprocess
 import sys
@@ -17,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from filelock import FileLock  # a dependency of torch
 
 
 def pip_install(plugin: Path, work: Path) -> Path:
@@ -31,6 +36,22 @@ def pip_install(plugin: Path, work: Path) -> Path:
         capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"pip could not install {plugin}:\n{proc.stdout}\n{proc.stderr}"
     return target
+
+
+def installed_once(plugin: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``plugin`` installed by :func:`pip_install` once per test run, in the run's temporary folder (shared by the
+    xdist workers, the others waiting on a lock); returns the ``--target`` folder. Callers only read it."""
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the run's folder above the workers'
+    work = root / f"installed-{plugin.name}"
+    with FileLock(str(root / f"installed-{plugin.name}.lock")):
+        done = work / "installed"
+        if not done.is_file():
+            shutil.rmtree(work, ignore_errors=True)  # a try that failed half way
+            work.mkdir()
+            pip_install(plugin, work)
+            done.touch()
+    return work / "site"
 
 
 def only_weights_from(monkeypatch: pytest.MonkeyPatch, site: Path) -> None:

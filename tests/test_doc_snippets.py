@@ -37,8 +37,6 @@ from doc_snippets import (
 #: tests/reliability/conftest.py instead, depending on collection order)
 SHARED_DATA = Path(os.environ.get("TACTILE_ZOO_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
-pytestmark = pytest.mark.xdist_group("doc_snippets")  # the blocks of a page share its folder, in page order
-
 BLOCKS = [block for path in doc_files() for block in extract_blocks(path)]
 #: what a documented ``pip install`` may name besides local paths: the requirements the project itself declares
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
@@ -77,12 +75,13 @@ def _data_home() -> Path | None:
     return SHARED_DATA if (SHARED_DATA / "ev_objects" / "raw").is_dir() else None
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def plugins(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """``pip install ./plugins/<name>``, done for real but offline, into folders a page's session puts on the path."""
-    from plugin_install import pip_install
+    """``pip install ./plugins/<name>``, done for real but offline (once per run: the other modules that install
+    them share the folders, which they only read), into folders a page's session puts on the path."""
+    from plugin_install import installed_once
 
-    return {name: pip_install(REPO / "plugins" / name, tmp_path_factory.mktemp(name))
+    return {name: installed_once(REPO / "plugins" / name, tmp_path_factory)
             for name in ("tactile-zoo-weights", "tactile-zoo-tcn")}
 
 
@@ -280,7 +279,13 @@ def check_block(block: Block, session: Session) -> None:
                     f"<!-- snippet: output|diagram|... --> (tests/doc_snippets.py)")
 
 
-@pytest.mark.parametrize("block", BLOCKS, ids=[b.id for b in BLOCKS])
+def _page_group(block: Block) -> pytest.MarkDecorator:
+    """One xdist group per page: the blocks of a page share its folder and run on one worker, in page order, while
+    the pages spread over the workers (one group for all the pages made their sum one worker's long pole)."""
+    return pytest.mark.xdist_group(f"doc_snippets_{block.path.relative_to(REPO).as_posix().replace('/', '_')}")
+
+
+@pytest.mark.parametrize("block", [pytest.param(b, id=b.id, marks=_page_group(b)) for b in BLOCKS])
 def test_every_documented_block_runs_or_resolves(block: Block, session: Session) -> None:
     if "xfail" in block.directives:
         try:

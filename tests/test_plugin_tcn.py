@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from plugin_install import pip_install
+from plugin_install import installed_once
 
 from tactile_zoo import registry
 from tactile_zoo.cli import main
@@ -47,7 +47,7 @@ FAMILIES = [("neutouch", 2, 0), ("biotac_sp", 1, 0), ("optoforce3", 4, 3), ("usk
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    target = pip_install(PLUGIN, tmp_path_factory.mktemp("tcn_plugin"))
+    target = installed_once(PLUGIN, tmp_path_factory)
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
         mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)

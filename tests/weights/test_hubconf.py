@@ -87,7 +87,7 @@ def test_an_entry_point_without_spec_or_weights_says_what_it_needs() -> None:
 
 @pytest.fixture(scope="module")
 def pack(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    with installed_weight_pack(PLUGIN, tmp_path_factory.mktemp("hub_weights")) as target:
+    with installed_weight_pack(PLUGIN, tmp_path_factory) as target:
         yield target
 
 

@@ -26,7 +26,7 @@ VERSION = re.search(r'__version__ = "([^"]+)"', (PLUGIN / "tactile_zoo_weights" 
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    with installed_weight_pack(PLUGIN, tmp_path_factory.mktemp("weights_plugin")) as target:
+    with installed_weight_pack(PLUGIN, tmp_path_factory) as target:
         yield target
 
 

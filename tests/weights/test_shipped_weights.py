@@ -202,7 +202,7 @@ def test_a_shipped_checkpoint_evaluates_to_its_entrys_accuracy_exactly(entry: We
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """The pack installed by pip (offline) and on ``sys.path``, found through its entry point."""
-    with installed_weight_pack(weights_pack.PLUGIN, tmp_path_factory.mktemp("shipped_weights")) as target:
+    with installed_weight_pack(weights_pack.PLUGIN, tmp_path_factory) as target:
         yield target
 
 

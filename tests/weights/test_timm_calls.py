@@ -25,7 +25,7 @@ PLUGIN = Path(__file__).resolve().parents[2] / "plugins" / "tactile-zoo-weights"
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    with installed_weight_pack(PLUGIN, tmp_path_factory.mktemp("weights_plugin")) as target:
+    with installed_weight_pack(PLUGIN, tmp_path_factory) as target:
         yield target
 
 

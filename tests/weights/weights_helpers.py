@@ -60,14 +60,15 @@ def slip_spec() -> Any:
 
 
 @contextlib.contextmanager
-def installed_weight_pack(plugin: Path, work: Path) -> Iterator[Path]:
-    """``plugin`` installed by pip (offline) under ``work`` and on ``sys.path``, the only weight pack discovery sees
-    (not a copy the environment may have installed); yields the install target."""
-    from plugin_install import only_weights_from, pip_install
+def installed_weight_pack(plugin: Path, factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """``plugin`` installed by pip (offline, once per test run: :func:`plugin_install.installed_once`) and on
+    ``sys.path``, the only weight pack discovery sees (not a copy the environment may have installed); yields the
+    install target."""
+    from plugin_install import installed_once, only_weights_from
 
     from tactile_zoo.weights import reset_weights
 
-    target = pip_install(plugin, work)
+    target = installed_once(plugin, factory)
     with pytest.MonkeyPatch.context() as mp:
         mp.delenv("TACTILE_ZOO_NO_PLUGINS", raising=False)
         mp.delenv("TACTILE_ZOO_STRICT_PLUGINS", raising=False)
