@@ -12,6 +12,12 @@ to read it) would briefly change it for every thread of the process.
 Temporary names are ``.<name>.<random>.tmp`` (hidden, next to the target); :func:`torn_temporaries` finds those a
 killed writer left behind.
 
+Generated pages (:func:`replace_block`, :func:`stale_files`, :func:`update_pages`): a hand-written page holds
+generated text between two marker lines, ``<!-- NAME: begin (COMMAND) -->`` and ``<!-- NAME: end -->``; a generator
+rewrites what lies between them and writes the page, or with ``--check`` names each page that is out of date. The
+model pages, the fidelity ledger, the CLI reference, the weights table and the published result tables all do it
+here, once.
+
 This module sits at the bottom of the import layers (beside :mod:`tactile_zoo.errors`) so every layer can use it.
 """
 
@@ -19,13 +25,15 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import secrets
 import stat
-from collections.abc import Iterator
+import sys
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 __all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_text", "create_exclusive", "open_temporary",
-           "torn_temporaries"]
+           "torn_temporaries", "replace_block", "stale_files", "out_of_date", "update_pages"]
 
 
 def create_exclusive(path: str | os.PathLike, mode: int = 0o666) -> int:
@@ -96,3 +104,41 @@ def atomic_write_text(path: str | os.PathLike, text: str, *, fsync: bool = True)
 def torn_temporaries(folder: str | os.PathLike, name: str) -> list[Path]:
     """The temporary files of writes to ``folder/name`` that never finished (their writer was killed)."""
     return sorted(Path(folder).glob(f".{name}.*.tmp"))
+
+
+def replace_block(text: str, begin: str, end: str, body: str, where: str | os.PathLike, *, find: str | None = None,
+                  error: Callable[[str], BaseException] = ValueError) -> str:
+    """``text`` with what lies between the marker lines ``begin`` and ``end`` replaced by ``body`` (module
+    docstring). ``find``: a regular expression the begin marker matches (default: ``begin`` itself), for a marker
+    rewritten to ``begin``. Markers missing, repeated or out of order raise ``error`` naming ``where`` and both."""
+    starts = list(re.finditer(find or re.escape(begin), text))
+    if len(starts) != 1 or text.count(end) != 1 or end not in text[starts[0].end():]:
+        raise error(f"{where} must hold the markers {begin!r} ... {end!r} once each, in that order")
+    rest = text[starts[0].end():].split(end, 1)[1]
+    return f"{text[:starts[0].start()]}{begin}\n{body}\n{end}{rest}"
+
+
+def stale_files(texts: Mapping[Path, str], *, write: bool = False) -> list[Path]:
+    """The files of ``texts`` whose content is not ``texts[path]`` (a missing file included), in order; with
+    ``write``, each is rewritten (atomically, UTF-8)."""
+    stale = [path for path, text in texts.items()
+             if not path.is_file() or path.read_text(encoding="utf-8") != text]
+    for path in stale if write else ():
+        atomic_write_text(path, texts[path])
+    return stale
+
+
+def out_of_date(path: str | os.PathLike, command: str) -> str:
+    """The line naming a stale generated page and the command that regenerates it."""
+    return f"{path} is out of date: run {command}"
+
+
+def update_pages(texts: Mapping[Path, str], check: bool, command: str, root: Path | None = None) -> int:
+    """A generator's ``main``: write each stale page of ``texts`` (printing ``wrote PATH``), or with ``check`` write
+    nothing and name each on stderr (:func:`out_of_date`); the exit status, 1 when ``check`` found a stale page.
+    ``root``: print paths relative to it."""
+    stale = stale_files(texts, write=not check)
+    for path in stale:
+        shown = path.relative_to(root) if root is not None else path
+        print(out_of_date(shown, command) if check else f"wrote {shown}", file=sys.stderr if check else sys.stdout)
+    return int(check and bool(stale))

@@ -14,7 +14,8 @@ What it reads:
   and seeds. Each must have run under ``--evaluation tuning`` (the test split unreadable, ``test_reads == 0``).
 - **The freeze**: ``--tuning``/``freeze.json``, ``{"recipe": "zoo", "models": {model: recipe, ...}}``, committed in
   the commit that froze the recipes. That commit is found in the git history (the last one that changed the file).
-- **Final cells**: the ok cells of ``--recipe`` under ``--final`` (default ``benchmarks/results/paper-table1-zoo``).
+- **Final cells**: the ok cells of ``--recipe`` under ``--final`` (default: study ``table1-zoo``'s folder,
+  ``benchmarks/results/paper-table1-zoo``).
 
 What it prints: the trials per model and dataset (with the best validation score), the freeze commit and, per
 model, what its frozen recipe changes against ``source``, then every final cell's test reads and commit.
@@ -31,11 +32,12 @@ What it checks (each failure is one line; the exit status is 1 if there is any):
    exactly once (``test_reads == 1``), and its recorded ``commit`` is clean and is the freeze commit or a descendant
    (``git merge-base --is-ancestor``): it was computed after the recipes were frozen.
 
-**A planned round** (``--plan``, default ``benchmarks/results/paper-table1-full`` with recipe ``full``): its
-``PLAN.md`` declares the recipe before any cell ran, so the commit that first added ``PLAN.md`` plays the freeze's
-part. Every ok cell of the round's recipe there must have trained with the registered recipe as the harness resolves
-it, under the evaluation the recipe declares, read its test split once, carry a clean commit that descends from the
-plan's, and share one CPU type (``cpu_isa.capability`` and the processor's name) with every other cell of the round.
+**A planned round** (``--plan``, default study ``table1-full-r3``'s folder, ``benchmarks/results/paper-table1-full``,
+with recipe ``full``): its ``PLAN.md`` declares the recipe before any cell ran, so the commit that first added
+``PLAN.md`` plays the freeze's part. Every ok cell of the round's recipe there must have trained with the registered
+recipe as the harness resolves it, under the evaluation the recipe declares, read its test split once, carry a clean
+commit that descends from the plan's, and share one CPU type (the processor's name and ``cpu_isa.capability``:
+:func:`tactile_zoo.study.audit.cpu_type_clash`, the check a study's audit makes) with every other cell of the round.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ import argparse
 import json
 import subprocess
 import sys
-from collections import defaultdict
+from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -58,9 +60,15 @@ from tactile_zoo.bench.records import (
     run_records,
 )
 from tactile_zoo.engine.config import resolve_cell
+from tactile_zoo.study.audit import cpu_type, cpu_type_clash
+from tactile_zoo.study.publish import study_folder
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
+STUDIES = REPO / "benchmarks" / "studies"
+#: the tuning trials' folder: every tuning study's folder lies under it, beside the freeze (``freeze.json``), which
+#: no one study owns
+TUNING = RESULTS / "tuning"
 
 
 def _git(repo: Path, *args: str) -> subprocess.CompletedProcess:
@@ -214,7 +222,6 @@ def audit_plan(folder: Path, recipe: str, repo: Path = REPO, plan: Path | None =
     records = [r for r in _records(folder) if r.get("status") == "ok"
                and recipe_name_of(r.get("config") or {}) == recipe]
     lines.append(f"Plan committed in {commit[:12]}; {len(records)} cell(s) so far.")
-    cpus: dict[tuple[str, str], list[str]] = defaultdict(list)
     for rec in records:
         cfg, cell_commit = rec["config"], str(rec.get("commit") or "")
         where = rec["cell_id"]
@@ -230,12 +237,10 @@ def audit_plan(folder: Path, recipe: str, repo: Path = REPO, plan: Path | None =
         if not cell_commit or cell_commit.endswith("+dirty") or not descends(cell_commit, commit, repo):
             failures.append(f"{where}: commit {cell_commit or 'unrecorded'} is not a clean descendant of the plan "
                             f"commit {commit[:12]}")
-        cpus[(str((rec.get("cpu_isa") or {}).get("capability")), str(rec.get("cpu")))].append(where)
-    for (capability, name), cells in sorted(cpus.items()):
-        lines.append(f"- {len(cells)} cell(s) on {name} (torch kernels {capability})")
-    if len(cpus) > 1:
-        failures.append(f"{folder.name}: cells on {len(cpus)} CPU types; a round runs on one "
-                        f"({'; '.join(f'{n} {c}' for c, n in sorted(cpus))})")
+    cpus = Counter(cpu_type(rec) for rec in records)
+    lines += [f"- {n} cell(s) on {cpu}" for cpu, n in sorted(cpus.items())]
+    if clash := cpu_type_clash(records):
+        failures.append(f"{folder.name}: cells on {clash}; a round runs on one")
     return lines, failures
 
 
@@ -255,11 +260,11 @@ def write_freeze(tuning: Path, recipe: str, trial_folders: list[str]) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.audit", description=__doc__.split("\n")[0])
-    p.add_argument("--tuning", type=Path, default=RESULTS / "tuning")
-    p.add_argument("--final", type=Path, default=RESULTS / "paper-table1-zoo")
+    p.add_argument("--tuning", type=Path, default=TUNING)
+    p.add_argument("--final", type=Path, default=study_folder(STUDIES, "table1-zoo"))
     p.add_argument("--recipe", default="zoo")
     p.add_argument("--max-trials", type=int, default=8)
-    p.add_argument("--plan", type=Path, default=RESULTS / "paper-table1-full",
+    p.add_argument("--plan", type=Path, default=study_folder(STUDIES, "table1-full-r3"),
                    help="a planned round's folder (its PLAN.md declares the recipe before any cell)")
     p.add_argument("--plan-recipe", default="full")
     p.add_argument("--plan-file", type=Path, default=None,

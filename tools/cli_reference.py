@@ -17,6 +17,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from tactile_zoo._files import update_pages
 from tactile_zoo.cli import build_parser
 
 REPO = Path(__file__).resolve().parents[1]
@@ -135,15 +136,7 @@ def main(argv: list[str] | None = None, parser_factory: Callable[[], argparse.Ar
     cli.add_argument("--check", action="store_true", help="exit 1 if docs/cli.md is out of date")
     cli.add_argument("--page", type=Path, default=PAGE, help="the page to write or check (default docs/cli.md)")
     args = cli.parse_args(argv)
-    new = render(parser_factory())
-    if args.check:
-        if not args.page.is_file() or args.page.read_text() != new:
-            print(f"{args.page} is out of date: run {COMMAND}", file=sys.stderr)
-            return 1
-        return 0
-    args.page.write_text(new)
-    print(f"wrote {args.page}")
-    return 0
+    return update_pages({args.page: render(parser_factory())}, args.check, COMMAND)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from tactile_zoo._files import replace_block, update_pages
 from tactile_zoo.bench.intervals import records_interval
 from tactile_zoo.bench.records import qualifying_cells
 from tactile_zoo.study.publish import study_files, study_folder
@@ -132,37 +133,15 @@ def tables() -> str:
     return "\n".join(lines)
 
 
-def replace_block(text: str, begin: str, end: str, body: str, where: Path) -> str:
-    """``text`` with what lies between the markers ``begin`` and ``end`` replaced by ``body`` (generated tables in a
-    hand-written page: the ledger, Table I, the README's headline)."""
-    if begin not in text or end not in text:
-        raise SystemExit(f"{where} lacks the markers {begin!r} ... {end!r}")
-    head, rest = text.split(begin, 1)
-    return f"{head}{begin}\n{body}\n{end}{rest.split(end, 1)[1]}"
-
-
 def render(text: str) -> str:
-    return replace_block(text, BEGIN, END, tables(), LEDGER)
+    return replace_block(text, BEGIN, END, tables(), LEDGER, error=SystemExit)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.fidelity", description=__doc__.split("\n")[0])
     parser.add_argument("--check", action="store_true", help="exit 1 if docs/fidelity.md is out of date")
     args = parser.parse_args(argv)
-    return update_page(LEDGER, render(LEDGER.read_text()), args.check, "python -m tools.fidelity")
-
-
-def update_page(path: Path, new: str, check: bool, command: str) -> int:
-    """Write ``new`` to ``path``; with ``check``, only compare (exit status 1 and a line naming ``command`` when the
-    committed page differs from what the results give)."""
-    if check:
-        if new != path.read_text():
-            print(f"{path} is out of date: run {command}", file=sys.stderr)
-            return 1
-        return 0
-    path.write_text(new)
-    print(f"wrote {path}")
-    return 0
+    return update_pages({LEDGER: render(LEDGER.read_text(encoding="utf-8"))}, args.check, "python -m tools.fidelity")
 
 
 if __name__ == "__main__":

@@ -30,6 +30,7 @@ from typing import Any
 
 import tactile_zoo
 from tactile_zoo import registry
+from tactile_zoo._files import replace_block, stale_files, update_pages
 from tactile_zoo.engine.config import resolve_model_recipe
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.export import spec_for_dataset
@@ -339,18 +340,10 @@ BLOCKS: dict[str, list[tuple[str, str, Callable[[str], str]]]] = {
 }
 
 
-def replace_block(text: str, begin: str, end: str, body: str, where: Path) -> str:
-    """``text`` with what lies between the lines ``begin`` and ``end`` replaced by ``body``."""
-    if text.count(begin) != 1 or text.count(end) != 1:
-        raise SystemExit(f"{where} must hold the markers {begin!r} ... {end!r} once each")
-    head, rest = text.split(begin, 1)
-    return f"{head}{begin}\n{body}\n{end}{rest.split(end, 1)[1]}"
-
-
 def render(path: str, text: str, root: Path = REPO) -> str:
     for what, comment, body in BLOCKS[path]:
         begin, end = markers(what, comment)
-        text = replace_block(text, begin, end, body(text), root / path)
+        text = replace_block(text, begin, end, body(text), root / path, error=SystemExit)
     return text
 
 
@@ -358,27 +351,20 @@ def run(root: Path | None = None, check: bool = False) -> list[Path]:
     """Write every generated block under ``root`` (default: this checkout; ``check``: write nothing); the files that
     were (or are) stale."""
     root = REPO if root is None else root
-    stale = []
-    for rel in BLOCKS:
-        path = root / rel
-        old = path.read_text()
-        new = render(rel, old, root)
-        if new != old:
-            stale.append(path)
-            if not check:
-                path.write_text(new)
-    return stale
+    return stale_files(pages(root), write=not check)
+
+
+def pages(root: Path | None = None) -> dict[Path, str]:
+    """Every page with a generated block under ``root`` (default: this checkout), as the registry gives it."""
+    root = REPO if root is None else root
+    return {root / rel: render(rel, (root / rel).read_text(encoding="utf-8"), root) for rel in BLOCKS}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=COMMAND, description=__doc__.split("\n")[0])
     parser.add_argument("--check", action="store_true", help="exit 1, naming each stale file, if a page is out of date")
     args = parser.parse_args(argv)
-    stale = run(check=args.check)
-    for path in stale:
-        print(f"{path.relative_to(REPO)} {'is out of date: run ' + COMMAND if args.check else 'written'}",
-              file=sys.stderr if args.check else sys.stdout)
-    return 1 if stale and args.check else 0
+    return update_pages(pages(REPO), args.check, COMMAND, root=REPO)
 
 
 if __name__ == "__main__":

@@ -16,8 +16,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from tactile_zoo._files import update_pages
 from tactile_zoo.errors import TactileZooError
-from tactile_zoo.study.publish import BLOCKS, check_pages, load_context, render_block, render_pages
+from tactile_zoo.study.publish import BLOCKS, COMMAND, check_pages, load_context, render_block, render_pages
 
 STUDIES = Path(__file__).resolve().parents[1] / "benchmarks" / "studies"
 
@@ -42,10 +43,7 @@ def main(argv: list[str] | None = None) -> int:
             for line in problems:
                 print(line, file=sys.stderr)
             return int(bool(problems))
-        for path, text in render_pages(ctx).items():
-            if path.read_text(encoding="utf-8") != text:
-                path.write_text(text, encoding="utf-8")
-                print(f"wrote {path}")
+        update_pages(render_pages(ctx), False, COMMAND)
     except TactileZooError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -61,6 +61,7 @@ import numpy as np
 import torch
 
 from tactile_zoo import registry
+from tactile_zoo._files import replace_block
 from tactile_zoo.bench.records import CELLS_DIR, cell_file, revision_gaps, run_records
 from tactile_zoo.bench.tables import leaderboard_rows
 from tactile_zoo.data.base import file_sha256
@@ -410,9 +411,7 @@ def _short(reason: str) -> str:
 
 
 def render_readme(text: str, entries: Sequence[WeightEntry], slots: Sequence[Slot]) -> str:
-    from tools.fidelity import replace_block
-
-    return replace_block(text, BEGIN, END, readme_table(entries, slots), README)
+    return replace_block(text, BEGIN, END, readme_table(entries, slots), README, error=SystemExit)
 
 
 # ----------------------------------------------------------------------------------------------- size

@@ -25,6 +25,7 @@ those are not the study's.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,7 +36,7 @@ from .freeze import changes, freeze_times, parse_time, read_freeze
 from .reads import cell_digest, recorded_reads
 from .schema import Study, canonical_hash
 
-__all__ = ["AuditResult", "audit", "cpu_type", "cpu_types", "study_records", "cpu_hours"]
+__all__ = ["AuditResult", "audit", "cpu_type", "cpu_types", "cpu_type_clash", "study_records", "cpu_hours"]
 
 
 def cpu_type(record: dict[str, Any]) -> str:
@@ -47,6 +48,13 @@ def cpu_types(records: list[dict[str, Any]]) -> list[str]:
     """The CPU types ``records`` ran on, sorted: seeds pool only within one type (the same seed can train
     differently on another)."""
     return sorted({cpu_type(r) for r in records})
+
+
+def cpu_type_clash(records: Sequence[dict[str, Any]]) -> str | None:
+    """The one-CPU-type check, the one copy of it (a study's audit, a published table's pooled seeds, ``tools.audit``'s
+    planned round): ``None`` when ``records`` ran on one CPU type or none, else ``"N CPU types (A; B)"``."""
+    types = cpu_types(list(records))
+    return f"{len(types)} CPU types ({'; '.join(types)})" if len(types) > 1 else None
 
 
 def cpu_hours(records: list[dict[str, Any]]) -> float:
@@ -177,10 +185,11 @@ def audit(study: Study) -> AuditResult:
                 kind = "tuning" if evaluation == "tuning" else "final"
                 result.fail("test split", f"{where}: a {kind} cell that read its test split {reads} time(s), not "
                                           f"{'never' if expected == 0 else 'once' if expected == 1 else expected}")
-    types = cpu_types([r for r in everything if r.get("status") == "ok"])
+    finished = [r for r in everything if r.get("status") == "ok"]
+    types = cpu_types(finished)
     result.lines.append(f"CPU types: {'; '.join(types) or 'no cell yet'}")
-    if len(types) > 1:
-        result.fail("one CPU type", f"cells on {len(types)} CPU types ({'; '.join(types)}); a study runs on one")
+    if clash := cpu_type_clash(finished):
+        result.fail("one CPU type", f"cells on {clash}; a study runs on one")
     if rules.cpu and types and any(not t.startswith(rules.cpu) for t in types):
         result.fail("one CPU type", f"cells on {'; '.join(types)}; rules.cpu declares {rules.cpu}")
     hours = cpu_hours(own)

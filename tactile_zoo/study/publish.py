@@ -26,6 +26,7 @@ import re
 from collections.abc import Callable
 from pathlib import Path
 
+from .. import _files
 from ..bench.intervals import records_interval
 from ..bench.records import cell_files, run_records, scan_cells
 from ..errors import ResultsError
@@ -248,13 +249,8 @@ def render_block(ctx: Context, page: str, block: str) -> str:
 
 def replace_block(text: str, block: str, body: str, where_: str) -> str:
     """``text`` with block ``block``'s body replaced by ``body`` (its begin marker rewritten to name the generator)."""
-    begin = re.compile(rf"<!-- {re.escape(block)}: begin[^>]*-->")
-    end = f"<!-- {block}: end -->"
-    found = begin.search(text)
-    if found is None or end not in text[found.end():]:
-        raise ResultsError(f"{where_} lacks the markers '<!-- {block}: begin ... -->' ... {end!r}")
-    rest = text[found.end():].split(end, 1)[1]
-    return f"{text[:found.start()]}<!-- {block}: begin ({COMMAND}) -->\n{body}\n{end}{rest}"
+    return _files.replace_block(text, f"<!-- {block}: begin ({COMMAND}) -->", f"<!-- {block}: end -->", body, where_,
+                                find=rf"<!-- {re.escape(block)}: begin[^>]*-->", error=ResultsError)
 
 
 def render_pages(ctx: Context) -> dict[Path, str]:
@@ -270,8 +266,7 @@ def render_pages(ctx: Context) -> dict[Path, str]:
 def check_pages(ctx: Context) -> list[str]:
     """One line per page whose committed text is not what the studies give, and per headline row that reads
     another recipe than its model's registered default (:func:`headline_problems`)."""
-    out = [f"{path} is out of date: run {COMMAND}" for path, text in render_pages(ctx).items()
-           if path.read_text(encoding="utf-8") != text]
+    out = [_files.out_of_date(path, COMMAND) for path in _files.stale_files(render_pages(ctx))]
     readme = (ctx.repo / "README.md").read_text(encoding="utf-8")
     committed = re.split(r"<!-- headline: begin[^>]*-->", readme)[-1].split("<!-- headline: end -->")[0]
     out += [f"README.md: {line}" for line in headline_problems(committed, ctx)]

@@ -25,7 +25,7 @@ from ..bench.intervals import records_interval
 from ..bench.paired import holm, records_paired
 from ..bench.records import cell_files, recipe_name_of, revision_gaps, run_records
 from ..errors import ResultsError
-from .audit import cpu_types, study_records
+from .audit import cpu_type_clash, cpu_types, study_records
 from .checks import plans
 from .reads import compute_reads
 from .schema import GridSpec, Publication, Study
@@ -51,10 +51,9 @@ READING = ("Figures: mean ± sample std over runs. The 95 % interval is a confid
 def one_cpu_type(records: Sequence[dict[str, Any]], what: str) -> str:
     """The one CPU type of ``records`` (pooled seeds must share it: the same seed can train differently on
     another); two types are a :class:`ResultsError` naming them."""
+    if clash := cpu_type_clash(records):
+        raise ResultsError(f"{what}: cells of {clash}; seeds pool within one CPU type only")
     types = cpu_types(list(records))
-    if len(types) > 1:
-        raise ResultsError(f"{what}: cells of {len(types)} CPU types ({'; '.join(types)}); seeds pool within one "
-                           f"CPU type only")
     return types[0] if types else "no cells yet"
 
 
