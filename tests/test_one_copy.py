@@ -8,6 +8,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
+
+from tactile_zoo._files import replace_block, stale_files
 from tactile_zoo.study.publish import study_files
 from tactile_zoo.study.schema import parse_study
 
@@ -48,3 +51,15 @@ def test_no_tool_types_a_studys_results_folder() -> None:
              for path in SOURCES for n, line in _lines(path) for found in literal.finditer(line)
              if (name := "/".join(re.findall(r'"([^"]+)"', found.group(1)))) in folders]
     assert not typed, "\n".join(typed)
+
+
+def test_a_generated_block_needs_its_markers_once_each_in_order(tmp_path: Path) -> None:
+    begin, end = "<!-- t: begin (gen) -->", "<!-- t: end -->"
+    page = tmp_path / "page.md"
+    assert replace_block(f"a\n{begin}\nold\n{end}\nb\n", begin, end, "new", page) == f"a\n{begin}\nnew\n{end}\nb\n"
+    for text in (f"{begin}\n{end}\n{begin}\n{end}\n", f"{end}\n{begin}\n", f"{begin}\n"):
+        with pytest.raises(ValueError, match=f"{page} must hold the markers"):
+            replace_block(text, begin, end, "new", page)
+    page.write_text("old")
+    assert stale_files({page: "old", tmp_path / "missing.md": "x"}) == [tmp_path / "missing.md"]
+    assert stale_files({page: "new"}, write=True) == [page] and page.read_text() == "new"
