@@ -6,9 +6,12 @@ import csv
 import json
 from pathlib import Path
 
+import pytest
 from study_helpers import QuickstartRun, tz
 
 from tactile_zoo.bench.records import run_records
+
+pytestmark = pytest.mark.xdist_group("quickstart_study")  # one worker runs the package's quickstart study once
 
 
 def test_check_lists_the_cells_and_says_when_there_is_nothing_to_estimate_from(quickstart: QuickstartRun) -> None:

@@ -14,6 +14,8 @@ from study_helpers import QuickstartRun, tz
 from tactile_zoo.bench.records import run_records
 from tactile_zoo.bench.rundir import RunDir
 
+pytestmark = pytest.mark.xdist_group("quickstart_study")  # with test_quickstart.py: the quickstart study runs once
+
 
 def _edit_cell(study: Path, change: Callable[[dict[str, Any]], None], model: str = "cnn_lstm", seed: int = 1
                ) -> dict[str, Any]:
