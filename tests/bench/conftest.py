@@ -41,11 +41,19 @@ def subprocess_env() -> dict[str, str]:
     return env
 
 
+def _default_interrupts() -> None:
+    """In the child before it execs: SIGINT and SIGQUIT as a terminal gives them. A suite started in the background
+    of a shell without job control (``make test &`` in a script) inherits both ignored, and an ignored SIGINT stays
+    ignored through exec: the child would then train on through the SIGINT a test sends it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+
+
 def bench_subprocess(args: list[str], **kw: object) -> subprocess.Popen:
     """``python -m tactile_zoo.cli bench --plugin-module tiny_zoo ARGS`` as a real child process."""
     cmd = [sys.executable, "-m", "tactile_zoo.cli", "bench", "--plugin-module", "tiny_zoo", *args]
     return subprocess.Popen(cmd, env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            **kw)
+                            preexec_fn=_default_interrupts, **kw)
 
 
 def hung_stacks(proc: subprocess.Popen) -> str:
