@@ -18,8 +18,6 @@ the user's cells ran (a baseline's published cells at other seeds are left out, 
 
 from __future__ import annotations
 
-import csv
-import io
 import statistics
 from pathlib import Path
 from typing import Any
@@ -31,6 +29,7 @@ from ..bench.tables import prefix_label
 from ..errors import ConfigError, ResultsError, TactileZooError
 from .audit import study_records
 from .compare import Comparison, check_finished, load_comparison, plan_comparison, seed_list
+from .report import csv_text
 from .run import run_study
 
 __all__ = ["write_comparison", "user_tuning", "comparison_tables", "run_comparison"]
@@ -38,18 +37,6 @@ __all__ = ["write_comparison", "user_tuning", "comparison_tables", "run_comparis
 
 def _f(value: Any, digits: int = 4) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
-
-
-def _csv(rows: list[dict[str, Any]]) -> str:
-    columns: list[str] = []
-    for row in rows:
-        columns += [k for k in row if k not in columns]
-    stream = io.StringIO()
-    writer = csv.DictWriter(stream, fieldnames=columns, lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: ("" if v is None else v) for k, v in row.items()})
-    return stream.getvalue()
 
 
 def user_tuning(comparison: Comparison) -> dict[tuple[str, str], str]:
@@ -218,7 +205,7 @@ def write_comparison(comparison: Comparison, mine: dict[tuple[str, str, str], li
     paths = {"report": folder / "report.md", **{name: folder / f"{name}.csv" for name in tables}}
     atomic_write_text(paths["report"], _markdown(comparison, tables))
     for name, rows in tables.items():
-        atomic_write_text(paths[name], _csv(rows))
+        atomic_write_text(paths[name], csv_text(rows))
     return paths
 
 

@@ -53,7 +53,8 @@ def summary_table(records_by_grid: dict[str, list[dict[str, Any]]]) -> list[dict
     return out
 
 
-def _csv(rows: list[dict[str, Any]]) -> str:
+def csv_text(rows: list[dict[str, Any]]) -> str:
+    """``rows`` as CSV text, the columns in order of first appearance (the report's and ``compare``'s CSVs)."""
     columns: list[str] = []
     for row in rows:
         columns += [k for k in row if k not in columns]
@@ -213,6 +214,6 @@ def write_report(study: Study, out: str | Path | None = None) -> dict[str, Path]
               + f"; CPU: {'; '.join(cpu_types(everything)) or 'none yet'}.", ""]
     paths = {"report": folder / "report.md", "summary": folder / "summary.csv", "reads": folder / "reads.csv"}
     atomic_write_text(paths["report"], "\n".join(lines))
-    atomic_write_text(paths["summary"], _csv(summary))
-    atomic_write_text(paths["reads"], _csv(read_rows))
+    atomic_write_text(paths["summary"], csv_text(summary))
+    atomic_write_text(paths["reads"], csv_text(read_rows))
     return paths
