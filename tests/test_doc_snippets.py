@@ -211,18 +211,28 @@ def run_shell(block: Block, session: Session, prompt: bool = False) -> None:
     parse_python_lines(python_lines, session, block.id)
 
 
-def parse_python_lines(lines: list[list[str]], session: Session, where: str) -> None:
-    """``python -m MODULE ARGS`` and ``python FILE.py ARGS``: each module's own parser accepts the arguments."""
+def parse_results(lines: list[list[str]], session: Session) -> tuple[list[str | None], str]:
+    """Each line's parse in one child (``None``: its parser accepted it), and the child's stderr."""
     targets = [(argv[1], argv[2:]) if argv[0] == "-m" else (str(REPO / argv[0]), argv[1:]) for argv in lines]
     if not targets:
-        return
+        return [], ""
     run = subprocess.run([sys.executable, "-c", PARSE_ONLY, json.dumps(targets)], cwd=REPO, env=session.env(),
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
-    results = json.loads(run.stdout.strip().splitlines()[-1])
-    bad = [f"python {'-m ' if not t.endswith('.py') else ''}{t} {shlex.join(a)}: {r}"
-           for (t, a), r in zip(targets, results) if r]
-    assert not bad, f"{where}: " + "; ".join(bad) + f"\n{run.stderr[-2000:]}"
+    return json.loads(run.stdout.strip().splitlines()[-1]), run.stderr
+
+
+def parse_python_lines(lines: list[list[str]], session: Session, where: str,
+                       parsed: dict[tuple[str, ...], str | None] | None = None) -> None:
+    """``python -m MODULE ARGS`` and ``python FILE.py ARGS``: each module's own parser accepts the arguments
+    (looked up in ``parsed`` where given, else parsed now)."""
+    stderr = ""
+    if parsed is None:
+        results, stderr = parse_results(lines, session)
+    else:
+        results = [parsed[tuple(argv)] for argv in lines]
+    bad = [f"python {shlex.join(argv)}: {r}" for argv, r in zip(lines, results, strict=True) if r]
+    assert not bad, f"{where}: " + "; ".join(bad) + f"\n{stderr[-2000:]}"
 
 
 def run_python(block: Block, session: Session) -> None:
@@ -328,13 +338,25 @@ def span_problems(span: str) -> list[str]:
             if w.startswith("-") and w.split("=")[0] not in flags]
 
 
+def prose_python_lines(page: Path) -> list[list[str]]:
+    return [shlex.split(s)[1:] for s in command_spans(page.read_text()) if s.startswith("python -m ")]
+
+
+@pytest.fixture(scope="session")
+def prose_parsed(plugins: dict[str, Path]) -> dict[tuple[str, ...], str | None]:
+    """Every page's ``python -m`` lines parsed in one child per worker (a child per page paid a torch import each,
+    about 3 s)."""
+    lines = list(dict.fromkeys(tuple(argv) for page in doc_files() for argv in prose_python_lines(page)))
+    results, _ = parse_results([list(line) for line in lines], Session(REPO, plugins))
+    return dict(zip(lines, results, strict=True))
+
+
 @pytest.mark.parametrize("page", doc_files(), ids=lambda p: str(p.relative_to(REPO)))
-def test_every_command_in_the_prose_parses(page: Path, plugins: dict[str, Path]) -> None:
+def test_every_command_in_the_prose_parses(page: Path, prose_parsed: dict[tuple[str, ...], str | None]) -> None:
     spans = command_spans(page.read_text())
-    python = [shlex.split(s)[1:] for s in spans if s.startswith("python -m ")]
     problems = [p for s in spans if not s.startswith("python -m ") for p in span_problems(s)]
     assert not problems, f"{page.name}: " + "; ".join(problems)
-    parse_python_lines(python, Session(REPO, plugins), page.name)
+    parse_python_lines(prose_python_lines(page), Session(REPO, {}), page.name, prose_parsed)
 
 
 PLANTED = """# A page with one mistake per block

@@ -37,7 +37,6 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from scipy.interpolate import CubicSpline
 
 from ..errors import ConfigError
 
@@ -72,6 +71,9 @@ def random_curves(num_steps: int, num_curves: int, knots: int, sigma: float, gen
     times = np.linspace(0.0, num_steps - 1.0, knots + 2)
     if num_steps < 2:
         return values[:1].clone(), times, values
+    # imported here: scipy.interpolate costs 0.4 s, paid by every import of the package otherwise
+    from scipy.interpolate import CubicSpline
+
     curves = CubicSpline(times, values.numpy(), axis=0)(np.arange(num_steps, dtype=np.float64))
     return torch.from_numpy(np.ascontiguousarray(curves)), times, values
 
