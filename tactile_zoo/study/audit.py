@@ -14,7 +14,8 @@ The checks, over the cells of every grid that is not superseded (read through :m
   pass every check over no cell);
 - **the budget**: the cells' own ``seconds`` summed, at most ``rules.budget_cpu_hours``;
 - **ensembles**: every declared member has run, and a recorded ensemble read exactly its declared members, from the
-  cell files as they are now (and every recorded read's input files are unchanged).
+  cell files as they are now (and every recorded read's input files are unchanged); a recorded comparison given as
+  arms, likewise its declared cells, each in its grid's folder.
 
 A grid marked ``reused`` holds cells the study reads but did not run (earlier evidence, a baseline arm): neither
 the freeze nor the test-split rule applies to them (their test reads are the running study's to audit; a reused
@@ -33,7 +34,7 @@ from ..bench.records import InvalidCellsError, run_records
 from ..bench.rundir import RunDir
 from .checks import plans, read_members
 from .freeze import changes, freeze_times, parse_time, read_freeze
-from .reads import cell_digest, recorded_reads
+from .reads import cell_digest, comparison_inputs, input_path, recorded_reads
 from .schema import Study, canonical_hash
 
 __all__ = ["AuditResult", "audit", "cpu_type", "cpu_types", "cpu_type_clash", "study_records", "cpu_hours"]
@@ -224,6 +225,7 @@ def _ensembles(study: Study, by_grid: dict[str, list[dict[str, Any]]], result: A
             if path.is_file() and cell_digest(path) != digest:
                 result.fail("ensemble members", f"ensemble {read.name}: member {cell} changed after the read was "
                                                 f"recorded")
+    _comparisons(study, recorded, result)
     folders = list(dict.fromkeys(plans(study)[g.name].folder for g in study.grids()))
     for read in study.reads().validation:
         for cell, digest in ((recorded.get(read.name) or {}).get("digests") or {}).items():
@@ -232,3 +234,25 @@ def _ensembles(study: Study, by_grid: dict[str, list[dict[str, Any]]], result: A
                 result.fail("ensemble members", f"validation read {read.name}: input {cell} changed after the read "
                                                 f"was recorded")
 
+
+
+def _comparisons(study: Study, recorded: dict[str, dict[str, Any]], result: AuditResult) -> None:
+    """A recorded comparison given as arms read its declared cells (``grid/cell id``), from files unchanged since."""
+    folders = {g.name: plans(study)[g.name].folder for g in study.grids()}
+    for read in study.reads().comparisons:
+        entry = recorded.get(read.name)
+        if entry is None or not read.arms:
+            continue
+        declared = {cell for cells in comparison_inputs(study, read).values() for cell in cells}
+        for cell in entry.get("inputs", []):
+            if cell not in declared:
+                result.fail("ensemble members", f"comparison {read.name}: input {cell} was not declared")
+        for cell, digest in (entry.get("digests") or {}).items():
+            if cell not in declared:
+                continue
+            path = input_path(folders, cell)
+            if not path.is_file():
+                result.fail("ensemble members", f"comparison {read.name}: input {cell} is gone ({path})")
+            elif cell_digest(path) != digest:
+                result.fail("ensemble members", f"comparison {read.name}: input {cell} changed after the read was "
+                                                f"recorded")

@@ -10,9 +10,9 @@ from typing import Any
 
 from ..errors import ConfigError
 from .plan import PlannedGrid, planned
-from .schema import READ_KINDS, EnsembleRead, Members, Study, parse_study
+from .schema import READ_KINDS, ComparisonArm, ComparisonRead, EnsembleRead, Members, Study, parse_study
 
-__all__ = ["load_study", "check_study", "read_members", "plans", "describe"]
+__all__ = ["load_study", "check_study", "read_members", "comparison_arms", "plans", "describe"]
 
 #: the statistics a threshold may read from each kind of read
 _STATISTICS = {"means": ("accuracy", "low", "high"), "ensembles": ("accuracy", "low", "high"),
@@ -110,6 +110,9 @@ def check_study(study: Study) -> None:
         for twice in _twice(ids):
             raise ConfigError(f"{where}: {key}.members: the cell {twice} is named twice")
     for read in reads.comparisons:
+        if read.arms:
+            _check_arms(study, read)
+            continue
         _check_selection(study, f"reads.comparisons.{read.name}", read.grid, read.dataset, [read.a, read.b])
         if read.a == read.b:
             raise ConfigError(f"{where}: reads.comparisons.{read.name}: a and b are both {read.a!r}")
@@ -145,6 +148,44 @@ def check_study(study: Study) -> None:
         for name in publication.reads:
             if name not in known:
                 raise ConfigError(f"{where}: publishes[{i}].reads: {name!r} names no declared read")
+
+
+def comparison_arms(study: Study, read: ComparisonRead, side: str) -> list[ComparisonArm]:
+    """Side ``side`` (``a`` or ``b``) of a comparison as arms, each with its grid: a model's name is that model's
+    cells in the read's grid (the study's only grid by default)."""
+    value, grid = getattr(read, side), read.grid or study.grids()[0].name
+    if isinstance(value, str):
+        return [ComparisonArm(grid=grid, model=value)]
+    return [arm if arm.grid is not None else arm.model_copy(update={"grid": grid}) for arm in value]
+
+
+def _check_arms(study: Study, read: ComparisonRead) -> None:
+    """A comparison given as arms: each arm names a grid of the study (or the read does), a model, dataset and seeds
+    of it; a side selects each seed once (its cells pair by fold and seed), and no cell is on both sides."""
+    key = f"reads.comparisons.{read.name}"
+    cells: dict[str, dict[tuple[str, str], str]] = {}  # side -> {(folder, fold-0 cell id): its grid}
+    for side in ("a", "b"):
+        value = getattr(read, side)
+        keyed = [f"{key}.{side}"] if isinstance(value, str) else [f"{key}.{side}[{i}]" for i in range(len(value))]
+        for arm_key, arm in zip(keyed, [value] if isinstance(value, str) else value, strict=True):
+            if isinstance(arm, str):
+                _check_selection(study, key, read.grid, read.dataset, [arm])
+            else:
+                _check_selection(study, arm_key, arm.grid or read.grid, read.dataset, [arm.model], seeds=arm.seeds)
+        seeds: dict[int, str] = {}
+        cells[side] = {}
+        for arm_key, arm in zip(keyed, comparison_arms(study, read, side), strict=True):
+            plan = plans(study)[str(arm.grid)]
+            for seed in arm.seeds if arm.seeds is not None else plan.config.seeds:
+                if seed in seeds:
+                    raise ConfigError(f"{study.where}: {arm_key}: seed {seed} is also selected by {seeds[seed]}: a "
+                                      f"side holds one cell per fold and seed (its cells pair by them)")
+                seeds[seed] = arm_key
+                cells[side][str(plan.folder.resolve()), plan.cell_id_of(arm.model, read.dataset, 0, seed)] = \
+                    str(arm.grid)
+    for folder, cell in sorted(cells["a"].keys() & cells["b"].keys()):
+        raise ConfigError(f"{study.where}: {key}: a and b both select the cell {cell} (grid {cells['a'][folder, cell]}"
+                          f"): a comparison pairs two different cells")
 
 
 def _check_validation(study: Study, reads: Any) -> None:

@@ -7,7 +7,8 @@ key that changed. Changes go into ``amendments``, appended with a reason; each i
 hash), and may add a grid, a read or a rule, never change one whose inputs already exist:
 
 - a grid of a new name, or one replacing a grid whose folder holds no cell yet;
-- a read of a new name, or one replacing a read none of whose cells exist yet;
+- a read of a new name, or one replacing a read none of whose cells exist yet (a comparison given as arms: none of
+  the study's own cells it reads, a reused grid's cells being there before the study ran any);
 - a rule that was not set (``cpu``, ``budget_cpu_hours``), or any rule while no cell exists.
 
 A migrated study carries its freeze in the file (``freeze: {time, commit, source}``, read once from its plan's
@@ -27,9 +28,9 @@ from .._files import atomic_write_text
 from ..bench.records import cell_files
 from ..bench.rundir import RunDir, atomic_write_json
 from ..errors import ConfigError
-from .checks import read_members
+from .checks import comparison_arms, read_members
 from .reads import recorded_reads
-from .schema import Study, canonical_hash
+from .schema import ComparisonRead, Study, canonical_hash
 
 __all__ = ["FREEZE_DIR", "TIME_FORMAT", "freeze_path", "read_freeze", "freeze", "changes", "freeze_times",
            "freeze_status", "parse_time", "has_cells"]
@@ -117,9 +118,21 @@ def _amendment_inputs_exist(study: Study, index: int) -> list[str]:
                 folder = study.folder(study.grid(read.grid))
                 if any(RunDir(folder).cell_path(m[-1]).exists() for m in read_members(before, names[read.name])):
                     problems.append(f"reads.{kind}.{read.name}: some of its members already ran")
+            elif kind == "comparisons" and (read.arms or names[read.name].arms):
+                if has_cells(study, grids := _own_grids(study, [(before, names[read.name]), (study, read)])):
+                    problems.append(f"reads.{kind}.{read.name}: its grids already hold cells ({', '.join(grids)})")
             elif kind != "thresholds" and has_cells(before, [read.grid or before.grids()[0].name]):
                 problems.append(f"reads.{kind}.{read.name}: its grid already holds cells")
     return problems
+
+
+def _own_grids(study: Study, reads: list[tuple[Study, ComparisonRead]]) -> list[str]:
+    """The grids whose cells would decide comparisons given as arms: the study's own (a reused grid's cells exist
+    before the study runs any), or every grid they read where all are reused."""
+    grids = list(dict.fromkeys(str(arm.grid) for owner, read in reads for side in "ab"
+                               for arm in comparison_arms(owner, read, side)))
+    own = [name for name in grids if not study.grid(name).reused]
+    return own or grids
 
 
 def freeze(study: Study) -> dict[str, Any]:

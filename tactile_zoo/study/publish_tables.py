@@ -113,7 +113,7 @@ class Context:
             by_grid, _ = study_records(study)
             records = {r["cell_id"]: r for recs in by_grid.values() for r in recs}
             folders = {g.name: study.folder(g) for g in study.grids()}
-            self._reads[study.name] = compute_reads(study, records, folders, record=False)
+            self._reads[study.name] = compute_reads(study, records, folders, record=False, by_grid=by_grid)
         return self._reads[study.name]
 
     def paper(self) -> dict[tuple[str, str], float]:

@@ -6,7 +6,8 @@ again (a later change in how it would be computed cannot move it).
 - an *ensemble*: its declared member cells combined (:func:`seed_ensemble`: the mean of their stored probabilities,
   or a majority vote of their predictions), one run: its accuracy and an interval over the test units;
 - a *comparison*: ``b`` against ``a`` over their paired cells (:func:`~tactile_zoo.bench.paired.records_paired`):
-  the mean difference, its interval and the one-sided p-value of "b is not better";
+  the mean difference, its interval and the one-sided p-value of "b is not better"; a side given as arms may span
+  grids (a previous revision's seeds in two folders), and its inputs are then recorded as ``grid/cell id``;
 - a *validation* read (:mod:`.tuning`): a tuning study's validation score of one model's runs, against another arm;
 - a *threshold*: a statistic of one of those against its declared bound, and the decision its outcome leads to
   (``at_least`` and ``below`` compare with a tolerance of 1e-9, so that a mean difference of exactly two
@@ -33,12 +34,15 @@ from ..bench.intervals import bootstrap_accuracy, records_interval
 from ..bench.paired import records_paired
 from ..bench.rundir import RunDir, atomic_write_json
 from ..errors import ResultsError
-from .checks import plans, read_members
+from .checks import comparison_arms, plans, read_members
 from .schema import READ_KINDS, AllOf, ComparisonRead, EnsembleRead, MeanRead, Study, Threshold, ValidationRead
 from .tuning import validation_value
 
 __all__ = ["seed_ensemble", "reads_path", "recorded_reads", "compute_reads", "threshold_outcome", "cell_digest",
-           "decision_outcome", "TOLERANCE"]
+           "decision_outcome", "comparison_inputs", "input_path", "TOLERANCE"]
+
+#: grid name -> its cell records (:func:`~.audit.study_records`)
+ByGrid = dict[str, list[dict[str, Any]]]
 
 #: how close to a threshold's bound a statistic counts as on it (means of fractions carry rounding)
 TOLERANCE = 1e-9
@@ -90,9 +94,12 @@ def cell_digest(path: Path) -> str:
     return hashlib.sha256(records.read_cell_bytes(path)).hexdigest()
 
 
-def _cells(study: Study, grid: str | None, ids: list[str], records: dict[str, dict[str, Any]]
-           ) -> tuple[list[dict[str, Any]], list[str]]:
-    """The ok records of ``ids`` and the ids not (yet) there."""
+def _cells(study: Study, grid: str | None, ids: list[str], records: dict[str, dict[str, Any]],
+           by_grid: ByGrid | None = None) -> tuple[list[dict[str, Any]], list[str]]:
+    """The ok records of ``ids`` and the ids not (yet) there: from the records of ``grid`` (default: the study's
+    first) where ``by_grid`` gives them (a cell id may be in two grids' folders), else from ``records``."""
+    if by_grid is not None:
+        records = {r["cell_id"]: r for r in by_grid.get(grid or study.grids()[0].name, [])}
     found = [records[i] for i in ids if (records.get(i) or {}).get("status") == "ok"]
     return found, [i for i in ids if (records.get(i) or {}).get("status") != "ok"]
 
@@ -105,28 +112,70 @@ def _listed_cells(folder: Path) -> set[str]:
         return set()
 
 
-def _selection(study: Study, read: MeanRead | ComparisonRead, model: str, seeds: list[int] | None) -> list[str]:
-    """One model's cells of the read: each seed's folds as the bench listed them (fold 0 before any run)."""
-    plan = plans(study)[read.grid or study.grids()[0].name]
+def _selection(study: Study, grid: str | None, dataset: str, model: str, seeds: list[int] | None) -> list[str]:
+    """One model's cells in a grid (default: the study's first): each seed's folds as the bench listed them (fold 0
+    before any run)."""
+    plan = plans(study)[grid or study.grids()[0].name]
     listed = _listed_cells(plan.folder)
     out = []
     for seed in seeds if seeds is not None else plan.config.seeds:
         fold = 0
-        out.append(plan.cell_id_of(model, read.dataset, fold, seed))
-        while (next_id := plan.cell_id_of(model, read.dataset, fold + 1, seed)) in listed:
+        out.append(plan.cell_id_of(model, dataset, fold, seed))
+        while (next_id := plan.cell_id_of(model, dataset, fold + 1, seed)) in listed:
             out.append(next_id)
             fold += 1
     return out
 
 
-def _value(study: Study, read: Any, records: dict[str, dict[str, Any]]) -> tuple[dict[str, Any] | None, list[str],
-                                                                                 list[str]]:
+def comparison_inputs(study: Study, read: ComparisonRead) -> dict[str, list[str]]:
+    """The input cells of a comparison given as arms, per side, each named ``grid/cell id``: one cell id may be in
+    two grids' folders (a rerun of the same configuration), so an arm's cells are read from its own grid."""
+    return {side: [f"{arm.grid}/{cell}" for arm in comparison_arms(study, read, side)
+                   for cell in _selection(study, arm.grid, read.dataset, arm.model, arm.seeds)] for side in "ab"}
+
+
+def _arm_cells(inputs: list[str], records: dict[str, dict[str, Any]], by_grid: ByGrid | None
+               ) -> tuple[list[dict[str, Any]], list[str]]:
+    """The ok records of ``inputs`` (``grid/cell id``) and the inputs not (yet) there: each from its grid's records
+    where ``by_grid`` gives them, else from ``records`` by cell id."""
+    grids = {grid: {r["cell_id"]: r for r in recs} for grid, recs in (by_grid or {}).items()}
+    found, missing = [], []
+    for name in inputs:
+        grid, cell = name.split("/", 1)
+        record = (records if by_grid is None else grids.get(grid, {})).get(cell) or {}
+        if record.get("status") == "ok":
+            found.append(record)
+        else:
+            missing.append(name)
+    return found, missing
+
+
+def _comparison(study: Study, read: ComparisonRead, records: dict[str, dict[str, Any]],
+                by_grid: ByGrid | None) -> tuple[dict[str, Any] | None, list[str], list[str]]:
+    """A comparison given as arms: (value or None, its inputs as ``grid/cell id``, the inputs missing)."""
+    inputs = comparison_inputs(study, read)
+    ids = inputs["a"] + inputs["b"]
+    (found_a, missing_a), (found_b, missing_b) = (_arm_cells(inputs[side], records, by_grid) for side in "ab")
+    if missing_a or missing_b:
+        return None, ids, missing_a + missing_b
+    try:
+        paired = records_paired(found_a, found_b, read.split, level=read.level)
+    except ValueError as exc:  # two cells of one side with one fold and seed, another test set, no pair
+        raise ResultsError(f"{study.where}: reads.comparisons.{read.name}: {exc}") from None
+    return {"difference": paired.difference, "low": paired.low, "high": paired.high, "p_value": paired.p_value,
+            "pairs": paired.n_cells}, ids, []
+
+
+def _value(study: Study, read: Any, records: dict[str, dict[str, Any]], by_grid: ByGrid | None = None
+           ) -> tuple[dict[str, Any] | None, list[str], list[str]]:
     """(value or None, input cell ids, the ids missing)."""
+    if isinstance(read, ComparisonRead) and read.arms:
+        return _comparison(study, read, records, by_grid)
     if isinstance(read, ValidationRead):
         return validation_value(study, read, records)
     if isinstance(read, EnsembleRead):
         ids = [m[-1] for m in read_members(study, read)]
-        found, missing = _cells(study, read.grid, ids, records)
+        found, missing = _cells(study, read.grid, ids, records, by_grid)
         if missing:
             return None, ids, missing
         result = seed_ensemble(found, read.split, read.combine)
@@ -137,17 +186,17 @@ def _value(study: Study, read: Any, records: dict[str, dict[str, Any]]) -> tuple
         accuracy, low, high = result
         return {"accuracy": accuracy, "low": low, "high": high, "members_mean": members_mean}, ids, []
     if isinstance(read, MeanRead):
-        ids = _selection(study, read, read.model, read.seeds)
-        found, missing = _cells(study, read.grid, ids, records)
+        ids = _selection(study, read.grid, read.dataset, read.model, read.seeds)
+        found, missing = _cells(study, read.grid, ids, records, by_grid)
         if missing:
             return None, ids, missing
         low_high = records_interval(found, read.split)
         return {"accuracy": statistics.fmean(r["metrics"][read.split]["accuracy"] for r in found),
                 "low": None if low_high is None else low_high[0], "high": None if low_high is None else low_high[1],
                 "runs": len(found)}, ids, []
-    ids_a, ids_b = _selection(study, read, read.a, None), _selection(study, read, read.b, None)
-    found_a, missing_a = _cells(study, read.grid, ids_a, records)
-    found_b, missing_b = _cells(study, read.grid, ids_b, records)
+    ids_a, ids_b = (_selection(study, read.grid, read.dataset, model, None) for model in (read.a, read.b))
+    found_a, missing_a = _cells(study, read.grid, ids_a, records, by_grid)
+    found_b, missing_b = _cells(study, read.grid, ids_b, records, by_grid)
     if missing_a or missing_b:
         return None, ids_a + ids_b, missing_a + missing_b
     paired = records_paired(found_a, found_b, read.split, level=read.level)
@@ -193,17 +242,25 @@ def decision_outcome(decision: AllOf, outcomes: dict[str, dict[str, Any] | None]
                            if outcome is not None}}
 
 
-def _cell_path(folders: dict[str, Path], cell: str) -> Path:
-    """The cell's file in whichever grid folder holds it (a read may span grids)."""
+def input_path(folders: dict[str, Path], cell: str, grid: str | None = None) -> Path:
+    """The cell's file: an input named ``grid/cell id`` (a comparison given as arms) in that grid's folder, one of a
+    read of one grid (``grid``) in its folder, else in whichever grid folder holds it (a validation read spans
+    grids)."""
+    if "/" in cell:  # neither a grid's name nor a cell id holds one
+        grid, cell = cell.split("/", 1)
+    if grid is not None:
+        return RunDir(folders[grid]).cell_path(cell)
     paths = [RunDir(folder).cell_path(cell) for folder in dict.fromkeys(folders.values())]
     return next((path for path in paths if path.is_file()), paths[0])
 
 
-def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dict[str, Path], record: bool = True
-                  ) -> dict[str, dict[str, Any]]:
+def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dict[str, Path], record: bool = True,
+                  by_grid: ByGrid | None = None) -> dict[str, dict[str, Any]]:
     """Every declared read: the recorded value where there is one, else computed from ``records`` (cell id ->
     record) when all its inputs are in, and then recorded (with ``record``). A read still waiting for cells is
-    ``{"kind", "missing": [...]}``. ``folders``: grid name -> its bench folder (for the inputs' digests)."""
+    ``{"kind", "missing": [...]}``. ``folders``: grid name -> its bench folder (for the inputs' digests);
+    ``by_grid``: grid name -> its records (:func:`~.audit.study_records`), which a read of one grid, and each arm of
+    a comparison, takes its cells from (one cell id may be in two grids' folders; default: ``records``)."""
     recorded = recorded_reads(study)
     reads = study.reads()
     out: dict[str, dict[str, Any]] = {}
@@ -213,12 +270,13 @@ def compute_reads(study: Study, records: dict[str, dict[str, Any]], folders: dic
             if read.name in recorded:
                 out[read.name] = recorded[read.name]
                 continue
-            value, ids, missing = _value(study, read, records)
+            value, ids, missing = _value(study, read, records, by_grid)
             entry: dict[str, Any] = {"kind": kind.rstrip("s"), "value": value, "inputs": ids}
             if missing:
                 entry["missing"] = missing
             elif value is not None:
-                entry["digests"] = {i: cell_digest(_cell_path(folders, i)) for i in ids}
+                grid = None if isinstance(read, ValidationRead) else read.grid or study.grids()[0].name
+                entry["digests"] = {i: cell_digest(input_path(folders, i, grid)) for i in ids}
                 entry["time"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
                 recorded[read.name] = entry
                 new = True

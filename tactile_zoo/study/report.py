@@ -180,7 +180,7 @@ def write_report(study: Study, out: str | Path | None = None) -> dict[str, Path]
     records_by_grid, _ = study_records(study)
     records = {r["cell_id"]: r for recs in records_by_grid.values() for r in recs}
     folders = {g.name: study.folder(g) for g in study.grids()}
-    reads = compute_reads(study, records, folders)
+    reads = compute_reads(study, records, folders, by_grid=records_by_grid)
     result = audit(study)
     summary = summary_table(records_by_grid)
     state = read_freeze(study)

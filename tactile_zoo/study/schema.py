@@ -27,12 +27,16 @@ A study is a benchmark decided before it runs::
            members: [{model: cnn_lstm, seeds: [0, 1]}]}
       comparisons:
         - {name: dcnn_vs_cnn_lstm, grid: main, dataset: sim_evtouch, a: cnn_lstm, b: dcnn, test: paired_bootstrap}
+        - {name: new_vs_old, grid: new, dataset: ev_objects, b: sgnet,   # a side as arms across grids (b minus a)
+           a: [{grid: r3, model: sgnet, seeds: [0, 1, 2, 3, 4]}, {grid: r4, model: sgnet, seeds: [5, 6, 7, 8, 9]}]}
       validation:                     # a tuning study's reads: validation scores, never a test split
         - {name: gain, grid: scaled, dataset: ev_objects, model: sgnet, score: final,
            against: {grid: registered}}
       thresholds:
         - {name: above_chance, read: cnn_lstm_ens2, statistic: accuracy, at_least: 0.1,
            decision: {met: "...", missed: "..."}}
+        - {name: measured_drop, read: new_vs_old, statistic: high, below: 0,   # the interval entirely below zero
+           decision: {met: "back to the previous revision", missed: "the new revision stays"}}
       decisions: [{name: adopt, all_of: [above_chance, ...], decision: {met: "...", missed: "..."}}]
     publishes: [{where: README.md, block: headline, reads: [cnn_lstm_ens2]}]
     compares_with:
@@ -56,15 +60,15 @@ import json
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Strict, Tag, ValidationError, model_validator
 
 from .._yaml import read_yaml_file
 from ..errors import ConfigError
 from ..settings import BenchSettings, describe_error
 
 __all__ = ["Study", "StudyFile", "GridSpec", "Rules", "Reads", "MeanRead", "EnsembleRead", "ComparisonRead",
-           "ValidationRead", "Arm", "Threshold", "AllOf", "Members", "Amendment", "Freeze", "parse_study",
-           "canonical_hash", "READ_KINDS"]
+           "ValidationRead", "Arm", "ComparisonArm", "Threshold", "AllOf", "Members", "Amendment", "Freeze",
+           "parse_study", "canonical_hash", "READ_KINDS"]
 
 #: the kinds of declared read that are computed from cells (thresholds and decisions read them)
 READ_KINDS = ("means", "ensembles", "comparisons", "validation")
@@ -136,21 +140,43 @@ class EnsembleRead(_Read):
     combine: Literal["mean_probabilities", "majority_vote"] = "mean_probabilities"
 
 
-class ComparisonRead(_Read):
-    """Is ``b`` better than ``a``: the paired interval of the difference and its one-sided p-value."""
-
-    a: Text  # a model of the grid
-    b: Text
-    test: Literal["paired_bootstrap"] = "paired_bootstrap"
-    level: Annotated[float, Strict(), Field(gt=0, lt=1)] = 0.95
-
-
 class Arm(_Model):
     """One arm of a validation read: a grid's cells of a model (default: the read's grid and model)."""
 
     grid: Name | None = None
     model: Text | None = None
     seeds: list[Seed] | None = None
+
+
+class ComparisonArm(Arm):
+    """One part of a comparison's side: a model's cells in a grid (default: the read's), its seeds (default: the
+    grid's), each seed's folds as the bench listed them."""
+
+    model: Text
+
+
+#: a comparison's side: a model's name, or a list of arms (a list is checked as arms only, so that an error names
+#: the arm's key; the tags are how :func:`tactile_zoo.settings.describe_error` knows a union member's label)
+Side = Annotated[Annotated[list[ComparisonArm], Field(min_length=1), Tag("list[arms]")] | Annotated[Text, Tag("str")],
+                 Discriminator(lambda value: "str" if isinstance(value, str) else "list[arms]" if isinstance(
+                     value, list) else None, custom_error_type="side_type",
+                     custom_error_message="must be a model's name or a list of arms ({grid, model, seeds})")]
+
+
+class ComparisonRead(_Read):
+    """Is ``b`` better than ``a``: the paired interval of the difference (b minus a) and its one-sided p-value.
+    A side is a model of the read's grid, or a list of arms across grids (e.g. a previous revision's seeds, in the
+    two folders that ran them); the cells pair by fold and seed, and a side holds at most one cell of each."""
+
+    a: Side  # a model of the grid, or arms
+    b: Side
+    test: Literal["paired_bootstrap"] = "paired_bootstrap"
+    level: Annotated[float, Strict(), Field(gt=0, lt=1)] = 0.95
+
+    @property
+    def arms(self) -> bool:
+        """Whether a side is given as arms (its recorded inputs then name each cell's grid: ``grid/cell id``)."""
+        return not (isinstance(self.a, str) and isinstance(self.b, str))
 
 
 class ValidationRead(_Model):
