@@ -16,6 +16,8 @@ from tactile_zoo.study.published import load_set, packaged_sets
 from tools import published_set
 
 REPO = Path(__file__).resolve().parents[2]
+#: with the published tables: one worker checks each committed cell file once for both (cells_checked_once)
+pytestmark = pytest.mark.xdist_group("published_tables")
 
 
 @pytest.mark.usefixtures("cells_checked_once")
