@@ -3,6 +3,7 @@ are there, and says where they belong when they are not (run in a subprocess: it
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -11,28 +12,44 @@ from pathlib import Path
 import numpy as np
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "studies"
+#: ``study check`` of each study file given, in one child (one start-up for both): [exit code, stdout, stderr] each.
+#: The plugin module is imported once, from the first folder (the same file in each), as a second --plugin-module is.
+CHECKS = """
+import contextlib, io, json, sys
+from tactile_zoo.cli import main
+out = []
+for study in sys.argv[1:]:
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main(["study", "check", study, "--history", study + ".none"])
+    out.append([code, stdout.getvalue(), stderr.getvalue()])
+print(json.dumps(out))
+"""
 
 
-def _check(folder: Path) -> subprocess.CompletedProcess[str]:
-    argv = ["study", "check", str(folder / "my_recordings.yaml"), "--history", str(folder / "none")]
-    return subprocess.run([sys.executable, "-m", "tactile_zoo.cli", *argv], capture_output=True, text=True,
-                          timeout=300)
+def _checks(*folders: Path) -> list[tuple[int, str, str]]:
+    studies = [str(folder / "my_recordings.yaml") for folder in folders]
+    done = subprocess.run([sys.executable, "-c", CHECKS, *studies], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    return [tuple(result) for result in json.loads(done.stdout.splitlines()[-1])]
 
 
 def test_the_recordings_study_checks_on_the_users_trials(tmp_path: Path) -> None:
-    for name in ("my_recordings.yaml", "my_grasps.py"):
-        shutil.copy(EXAMPLES / name, tmp_path / name)
-    missing = _check(tmp_path)
-    assert missing.returncode == 2 and "my_grasps" in missing.stderr and "raw" in missing.stderr, missing.stderr
+    missing, present = tmp_path / "missing", tmp_path / "present"
+    for folder in (missing, present):
+        folder.mkdir()
+        for name in ("my_recordings.yaml", "my_grasps.py"):
+            shutil.copy(EXAMPLES / name, folder / name)
     rng = np.random.default_rng(0)
     for label in ("cup", "sponge"):
-        folder = tmp_path / "my-data" / "my_grasps" / "raw" / label
+        folder = present / "my-data" / "my_grasps" / "raw" / label
         folder.mkdir(parents=True)
         for trial in range(5):  # a BioTac SP: 24 taxels x 1 channel, 12 steps
             np.savetxt(folder / f"{trial}.csv", rng.normal(size=(12, 24)), delimiter=",")
-    done = _check(tmp_path)
-    assert done.returncode == 0, done.stderr
-    assert "30 cells: 2 model(s) x 1 dataset(s)" in done.stdout
-    assert "my_grasps: protocol fixed, folds 0..4 of 5" in done.stdout
-    assert "x_tacformer x my_grasps, 15 cell(s): no earlier cell" in done.stdout
-    assert "estimate: none (no pair of the grids has an earlier cell" in done.stdout
+    (code, _, err), (done, out, err2) = _checks(missing, present)
+    assert code == 2 and "my_grasps" in err and "raw" in err, err
+    assert done == 0, err2
+    assert "30 cells: 2 model(s) x 1 dataset(s)" in out
+    assert "my_grasps: protocol fixed, folds 0..4 of 5" in out
+    assert "x_tacformer x my_grasps, 15 cell(s): no earlier cell" in out
+    assert "estimate: none (no pair of the grids has an earlier cell" in out
