@@ -146,7 +146,12 @@ def _run(dest: Path, *args: str, timeout: float = 240) -> subprocess.CompletedPr
     return result
 
 
-GENERATE = f"""
+#: the zoo's tests run on the planted model (``-k NAME``)
+ZOO_TESTS = ["tests/models/test_zoo.py", "tests/models/test_recipe_files.py", "tests/revisions/test_revisions.py",
+             f"tests/models/test_{NAME}.py"]
+#: in one child (one start-up, one import of the package and PyG): the generators write, then their --check passes,
+#: then the zoo's tests on the planted model, as the suite runs them
+GENERATE_AND_TEST = f"""
 import sys
 from tools import fidelity, model_pages
 sys.path.insert(0, "tests/revisions")
@@ -156,6 +161,8 @@ for check in (False, True):
     assert model_pages.main(flag) == 0, "model_pages"
     assert fidelity.main(flag) == 0, "fidelity"
     assert regenerate.main([*flag, "--model", "{NAME}"]) == 0, "regenerate"
+import pytest
+sys.exit(pytest.main(["-q", "-p", "no:cacheprovider", "-k", "{NAME}", *{ZOO_TESTS!r}]))
 """
 
 
@@ -164,9 +171,7 @@ def test_a_planted_model_needs_only_the_listed_files(tmp_path: Path) -> None:
     dest = tmp_path / "project"
     _copy(dest)
     _plant(dest)
-    _run(dest, "-c", GENERATE)  # the generators write, then their --check passes
-    _run(dest, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-k", NAME, "tests/models/test_zoo.py",
-         "tests/models/test_recipe_files.py", "tests/revisions/test_revisions.py", f"tests/models/test_{NAME}.py")
+    _run(dest, "-c", GENERATE_AND_TEST)
     count = count_word(len(zoo_models()) + 1)
     for rel, blocks in BLOCKS.items():
         text = (dest / rel).read_text()
