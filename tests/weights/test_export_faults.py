@@ -3,7 +3,9 @@ exports into one folder at once.
 
 The exports in child processes export ``gated``, a tiny model (below) whose forward waits for a gate file: the
 staging folder exists while it waits, so a test can signal the export, or start a second one, at that point and
-nowhere else. Every child is bounded by a timeout and killed in ``finally``.
+nowhere else. Every child is bounded by a timeout and killed in ``finally``. The other exports are D-CNN's forward in
+TorchScript: a real model's file of half a megabyte, without the graph library's import (2 s in every child) or a
+step to trace; which model it is does not matter to the folder.
 """
 
 from __future__ import annotations
@@ -21,10 +23,9 @@ import pytest
 from tactile_zoo.cli import main
 from tactile_zoo.export.folder import MARKER
 
-pytestmark = [pytest.mark.filterwarnings("ignore::DeprecationWarning"),  # SGnet's own torch.jit.script use
-              pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals, flock and RLIMIT_FSIZE")]
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals, flock and RLIMIT_FSIZE")
 
-SGNET = ["export", "sgnet", "--spec-from", "sim_biotac_slip", "--steps", "4", "--format", "torchscript"]
+DCNN = ["export", "dcnn", "--spec-from", "sim_biotac_slip", "--steps", "4", "--format", "torchscript"]
 #: a tiny model whose forward waits (at most 120 s) until the file $GATE exists, when $GATE is set
 GATED = '''
 import os, time
@@ -91,7 +92,7 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
 def test_sigterm_removes_the_staging_folder(tmp_path: Path) -> None:
     """SIGTERM left ``.tactile-zoo-export.*.tmp`` behind, and a later export did not remove it."""
     out = tmp_path / "robot"
-    assert main([*SGNET, "--out", str(out)]) == 0
+    assert main([*DCNN, "--out", str(out)]) == 0
     before = _snapshot(out)
     proc = _export(tmp_path, out, tmp_path / "never")
     try:
@@ -114,9 +115,9 @@ def test_a_killed_exports_staging_is_removed_by_the_next_export(tmp_path: Path) 
     finally:
         _finish(proc)
     assert stale.is_dir()
-    assert main([*SGNET, "--out", str(out)]) == 0
+    assert main([*DCNN, "--out", str(out)]) == 0
     assert not _staging(out)
-    assert {p.name for p in out.iterdir()} == {MARKER, "sgnet.forward.pt", "sgnet.step.pt", "sgnet.export.json"}
+    assert {p.name for p in out.iterdir()} == {MARKER, "dcnn.forward.pt", "dcnn.export.json"}
 
 
 def test_two_exports_into_one_folder_take_turns(tmp_path: Path) -> None:
@@ -127,7 +128,7 @@ def test_two_exports_into_one_folder_take_turns(tmp_path: Path) -> None:
     second = None
     try:
         staging = _wait_for_staging(first, out)
-        second = subprocess.Popen([sys.executable, "-m", "tactile_zoo.cli", *SGNET, "--out", str(out)],
+        second = subprocess.Popen([sys.executable, "-m", "tactile_zoo.cli", *DCNN, "--out", str(out)],
                                   env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True)
         seen = []
@@ -148,7 +149,7 @@ def test_two_exports_into_one_folder_take_turns(tmp_path: Path) -> None:
                 proc.wait(timeout=30)
     assert [first.returncode, second.returncode] == [0, 0], outputs
     marker = json.loads((out / MARKER).read_text())["exports"]
-    assert sorted(marker) == ["gated", "sgnet"] and not _staging(out)
+    assert sorted(marker) == ["dcnn", "gated"] and not _staging(out)
     assert {p.name for p in out.iterdir()} == {MARKER, *(f for files in marker.values() for f in files)}
 
 
@@ -160,19 +161,19 @@ def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, existing: bo
 
     out = tmp_path / "robot"
     if existing:
-        assert main([*SGNET, "--out", str(out)]) == 0
+        assert main([*DCNN, "--out", str(out)]) == 0
     before = _snapshot(out) if existing else None
 
     def limit() -> None:  # Python ignores SIGXFSZ, so a write past the limit fails with EFBIG
         resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
 
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_zoo.cli", *SGNET, "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "tactile_zoo.cli", *DCNN, "--out", str(out)],
                             env={**os.environ, "OMP_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1"},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=limit)
     _, err = _finish(proc)
     assert proc.returncode == 2, err
     errors = [line for line in err.splitlines() if line.startswith("tactile-zoo: error:")]
-    assert errors == [f"tactile-zoo: error: cannot write sgnet.forward.pt into {out}: File too large; the export "
+    assert errors == [f"tactile-zoo: error: cannot write dcnn.forward.pt into {out}: File too large; the export "
                       f"stopped and left the folder as it was"], err
     assert "Traceback" not in err and "terminate called" not in err
     if existing:
