@@ -1,18 +1,23 @@
 """Issue 28, bounded input: ``predict`` and ``stream`` read a recording in bounded memory, refuse a file above the size
 limit, and refuse anything that is not a regular file (a device behind a symlink, a FIFO) without opening it.
 
-The memory and non-regular-file checks run the real command in a subprocess: peak memory is the process's own
-``ru_maxrss``, compared with the same command on a small file, and a command that would hang on a FIFO is stopped by
-the subprocess timeout instead of hanging the suite.
+The memory and non-regular-file checks run the real command in a subprocess: one child runs every command of this
+module in turn (the interpreter and torch start once, not six times), each with its own stdout and stderr (the file
+descriptors themselves, so that what C code writes is seen too), its exit code, and the process's peak resident
+memory (``ru_maxrss``) after it. Peak memory on a 1 GiB file is compared with the peak after the same command on a
+small file, run first. A command that would hang on a FIFO is stopped by an alarm in the child (and the child by the
+subprocess timeout) instead of hanging the suite.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,13 +29,60 @@ from tactile_zoo.errors import ConfigError, DatasetError
 #: The documented setting of the input size limit, in MiB (default 2048).
 MAX_INPUT_ENV = "TACTILE_ZOO_MAX_INPUT_MB"
 PACKAGE_ROOT = Path(tz.__file__).resolve().parent.parent
+#: seconds one command may take in the child before it counts as hung
+HANG_S = 60
 
-#: Runs the CLI and writes the process's peak resident memory (KiB on Linux) to argv[1].
-_PEAK = ("import resource, sys\n"
-         "from tactile_zoo.cli import main\n"
-         "rc = main(sys.argv[2:])\n"
-         "open(sys.argv[1], 'w').write(str(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss))\n"
-         "sys.exit(rc)\n")
+#: Runs the CLI commands of the JSON list argv[2] in turn, each with file descriptors 1 and 2 on files of its own;
+#: appends one JSON line per command to argv[1]: its exit code ("hung" when the alarm stopped it; 1 and the traceback
+#: on stderr for an exception main() let through, as a process of its own), its stdout and stderr, and the
+#: process's peak resident memory after it (KiB on Linux).
+_RUNNER = f"""
+import json, os, resource, signal, sys, traceback
+from tactile_zoo.cli import main
+
+class Hung(BaseException):
+    pass
+
+def _alarm(signum, frame):
+    raise Hung
+
+signal.signal(signal.SIGALRM, _alarm)
+results = sys.argv[1]
+for i, argv in enumerate(json.loads(sys.argv[2])):
+    out, err = f"{{results}}.{{i}}.out", f"{{results}}.{{i}}.err"
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with open(out, "w") as o, open(err, "w") as e:
+        os.dup2(o.fileno(), 1)
+        os.dup2(e.fileno(), 2)
+        signal.alarm({HANG_S})
+        try:
+            rc = main(argv)
+        except Hung:
+            rc = "hung"
+        except SystemExit as exc:
+            rc = exc.code
+        except BaseException:  # what a process of its own would do: the traceback, exit 1
+            traceback.print_exc()
+            rc = 1
+        finally:
+            signal.alarm(0)
+            sys.stdout.flush()
+            sys.stderr.flush()
+            for fd, copy in enumerate(saved, start=1):
+                os.dup2(copy, fd)
+                os.close(copy)
+    with open(out) as o, open(err) as e:
+        row = {{"rc": rc, "stdout": o.read(), "stderr": e.read(),
+               "peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}}
+    with open(results, "a") as fh:
+        fh.write(json.dumps(row) + "\\n")
+"""
+
+#: the non-regular files: a device behind a symlink, a FIFO
+KINDS = ("a character device", "a FIFO (named pipe)")
+COMMANDS = ("predict", "stream")
 
 
 def _env() -> dict[str, str]:
@@ -45,66 +97,81 @@ def _limit_heap() -> None:
     resource.setrlimit(resource.RLIMIT_DATA, (6 * 2**30, 6 * 2**30))
 
 
-def _run(args: list[str], timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "tactile_zoo.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, env=_env(), preexec_fn=_limit_heap)
-
-
 def _local(trained: Trained) -> list[str]:
     return ["--weights", str(trained.file), "--manifest", str(trained.manifest)]
 
 
-def _peak_kib(trained: Trained, file: Path, tmp_path: Path) -> tuple[int, str]:
-    out = tmp_path / f"peak-{file.stem}.txt"
-    proc = subprocess.run([sys.executable, "-c", _PEAK, str(out), "predict", MODEL, *_local(trained), str(file),
-                           "--top-k", "1"], capture_output=True, text=True, timeout=600, env=_env(),
-                          preexec_fn=_limit_heap)
-    assert proc.returncode == 0, proc.stderr
-    return int(out.read_text()), proc.stdout
+def _run_cli(commands: dict[Any, list[str]], folder: Path, timeout: float = 600) -> dict[Any, dict[str, Any]]:
+    """Each command's result (:data:`_RUNNER`), by its key; a command the child did not finish maps to ``None``."""
+    results = folder / "results.jsonl"
+    try:
+        proc = subprocess.run([sys.executable, "-c", _RUNNER, str(results), json.dumps(list(commands.values()))],
+                              capture_output=True, text=True, timeout=timeout, env=_env(), preexec_fn=_limit_heap)
+        failure = f"the child exited {proc.returncode}: {proc.stderr[-2000:]}" if proc.returncode else ""
+    except subprocess.TimeoutExpired:
+        failure = f"the child ran past {timeout} s"
+    rows = [json.loads(line) for line in results.read_text().splitlines()] if results.exists() else []
+    done = dict(zip(commands, rows))
+    return {key: done.get(key) or {"rc": None, "failure": failure} for key in commands}
 
 
-def test_a_1_gib_npy_is_predicted_in_bounded_memory(trained: Trained, tmp_path: Path) -> None:
-    """1 GiB of valid float32 rows of which predict uses the first 12: the peak stays within 300 MiB of the same
-    command on a 12-row file (the old reader held the whole file, then a float64 copy: gigabytes)."""
+@pytest.fixture(scope="module")
+def cli(trained: Trained, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """The files, and every command of this module run once in one child: ``predict`` on a 12-row file, then on a
+    1 GiB file; ``predict`` and ``stream`` on a device behind a symlink and on a FIFO."""
+    folder = tmp_path_factory.mktemp("input_bounds")
     table = sample_table(trained.test, 0)  # (12, 188)
-    small = tmp_path / "small.npy"
+    small = folder / "small.npy"
     np.save(small, table)
-    big = tmp_path / "big.npy"
+    big = folder / "big.npy"
     rows = 2**30 // (table.shape[1] * 4)
     mapped = np.lib.format.open_memmap(big, mode="w+", dtype=np.float32, shape=(rows, table.shape[1]))  # sparse
     mapped[: len(table)] = table
     mapped.flush()
     del mapped
-    assert 2**30 <= big.stat().st_size < 2048 * 2**20  # within the default limit
-    base, base_out = _peak_kib(trained, small, tmp_path)
-    peak, out = _peak_kib(trained, big, tmp_path)
-    assert f"({rows} steps, cropped to 12)" in out  # every row counted, the first 12 used
-    assert out.splitlines()[4].split()[1] == base_out.splitlines()[4].split()[1]  # the small file's answer
-    growth_mib = (peak - base) / 1024
-    print(f"peak RSS: {base / 1024:.0f} MiB on 12 rows, {peak / 1024:.0f} MiB on 1 GiB (+{growth_mib:.0f} MiB)")
-    assert growth_mib < 300, f"peak {peak / 1024:.0f} MiB on the 1 GiB file vs {base / 1024:.0f} MiB on 12 rows"
+    device = folder / "grasp.npy"
+    device.symlink_to("/dev/zero")  # endless zeros: a reader that reads to the end never ends
+    fifo = folder / "grasp.csv"
+    os.mkfifo(fifo)  # no writer ever comes: open() for reading blocks forever
+    paths = {KINDS[0]: device, KINDS[1]: fifo}
+    commands: dict[Any, list[str]] = {
+        name: ["predict", MODEL, *_local(trained), str(path), "--top-k", "1"]
+        for name, path in (("small", small), ("big", big))}
+    for kind, path in paths.items():
+        commands[("predict", kind)] = ["predict", MODEL, *_local(trained), str(path)]
+        commands[("stream", kind)] = ["stream", MODEL, *_local(trained), "--file", str(path)]
+    return {"results": _run_cli(commands, folder), "rows": rows, "big": big, "paths": paths}
 
 
-@pytest.mark.parametrize("command", ["predict", "stream"])
-@pytest.mark.parametrize("kind", ["a character device", "a FIFO (named pipe)"])
-def test_a_device_behind_a_symlink_and_a_fifo_are_refused_without_reading(trained: Trained, tmp_path: Path,
-                                                                          command: str, kind: str) -> None:
-    if kind == "a character device":
-        path = tmp_path / "grasp.npy"
-        path.symlink_to("/dev/zero")  # endless zeros: a reader that reads to the end never ends
-    else:
-        path = tmp_path / "grasp.csv"
-        os.mkfifo(path)  # no writer ever comes: open() for reading blocks forever
-    args = [MODEL, *_local(trained), str(path)] if command == "predict" else \
-        [MODEL, *_local(trained), "--file", str(path)]
-    try:
-        proc = _run([command, *args], timeout=240)
-    except subprocess.TimeoutExpired:
+@pytest.mark.xdist_group("input_bounds")  # one worker runs the module's one child
+def test_a_1_gib_npy_is_predicted_in_bounded_memory(cli: dict[str, Any]) -> None:
+    """1 GiB of valid float32 rows of which predict uses the first 12: the peak stays within 300 MiB of the same
+    command on a 12-row file (the old reader held the whole file, then a float64 copy: gigabytes)."""
+    assert 2**30 <= cli["big"].stat().st_size < 2048 * 2**20  # within the default limit
+    base, big = cli["results"]["small"], cli["results"]["big"]
+    for run in (base, big):
+        assert run["rc"] == 0, run
+    assert f"({cli['rows']} steps, cropped to 12)" in big["stdout"]  # every row counted, the first 12 used
+    assert big["stdout"].splitlines()[4].split()[1] == base["stdout"].splitlines()[4].split()[1]  # the same answer
+    growth_mib = (big["peak_kib"] - base["peak_kib"]) / 1024
+    print(f"peak RSS: {base['peak_kib'] / 1024:.0f} MiB after 12 rows, {big['peak_kib'] / 1024:.0f} MiB after 1 GiB "
+          f"(+{growth_mib:.0f} MiB)")
+    assert growth_mib < 300, f"peak {big['peak_kib'] / 1024:.0f} MiB after the 1 GiB file vs " \
+                             f"{base['peak_kib'] / 1024:.0f} MiB after 12 rows"
+
+
+@pytest.mark.xdist_group("input_bounds")
+@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_device_behind_a_symlink_and_a_fifo_are_refused_without_reading(cli: dict[str, Any], command: str,
+                                                                          kind: str) -> None:
+    path, run = cli["paths"][kind], cli["results"][(command, kind)]
+    if run["rc"] == "hung":
         pytest.fail(f"{command} {path.name} ({kind}) hung")
-    err = proc.stderr.strip()
-    assert proc.returncode == 2, err[-2000:]
+    err = run["stderr"].strip()
+    assert run["rc"] == 2, run.get("failure") or err[-2000:]
     assert err == f"tactile-zoo: error: {path}: {kind}, not a regular file; only regular files are read"
-    assert proc.stdout == ""
+    assert run["stdout"] == ""
 
 
 def test_a_file_above_the_size_limit_is_refused_naming_the_limit(trained: Trained, tmp_path: Path,
