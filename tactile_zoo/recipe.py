@@ -20,6 +20,12 @@ Keys:
     ema_decay: ``None`` (off, the default) or a decay in (0, 1): keep an exponential moving average of the weights
         (buffers included), updated after every optimiser step; validation, selection and the returned model use the
         averaged weights. Left out of the cell hash while off, so the hashes of cells from before it still hold.
+    micro_batch_size: ``None`` (off, the default) or a sample count: gradient accumulation. Each batch runs forward
+        and backward in consecutive micro-batches of at most this many samples (a lone last sample joins the one
+        before it), each loss weighted by its share of the batch, and their summed gradients make one optimiser step:
+        the step of the whole batch, except that batch norm in training mode normalises over each micro-batch and
+        updates its running statistics once per micro-batch. It bounds the memory of a large batch. Off (or at least
+        the batch size) the loop is the plain one; left out of the cell hash while off.
 
 Model selection (the one documented choice the harness makes): with ``monitor="val_accuracy"`` (the default) the
 selected epoch is the one with the highest validation accuracy, ties going to the lower validation loss; with
@@ -89,6 +95,7 @@ class Recipe:
     label_smoothing: float = 0.0
     rate_targets: tuple[float, float] = field(default=(1.0, 0.0))
     ema_decay: float | None = None
+    micro_batch_size: int | None = None
 
     def __post_init__(self) -> None:
         where = "recipe"
@@ -119,7 +126,7 @@ class Recipe:
 def _coerce(where: str, key: str, value: Any) -> Any:
     """One recipe key's value, checked against the schema and in the plain form a recipe holds (``"Adam"`` ->
     ``"adam"``, ``1`` -> ``1.0`` where a float belongs, ``false`` -> ``None`` for a key that can be off)."""
-    if key in ("patience", "grad_clip", "ema_decay") and value is False:
+    if key in ("patience", "grad_clip", "ema_decay", "micro_batch_size") and value is False:
         return None
     if key in ("loss", "optimizer", "monitor") and isinstance(value, str):
         value = value.lower()
@@ -184,7 +191,7 @@ def _build(values: Mapping[str, Any], where: str) -> Recipe:
 RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 #: keys added after cells were first recorded, and their "off" value: left out of :meth:`Recipe.to_dict` while off,
 #: so that adding a capability never moves an existing cell's hash
-HASH_NEUTRAL_KEYS: dict[str, Any] = {"ema_decay": None}
+HASH_NEUTRAL_KEYS: dict[str, Any] = {"ema_decay": None, "micro_batch_size": None}
 DEFAULT_RECIPE = Recipe()
 _DEFAULT_VALUES = DEFAULT_RECIPE.to_dict()  # the first layer of every resolution (a frozen recipe: read once)
 #: the non-training sections a named recipe may carry (see the module docstring)

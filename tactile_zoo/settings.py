@@ -105,6 +105,7 @@ class RecipeSchema(_Schema):
     label_smoothing: Fraction = 0.0
     rate_targets: tuple[Rate, Rate] = (1.0, 0.0)
     ema_decay: OpenFraction | None = None
+    micro_batch_size: PositiveInt | None = None
 
 
 #: constructor keywords (``--hparam``, a recipe's ``hparams``) and dataset keywords (``--dataset-arg``): keyword

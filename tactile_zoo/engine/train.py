@@ -146,27 +146,46 @@ class _Trainer:
         self.model.train()
         order = torch.randperm(self.x.shape[0], generator=self.generator).to(self.device)
         total = torch.zeros((), device=self.device)
+        micro = self.recipe.micro_batch_size
         for idx in _batches(order, self.recipe.batch_size):
-            xb, yb = self.x[idx], self.y[idx]  # (B, T, N, C), (B,)
-            gb = self.g[idx] if self.g is not None else None  # (B, T, G)
-            scores = self.model(xb, gb)
-            if scores.shape != (idx.shape[0], self.num_classes):
-                raise TrainingError(f"{type(self.model).__name__}.forward returned shape {tuple(scores.shape)}; "
-                                    f"expected [batch={idx.shape[0]}, num_classes={self.num_classes}]")
-            loss = compute_loss(scores, yb, self.recipe)
-            self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
+            if micro is not None and micro < idx.shape[0]:
+                total += self._accumulate(idx, micro)
+            else:
+                loss = self._loss(idx)
+                self.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                total += loss.detach() * idx.shape[0]
             if self.recipe.grad_clip is not None:
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.recipe.grad_clip)
             self.optimizer.step()
             if self.average is not None:
                 self.average.update_parameters(self.model)
-            total += loss.detach() * idx.shape[0]
         mean = float(total) / self.x.shape[0]  # one host sync per epoch, not per batch
         if mean != mean or mean in (float("inf"), float("-inf")):
             raise TrainingError(f"the training loss became {mean} in epoch {epoch + 1} (lr {lr:g}); the model "
                                 f"diverged")
         return mean
+
+    def _loss(self, idx: torch.Tensor) -> torch.Tensor:
+        """The recipe's mean loss over the samples ``idx`` of the split (the model called once, in training mode)."""
+        xb, yb = self.x[idx], self.y[idx]  # (B, T, N, C), (B,)
+        gb = self.g[idx] if self.g is not None else None  # (B, T, G)
+        scores = self.model(xb, gb)
+        if scores.shape != (idx.shape[0], self.num_classes):
+            raise TrainingError(f"{type(self.model).__name__}.forward returned shape {tuple(scores.shape)}; "
+                                f"expected [batch={idx.shape[0]}, num_classes={self.num_classes}]")
+        return compute_loss(scores, yb, self.recipe)
+
+    def _accumulate(self, idx: torch.Tensor, micro: int) -> torch.Tensor:
+        """The gradient of one batch ``idx`` summed over its micro-batches (the recipe's ``micro_batch_size``), each
+        loss weighted by its share of the batch; returns the batch's summed loss (its mean times its size)."""
+        self.optimizer.zero_grad(set_to_none=True)
+        total = torch.zeros((), device=self.device)
+        for part in _batches(idx, micro):
+            loss = self._loss(part)
+            (loss * (part.shape[0] / idx.shape[0])).backward()
+            total += loss.detach() * part.shape[0]
+        return total
 
 
 def _val_step(model: torch.nn.Module, val: TensorSplit, recipe: Recipe, device: torch.device

@@ -67,6 +67,7 @@ RECIPE_BAD: dict[str, st.SearchStrategy[Any]] = {
     "max_epochs": ints(1), "batch_size": ints(1), "eval_batch_size": ints(1),
     "patience": ints(1).filter(lambda v: v is not False), "grad_clip": numbers(0, math.inf, True, False).filter(
         lambda v: v is not False), "ema_decay": numbers(0, 1, True, True).filter(lambda v: v is not False),
+    "micro_batch_size": ints(1).filter(lambda v: v is not False),
     "rate_targets": st.one_of(st.tuples(numbers(0, 1, False, False), st.just(0.0)).map(list),
                               st.lists(st.floats(0, 1), min_size=3, max_size=3), st.floats(0, 1)),
     "schedule": st.one_of(st.integers(), st.just("poly"), st.just({"type": "multistep"})),

@@ -22,6 +22,8 @@ def test_default_recipe_is_cross_entropy_adam() -> None:
     # every key, but those added later and left out of the hash while off
     assert set(DEFAULT_RECIPE.to_dict()) == set(RECIPE_KEYS) - set(HASH_NEUTRAL_KEYS)
     assert DEFAULT_RECIPE.replace(ema_decay=0.99).to_dict()["ema_decay"] == 0.99
+    assert "micro_batch_size" not in DEFAULT_RECIPE.replace(micro_batch_size=False).to_dict()
+    assert DEFAULT_RECIPE.replace(micro_batch_size=50).to_dict()["micro_batch_size"] == 50
 
 
 def test_overrides_apply_in_order_and_epochs_last() -> None:

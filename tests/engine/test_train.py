@@ -163,3 +163,55 @@ def test_ema_returns_the_moving_average_of_the_weights_and_leaves_training_alone
         expected = 0.9 * (0.9 * w1 + 0.1 * w2) + 0.1 * w3  # the first update copies, the next ones average
         assert torch.allclose(value, expected, atol=1e-6), key
         assert not torch.allclose(value, w3), key  # the raw last weights are not what came back
+
+
+def _trained(recipe: dict[str, Any], model: torch.nn.Module, start: dict[str, torch.Tensor]) -> FitResult:
+    model.load_state_dict(start)
+    return fit(model, _splits()["train"], recipe=recipe, seed=2)
+
+
+def test_micro_batches_make_the_whole_batch_step() -> None:
+    """``micro_batch_size``: the summed, share-weighted micro-batch gradients are the whole batch's (a model without
+    batch norm or dropout, so only rounding differs), the loss curve too; at or above the batch size the loop is the
+    plain one, bit for bit."""
+    spec = _splits()["train"].spec
+    model = tz.create_model("tiny_mlp", spec, dropout=0.0)
+    start = {k: v.clone() for k, v in model.state_dict().items()}
+    whole = {"batch_size": 40, "max_epochs": 3, "patience": None, "lr": 0.05}
+    plain = _trained(whole, model, start)
+    weights = {k: v.clone() for k, v in model.state_dict().items()}
+    micro = _trained({**whole, "micro_batch_size": 7}, model, start)  # 40 -> 7 x 5 + 5; a lone last one joins
+    for key, value in model.state_dict().items():
+        assert torch.allclose(value, weights[key], atol=1e-6), key
+    assert [r["train_loss"] for r in micro.curve] == pytest.approx([r["train_loss"] for r in plain.curve], rel=1e-6)
+    same = _trained({**whole, "micro_batch_size": 40}, model, start)
+    assert [r["train_loss"] for r in same.curve] == [r["train_loss"] for r in plain.curve]
+    for key, value in model.state_dict().items():
+        assert torch.equal(value, weights[key]), key
+
+
+class _Normed(torch.nn.Module):
+    """Mean over time, then Linear -> BatchNorm1d -> Linear."""
+
+    def __init__(self, spec: Any) -> None:
+        super().__init__()
+        self.net = torch.nn.Sequential(torch.nn.Linear(spec.num_nodes * spec.num_channels, 8),
+                                       torch.nn.BatchNorm1d(8), torch.nn.Linear(8, spec.num_classes))
+
+    def forward(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
+        return self.net(x.mean(dim=1).flatten(1))
+
+
+def test_micro_batches_normalise_batch_norm_per_micro_batch() -> None:
+    """The declared difference from one large batch: batch norm sees each micro-batch, and updates its running
+    statistics once per micro-batch (one optimiser step a batch all the same)."""
+    train = _splits()["train"]
+    model = _Normed(train.spec)
+    start = {k: v.clone() for k, v in model.state_dict().items()}
+    whole = {"batch_size": len(train), "max_epochs": 1, "patience": None}
+    _trained(whole, model, start)
+    assert int(model.net[1].num_batches_tracked) == 1
+    weights = {k: v.clone() for k, v in model.state_dict().items()}
+    _trained({**whole, "micro_batch_size": len(train) // 3}, model, start)
+    assert int(model.net[1].num_batches_tracked) == 3
+    assert not torch.allclose(model.net[0].weight, weights["net.0.weight"], atol=1e-6)

@@ -92,3 +92,21 @@ def test_a_source_recipe_cell_trains() -> None:
     result = tz.fit("multibarrel", train, recipe="source", epochs=2, hparams={**SMALL, "bn_train_steps": 1})
     assert result.epochs_run == 2 and int(result.model.bn_steps_seen) == 2  # one batch per epoch, as released
     assert not any(m.training for m in _bn(result.model.train()))
+
+
+def test_the_zoo_recipe_runs_the_batch_of_600_in_micro_batches_on_real_data_only() -> None:
+    meta = get_model_entry("multibarrel").meta
+    for dataset in ("ev_objects", "ev_containers", "biotac_dos"):
+        assert resolve_model_recipe(meta, "zoo", dataset).recipe.micro_batch_size == 120
+        assert resolve_model_recipe(meta, "source", dataset).recipe.micro_batch_size is None  # one batch, as released
+    for dataset in ("sim_evtouch", "sim_biotac_slip", "sim_uskin_textures"):  # batch 16: their hashes as before
+        assert "micro_batch_size" not in resolve_model_recipe(meta, "zoo", dataset).recipe.to_dict()
+
+
+def test_micro_batches_count_as_training_passes_for_the_batchnorm_freeze() -> None:
+    """What the model card warns of: ``bn_train_steps`` counts forward passes, so each micro-batch is one."""
+    train = tz.load_dataset("sim_evtouch", split="train", n_train_per_class=2, n_test_per_class=1, num_steps=20)
+    result = tz.fit("multibarrel", train, recipe={"batch_size": 600, "micro_batch_size": 4, "max_epochs": 1},
+                    hparams={**SMALL, "bn_train_steps": 3})
+    assert len(train) == 10 and int(result.model.bn_steps_seen) == 3  # 10 in micro-batches of 4, 4, 2: three passes
+    assert not any(m.training for m in _bn(result.model.train()))

@@ -63,6 +63,7 @@ RECIPE_VALUES: dict[str, st.SearchStrategy] = {
     "label_smoothing": _nonneg(_floats(0, 0.5)),
     "rate_targets": st.tuples(_floats(0.5, 1.0), _nonneg(_floats(0, 0.4))).map(list),
     "ema_decay": st.none() | _floats(0.5, 0.999),
+    "micro_batch_size": st.none() | st.integers(1, 64),
 }
 # valid values only: an invalid one (dropout=2, hidden=0.5) is refused when the grid is built (issue 38, item 3)
 _HIDDEN, _DROPOUT = st.integers(1, 64), _nonneg(_floats(0, 0.9))
