@@ -1,9 +1,11 @@
 """SIGKILL at chosen points of a real ``tactile-zoo bench`` subprocess, and two bench processes on one folder.
 
 The stop points come from kill_points.py (the process announces it has reached the point, then waits for the
-kill), so every kill lands where the test says on any machine, however loaded. One chain of runs on one folder is
-killed four times and finally completes; after every kill the rerun must keep each finished cell file byte for byte
-(not lost, not recomputed), and the final leaderboard must equal an uninterrupted run's.
+kill), so every kill lands where the test says on any machine, however loaded. The killed processes are forked from
+a warm server (tests/forked_bench.py): processes of their own, without an interpreter's start-up each. One chain of
+runs on one folder is killed four times and finally completes (that last run in this process); after every kill the
+rerun must keep each finished cell file byte for byte (not lost, not recomputed), and the final leaderboard must
+equal an uninterrupted run's.
 """
 
 from __future__ import annotations
@@ -19,10 +21,10 @@ from reliability_helpers import (
     cell_files,
     cell_records,
     finish,
+    fork_kill_bench,
     numbers,
     quiet_bench,
     read_csv,
-    start_bench,
     wait_for_file,
 )
 
@@ -32,8 +34,8 @@ pytestmark = pytest.mark.slow
 def _killed_at(point: str, out: Path, tmp: Path, name: str) -> str:
     """Run the small grid on ``out`` until ``point``, SIGKILL it there; returns its stdout."""
     log, signal_file = tmp / name, tmp / f"{name}.reached"
-    proc = start_bench([*SMALL_ARGS, "--out", str(out)], log, TZ_RELIABILITY_STOP=point,
-                       TZ_RELIABILITY_SIGNAL=str(signal_file))
+    proc = fork_kill_bench([*SMALL_ARGS, "--out", str(out)], log, TZ_RELIABILITY_STOP=point,
+                           TZ_RELIABILITY_SIGNAL=str(signal_file))
     wait_for_file(signal_file, proc, log)
     proc.kill()
     code, stdout, _ = finish(proc, log)
@@ -78,9 +80,10 @@ def test_killed_four_times_then_resumed_equals_an_uninterrupted_run(reference_ru
     assert not (out / "summary.csv").exists() and len(_torn(out)) == 1
     assert read_csv(out / "leaderboard.csv") == read_csv(reference_run / "leaderboard.csv")
 
-    # 5. the same command once more: nothing left to compute, every output rebuilt
-    log = tmp_path / "final"
-    code, stdout, stderr = finish(start_bench([*SMALL_ARGS, "--out", str(out)], log), log)
+    # 5. the same grid once more (in this process: nothing is killed any more): nothing left to compute, every
+    # output rebuilt, the plots included
+    outcome, stdout, stderr = quiet_bench(out, plots=True)
+    code = outcome.exit_code
     assert code == 0, stderr
     assert "6 cells, 6 already finished, 0 to run" in stdout and "done: 6 ok, 0 failed" in stdout
     assert cell_files(out) == after4  # not one cell recomputed
@@ -97,8 +100,8 @@ def test_two_processes_on_one_folder_share_the_cells(reference_run: Path, tmp_pa
     computes cells 3-6, says it waits for A's cell, and takes A's result. Neither computes a cell twice."""
     out = tmp_path / "run"
     log, reached, go = tmp_path / "a", tmp_path / "a.reached", tmp_path / "a.go"
-    proc = start_bench([*SMALL_ARGS, "--out", str(out)], log, TZ_RELIABILITY_STOP="cell:2",
-                       TZ_RELIABILITY_SIGNAL=str(reached), TZ_RELIABILITY_GO=str(go))
+    proc = fork_kill_bench([*SMALL_ARGS, "--out", str(out)], log, TZ_RELIABILITY_STOP="cell:2",
+                           TZ_RELIABILITY_SIGNAL=str(reached), TZ_RELIABILITY_GO=str(go))
     try:
         wait_for_file(reached, proc, log)
         first = sorted(cell_files(out))

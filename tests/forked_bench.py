@@ -1,0 +1,118 @@
+"""Bench children without an interpreter's start-up, for the tests that SIGKILL a bench at some point of its run.
+
+A ``python -m tactile_zoo.cli bench`` child spends about 6 CPU seconds importing before its first cell ends: torch
+and the package, then torch._dynamo (the first Adam optimizer) and sklearn.metrics (the first evaluation). A test
+that kills five such children pays that five times. :func:`fork_bench` forks each child instead from a
+:mod:`multiprocessing` fork server that has imported those modules once per test process (:data:`PRELOAD`; the
+server imports nothing else, runs no torch op and has one thread, so forking it is safe). The child then runs the
+command line through ``tactile_zoo.cli.main``, as ``python -m tactile_zoo.cli`` does, with ``env`` set first, so a
+plugin module such as tests/reliability/kill_points.py is imported fresh under it. It is a process of its own, with
+its own pid, claims and files: SIGKILL ends it where it is (exit status -9), and what it wrote stays written.
+
+The tests of how a bench *starts* and of the signals a terminal sends (SIGINT, SIGTERM) keep real ``python -m``
+children (tests/bench/conftest.py ``bench_subprocess``).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import multiprocessing.forkserver
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+#: what a bench child imports before its first cell is written
+PRELOAD = ["tactile_zoo.cli", "tactile_zoo.bench.runner", "tactile_zoo.bench.worker", "tactile_zoo.bench.report",
+           "tiny_zoo", "torch._dynamo", "sklearn.metrics"]
+
+
+class ForkedBench:
+    """A forked bench child, with the part of :class:`subprocess.Popen`'s interface the tests use; its stdout and
+    stderr are in ``<log>.out`` and ``<log>.err``."""
+
+    def __init__(self, process: multiprocessing.process.BaseProcess, log: Path) -> None:
+        self.process, self.log, self.pid = process, log, process.pid
+
+    @property
+    def returncode(self) -> int | None:
+        return self.process.exitcode
+
+    def poll(self) -> int | None:
+        return self.process.exitcode
+
+    def kill(self) -> None:
+        if self.process.exitcode is None:
+            self.process.kill()
+
+    def send_signal(self, sig: int) -> None:
+        os.kill(self.pid, sig)
+
+    def wait(self, timeout: float | None = None) -> int:
+        self.process.join(timeout)
+        if self.process.exitcode is None:
+            raise subprocess.TimeoutExpired(f"bench child {self.pid}", timeout or 0.0)
+        return self.process.exitcode
+
+    def communicate(self, timeout: float | None = None) -> tuple[str, str]:
+        """Wait for the child (as Popen does: :class:`subprocess.TimeoutExpired` if it runs on), then what it
+        printed."""
+        self.wait(timeout)
+        return self.log.with_suffix(".out").read_text(), self.log.with_suffix(".err").read_text()
+
+
+def _bench_child(argv: list[str], log: str, env: dict[str, str]) -> None:
+    """In the forked child: SIGINT and SIGQUIT as a fresh interpreter has them, ``env``, stdout and stderr to the log
+    files, then ``tactile-zoo ARGV``; the process ends with its exit code."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+    os.environ.update(env)
+    for fd, suffix in ((1, ".out"), (2, ".err")):
+        target = os.open(Path(log).with_suffix(suffix), os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.dup2(target, fd)
+        os.close(target)
+    sys.stdout = open(1, "w", closefd=False)  # noqa: SIM115 - the process ends below
+    sys.stderr = open(2, "w", closefd=False)  # noqa: SIM115
+    # a resource tracker of its own, started on first use, as a new interpreter has: the semaphores of a child that
+    # is killed are then reported (and removed) by its tracker, into its own stderr, not by the test process's at exit
+    from multiprocessing import resource_tracker
+
+    tracker = resource_tracker._resource_tracker
+    if tracker._fd is not None:
+        os.close(tracker._fd)
+    tracker._fd = tracker._pid = None
+    from tactile_zoo.cli import main
+
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def _server() -> multiprocessing.context.BaseContext:
+    """The fork server, started on first use with one BLAS/OpenMP thread (so it has no thread to fork past)."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(PRELOAD)
+    saved = os.environ.get("OMP_NUM_THREADS")
+    os.environ["OMP_NUM_THREADS"] = "1"
+    try:
+        multiprocessing.forkserver.ensure_running()
+    finally:
+        if saved is None:
+            del os.environ["OMP_NUM_THREADS"]
+        else:
+            os.environ["OMP_NUM_THREADS"] = saved
+    return context
+
+
+def fork_bench(argv: list[str], log: Path, **env: str) -> ForkedBench:
+    """``tactile-zoo ARGV`` (e.g. ``["bench", "--plugin-module", "tiny_zoo", ...]``) in a child forked from the warm
+    server, with ``env`` added to its environment (and ``OMP_NUM_THREADS=1``, as the suite's children have)."""
+    process = _server().Process(target=_bench_child, args=(list(argv), str(log), {"OMP_NUM_THREADS": "1", **env}),
+                                name=f"bench-{Path(log).name}")
+    process.start()
+    return ForkedBench(process, Path(log))
