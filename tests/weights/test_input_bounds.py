@@ -29,14 +29,16 @@ from tactile_zoo.errors import ConfigError, DatasetError
 #: The documented setting of the input size limit, in MiB (default 2048).
 MAX_INPUT_ENV = "TACTILE_ZOO_MAX_INPUT_MB"
 PACKAGE_ROOT = Path(tz.__file__).resolve().parent.parent
-#: seconds one command may take in the child before it counts as hung
-HANG_S = 60
+#: seconds a refusal may take in the child before it counts as hung (imports are done by then: the first command,
+#: on the small file, paid for them)
+HANG_S = 120
 
-#: Runs the CLI commands of the JSON list argv[2] in turn, each with file descriptors 1 and 2 on files of its own;
-#: appends one JSON line per command to argv[1]: its exit code ("hung" when the alarm stopped it; 1 and the traceback
+#: Runs the CLI commands of the JSON list argv[2] (``[argv, alarm seconds or 0]``) in turn, each with file descriptors
+#: 1 and 2 on files of its own; appends one JSON line per command to argv[1]: its exit code ("hung" when the alarm
+#: stopped it; 1 and the traceback
 #: on stderr for an exception main() let through, as a process of its own), its stdout and stderr, and the
 #: process's peak resident memory after it (KiB on Linux).
-_RUNNER = f"""
+_RUNNER = """
 import json, os, resource, signal, sys, traceback
 from tactile_zoo.cli import main
 
@@ -48,15 +50,15 @@ def _alarm(signum, frame):
 
 signal.signal(signal.SIGALRM, _alarm)
 results = sys.argv[1]
-for i, argv in enumerate(json.loads(sys.argv[2])):
-    out, err = f"{{results}}.{{i}}.out", f"{{results}}.{{i}}.err"
+for i, (argv, alarm) in enumerate(json.loads(sys.argv[2])):
+    out, err = f"{results}.{i}.out", f"{results}.{i}.err"
     sys.stdout.flush()
     sys.stderr.flush()
     saved = [os.dup(1), os.dup(2)]
     with open(out, "w") as o, open(err, "w") as e:
         os.dup2(o.fileno(), 1)
         os.dup2(e.fileno(), 2)
-        signal.alarm({HANG_S})
+        signal.alarm(alarm)
         try:
             rc = main(argv)
         except Hung:
@@ -74,8 +76,8 @@ for i, argv in enumerate(json.loads(sys.argv[2])):
                 os.dup2(copy, fd)
                 os.close(copy)
     with open(out) as o, open(err) as e:
-        row = {{"rc": rc, "stdout": o.read(), "stderr": e.read(),
-               "peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}}
+        row = {"rc": rc, "stdout": o.read(), "stderr": e.read(),
+               "peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}
     with open(results, "a") as fh:
         fh.write(json.dumps(row) + "\\n")
 """
@@ -101,8 +103,10 @@ def _local(trained: Trained) -> list[str]:
     return ["--weights", str(trained.file), "--manifest", str(trained.manifest)]
 
 
-def _run_cli(commands: dict[Any, list[str]], folder: Path, timeout: float = 600) -> dict[Any, dict[str, Any]]:
-    """Each command's result (:data:`_RUNNER`), by its key; a command the child did not finish maps to ``None``."""
+def _run_cli(commands: dict[Any, tuple[list[str], int]], folder: Path, timeout: float = 900
+             ) -> dict[Any, dict[str, Any]]:
+    """Each command's result (:data:`_RUNNER`), by its key (the values: argv and the alarm's seconds, 0 for none); a
+    command the child did not finish gets exit code ``None`` and the child's failure."""
     results = folder / "results.jsonl"
     try:
         proc = subprocess.run([sys.executable, "-c", _RUNNER, str(results), json.dumps(list(commands.values()))],
@@ -134,12 +138,12 @@ def cli(trained: Trained, tmp_path_factory: pytest.TempPathFactory) -> dict[str,
     fifo = folder / "grasp.csv"
     os.mkfifo(fifo)  # no writer ever comes: open() for reading blocks forever
     paths = {KINDS[0]: device, KINDS[1]: fifo}
-    commands: dict[Any, list[str]] = {
-        name: ["predict", MODEL, *_local(trained), str(path), "--top-k", "1"]
+    commands: dict[Any, tuple[list[str], int]] = {
+        name: (["predict", MODEL, *_local(trained), str(path), "--top-k", "1"], 0)
         for name, path in (("small", small), ("big", big))}
     for kind, path in paths.items():
-        commands[("predict", kind)] = ["predict", MODEL, *_local(trained), str(path)]
-        commands[("stream", kind)] = ["stream", MODEL, *_local(trained), "--file", str(path)]
+        commands[("predict", kind)] = (["predict", MODEL, *_local(trained), str(path)], HANG_S)
+        commands[("stream", kind)] = (["stream", MODEL, *_local(trained), "--file", str(path)], HANG_S)
     return {"results": _run_cli(commands, folder), "rows": rows, "big": big, "paths": paths}
 
 
