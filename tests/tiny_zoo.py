@@ -9,7 +9,8 @@ Models:
     tiny_rate    a causal running-mean model with sigmoid "rates" trained with ``mse_rate``.
     tiny_broken  raises in forward; tiny_nan outputs NaN; tiny_oom raises torch.OutOfMemoryError.
     tiny_picky   refuses (ModelCannotConsume) datasets without global features -> skipped cells.
-    tiny_slow    tiny_mlp that sleeps per batch (for the kill test).
+    tiny_slow    tiny_mlp that sleeps :data:`SLOW_S` per training batch (for the kill tests; a test that runs it in
+                 its own process, where only the numbers matter, sets it to 0).
 Datasets:
     tiny_blobs   3 classes, T=12, 3 OptoForce nodes x 4 channels, 3 globals; the class signal grows over time;
                  an extra test split ``test_shifted``.
@@ -33,6 +34,8 @@ from tactile_zoo.data.base import TactileDataset, TensorData
 from tactile_zoo.errors import DatasetError, ModelCannotConsume
 
 TINY_RECIPE = {"loss": "ce", "optimizer": "adam", "lr": 0.03, "max_epochs": 8, "patience": 4, "batch_size": 16}
+#: seconds tiny_slow sleeps per training batch: what keeps a bench child busy long enough to be killed mid-run
+SLOW_S = 0.03
 
 
 class TinyMLP(nn.Module):
@@ -82,8 +85,8 @@ class TinyPicky(TinyMLP):
 
 class TinySlow(TinyMLP):
     def forward(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
-        if self.training:
-            time.sleep(0.03)
+        if self.training and SLOW_S:
+            time.sleep(SLOW_S)
         return super().forward(x, g)
 
 

@@ -1,7 +1,11 @@
-"""Faults with real processes: SIGKILL mid-run then resume, and two bench processes on one output folder."""
+"""Faults with real processes: SIGKILL mid-run then resume, and two bench processes on one output folder.
+
+The SIGKILL and two-processes children are forked from a warm server (tests/forked_bench.py: processes of their own,
+without an interpreter's start-up); the SIGINT and SIGTERM children are real ``python -m tactile_zoo.cli`` ones."""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -9,9 +13,12 @@ import signal
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
+import tiny_zoo
 from conftest import bench_subprocess, hung_stacks, read_board, run_cli
+from forked_bench import fork_bench
 
 from tactile_zoo.bench.config import BenchConfig
 from tactile_zoo.bench.runner import run_bench
@@ -24,15 +31,17 @@ CONFIG = {"models": ["tiny_slow", "tiny_mlp"], "datasets": ["tiny_blobs", "tiny_
 
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    import tiny_zoo
-
+    """The grid run once in this process, without tiny_slow's sleeps (they only keep a child busy until it is
+    killed; the numbers do not depend on them)."""
     tiny_zoo.register()
     out = tmp_path_factory.mktemp("uninterrupted") / "run"
-    assert run_cli([*GRID, "--out", str(out), "-q"]) == 0
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tiny_zoo, "SLOW_S", 0.0)
+        assert run_cli([*GRID, "--out", str(out), "-q"]) == 0
     return out
 
 
-def _wait_for_first_cell(proc: object, cells: Path, timeout: float = 240) -> None:
+def _wait_for_first_cell(proc: Any, cells: Path, timeout: float = 240) -> None:
     deadline = time.time() + timeout
     while time.time() < deadline:
         if cells.is_dir() and any(cells.glob("*.json")):
@@ -43,9 +52,10 @@ def _wait_for_first_cell(proc: object, cells: Path, timeout: float = 240) -> Non
     pytest.fail("no cell file appeared")
 
 
-def test_sigkill_mid_run_loses_nothing_and_resume_matches(uninterrupted: Path, tmp_path: Path) -> None:
+def test_sigkill_mid_run_loses_nothing_and_resume_matches(uninterrupted: Path, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     out = tmp_path / "run"
-    proc = bench_subprocess([*GRID, "--out", str(out), "-q"])
+    proc = fork_bench(["bench", "--plugin-module", "tiny_zoo", *GRID, "--out", str(out), "-q"], tmp_path / "child")
     try:
         _wait_for_first_cell(proc, out / "cells")
         os.kill(proc.pid, signal.SIGKILL)
@@ -55,6 +65,7 @@ def test_sigkill_mid_run_loses_nothing_and_resume_matches(uninterrupted: Path, t
     assert proc.returncode == -signal.SIGKILL
     survivors = {p.stem: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
     assert 1 <= len(survivors) < 6
+    monkeypatch.setattr(tiny_zoo, "SLOW_S", 0.0)  # the resume, in this process, needs no time to be killed in
     outcome = run_bench(BenchConfig(**CONFIG, out=str(out)), quiet=True)
     assert outcome.exit_code == 0
     assert set(survivors) <= set(outcome.reused)  # finished cells are not recomputed...
@@ -68,14 +79,23 @@ _LINE = re.compile(r"^\[\d+/\d+\] \w+\s+(\S+) x (\S+) fold (\d+) seed (\d+)(.*)$
 
 
 def test_two_processes_on_one_out_share_the_work(uninterrupted: Path, tmp_path: Path) -> None:
+    """A bench child and this process on one folder at once (this one starts as soon as the child has written its
+    run.json, i.e. is about to claim cells; the child's tiny_slow cells keep it busy meanwhile): together they
+    compute every cell once, and say that they share."""
     out = tmp_path / "run"
-    procs = [bench_subprocess([*GRID, "--out", str(out)]) for _ in range(2)]
+    proc = fork_bench(["bench", "--plugin-module", "tiny_zoo", *GRID, "--out", str(out)], tmp_path / "child")
     try:
-        results = [p.communicate(timeout=400) for p in procs]
+        deadline = time.time() + 240
+        while not (out / "run.json").is_file():
+            assert proc.poll() is None, proc.communicate()
+            assert time.time() < deadline, "the bench child wrote no run.json"
+            time.sleep(0.01)
+        here, here_err = io.StringIO(), io.StringIO()
+        outcome = run_bench(BenchConfig(**CONFIG, seeds=[0], out=str(out)), out=here, err=here_err, plots=False)
+        results = [proc.communicate(timeout=400), (here.getvalue(), here_err.getvalue())]
     finally:
-        for p in procs:
-            p.kill()
-    assert [p.returncode for p in procs] == [0, 0], results
+        proc.kill()
+    assert [proc.returncode, outcome.exit_code] == [0, 0], results
     ran = []
     for stdout, _ in results:
         ran.append({m.groups()[:4] for line in stdout.splitlines() if (m := _LINE.match(line))
@@ -93,7 +113,9 @@ from tactile_zoo.bench.executors import ProcessExecutor
 
 executor = ProcessExecutor(workers=1, threads=1, plugin_modules=())
 worker = executor._pool.submit(os.getpid).result()
-executor._pool.submit(time.sleep, 300)  # a cell that is still training when its run is killed
+# a cell that is still training when its run is killed: it says it has started, then sleeps
+executor._pool.submit(exec, "import pathlib, time; pathlib.Path(started).touch(); time.sleep(300)",
+                      {"started": sys.argv[1]})
 print(worker, flush=True)
 time.sleep(300)
 """
@@ -108,17 +130,26 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads process states from /proc")
-def test_pool_workers_exit_when_the_run_is_killed() -> None:
+def test_pool_workers_exit_when_the_run_is_killed(tmp_path: Path) -> None:
     """SIGKILL leaves the run no chance to shut its pool down: the worker, busy in a 300 s cell, must leave by
     itself instead of training on for nobody."""
     import subprocess
     import sys
 
-    run = subprocess.Popen([sys.executable, "-c", _ORPHAN_SCRIPT], stdout=subprocess.PIPE, text=True)
+    from tactile_zoo.bench.executors import PARENT_POLL_S
+
+    started = tmp_path / "started"
+    run = subprocess.Popen([sys.executable, "-c", _ORPHAN_SCRIPT, str(started)], stdout=subprocess.PIPE, text=True)
     try:
         worker = int(run.stdout.readline())
         assert _alive(worker)
-        time.sleep(2 * 1.0)  # the worker is inside its sleeping task, and has polled its parent at least once
+        deadline = time.time() + 60
+        while not started.exists() and time.time() < deadline:
+            time.sleep(0.01)
+        assert started.exists(), "the worker never started its task"
+        # the worker is inside its sleeping task; its watch started before the task and polls again within
+        # PARENT_POLL_S: after this it has polled its living parent at least twice and stayed
+        time.sleep(1.2 * PARENT_POLL_S)
         assert _alive(worker)
         run.send_signal(signal.SIGKILL)
         run.wait(timeout=30)
