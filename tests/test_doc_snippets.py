@@ -12,9 +12,9 @@ import json
 import os
 import re
 import shlex
-import subprocess
 import sys
 import tomllib
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -24,11 +24,14 @@ from doc_snippets import (
     KNOWN_LANGS,
     REPO,
     Block,
+    WarmPython,
     command_spans,
     doc_files,
     extract_blocks,
+    fresh_python_c,
     has_placeholder,
     pip_problems,
+    python_c,
     shell_commands,
     substitute_data,
 )
@@ -69,6 +72,17 @@ for target, argv in json.loads(sys.argv[1]):
         results.append(f"{type(exc).__name__}: {exc}")
 print(json.dumps(results))
 """
+
+
+#: this process's warm server (one per xdist worker, started by its first Python child; ``DOC_SNIPPETS_PLAIN=1``
+#: runs every child fresh): a child of it skips the 2-5 s of importing torch and PyG
+WARM = WarmPython()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _end_the_warm_server() -> Iterator[None]:
+    yield
+    WARM.close()
 
 
 def _data_home() -> Path | None:
@@ -216,8 +230,7 @@ def parse_results(lines: list[list[str]], session: Session) -> tuple[list[str | 
     targets = [(argv[1], argv[2:]) if argv[0] == "-m" else (str(REPO / argv[0]), argv[1:]) for argv in lines]
     if not targets:
         return [], ""
-    run = subprocess.run([sys.executable, "-c", PARSE_ONLY, json.dumps(targets)], cwd=REPO, env=session.env(),
-                         capture_output=True, text=True, timeout=300)
+    run = python_c(PARSE_ONLY, [json.dumps(targets)], REPO, session.env(), WARM)
     assert run.returncode == 0, run.stderr[-3000:]
     return json.loads(run.stdout.strip().splitlines()[-1]), run.stderr
 
@@ -239,8 +252,7 @@ def run_python(block: Block, session: Session) -> None:
     if "compile" in block.directives:
         compile(block.body, block.id, "exec")
         return
-    run = subprocess.run([sys.executable, "-c", block.body], cwd=session.cwd, env=session.env(),
-                         capture_output=True, text=True, timeout=300)
+    run = python_c(block.body, [], session.cwd, session.env(), WARM)
     assert run.returncode == 0, f"{block.id} failed:\n{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
 
 
@@ -419,6 +431,45 @@ def test_the_harness_fails_a_planted_page_block_by_block(tmp_path: Path, plugins
     good.write_text("```bash\ntactile-zoo bench --models sgnet --datasets sim_evtouch --seeds 0,1 --dry-run\n"
                     "pip install ./plugins/tactile-zoo-tcn\n```\n")
     check_block(extract_blocks(good)[0], session)
+
+
+#: what a child sees of its interpreter (the variables the server's imports set are left out: see WarmPython.run)
+PROBE = r"""
+import json, os, sys
+main = vars(sys.modules["__main__"])
+print(json.dumps({"name": __name__, "argv": sys.argv, "orig_argv": sys.orig_argv[1:], "path": sys.path,
+                  "cwd": os.getcwd(), "env": dict(os.environ), "stdin": sys.stdin.read(), "isatty": sys.stdout.isatty(),
+                  "main": {k: repr(v) for k, v in main.items() if k not in ("json", "os", "sys", "main")},
+                  "package": [m for m in sys.modules if m.split(".")[0] in ("tactile_zoo", "tactile_zoo_tcn")]}))
+"""
+EXITS = ["import sys; print('out'); sys.exit(3)", "import sys; sys.exit('bye')", "1 +",
+         "def f():\n    raise ValueError(1)\nf()", "import atexit, threading, time\natexit.register(print, 'at exit')\n"
+         "threading.Thread(target=lambda: (time.sleep(0.1), print('thread'))).start()\nprint('main')"]
+
+
+def test_a_warm_child_is_a_fresh_python_c(tmp_path: Path, plugins: dict[str, Path]) -> None:
+    """A child of the warm server against a fresh ``python -c``: its name, argv, path (PYTHONPATH first), folder,
+    environment, stdin, ``__main__``, no package module; exit codes, messages and tracebacks; output at exit. Two
+    children draw different random numbers. (With ``DOC_SNIPPETS_PLAIN=1`` or under coverage both runs are fresh.)"""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(map(str, [plugins["tactile-zoo-tcn"], REPO])),
+           "OMP_NUM_THREADS": "1"}
+    warm = not WARM.apart(tmp_path, env)
+    served = WARM.served
+    fresh, child = (run(PROBE, ["a", "b c"], tmp_path, env) for run in (fresh_python_c, WARM.run))
+    assert fresh.returncode == child.returncode == 0, (fresh.stderr, child.stderr)
+    seen = [json.loads(r.stdout) for r in (fresh, child)]
+    for probe in seen:
+        probe["env"] = {k: v for k, v in probe["env"].items() if k not in getattr(WARM, "set", {})}
+    for key in seen[0]:
+        assert seen[0][key] == seen[1][key], key
+    assert seen[0]["package"] == [] and seen[0]["path"][1:3] == [str(plugins["tactile-zoo-tcn"]), str(REPO)]
+    for body in EXITS:
+        fresh, child = fresh_python_c(body, [], tmp_path, env), WARM.run(body, [], tmp_path, env)
+        assert (fresh.returncode, fresh.stdout, fresh.stderr) == (child.returncode, child.stdout, child.stderr)
+    draws = [WARM.run("import numpy, torch; print(torch.initial_seed(), numpy.random.randint(1 << 30))", [], tmp_path,
+                      env).stdout for _ in range(2)]
+    assert draws[0] != draws[1]
+    assert WARM.served - served == (3 + len(EXITS)) * warm, WARM.fresh[-3:]
 
 
 def test_the_models_table_gives_the_parameter_counts_of_the_table_i_cells() -> None:
