@@ -78,6 +78,17 @@ def read_board(path: Path, drop_timing: bool = True) -> list[dict[str, str]]:
 
 
 @pytest.fixture(scope="session")
+def dask_cluster() -> Iterator[object]:
+    """Two single-threaded Dask worker processes on 127.0.0.1, started once per test process for the tests that run
+    a grid on a cluster given by ``--scheduler`` (each worker imports torch and the package once, on its first
+    cell, instead of once per test). The tests of the cluster that ``--executor dask`` starts itself, and of a
+    worker's death, have their own."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        yield cluster
+
+
+@pytest.fixture(scope="session")
 def reference_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The SMALL grid run once, uninterrupted, locally in this process."""
     out = tmp_path_factory.mktemp("reference") / "run"

@@ -6,6 +6,7 @@ import json
 import sys
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import SMALL, read_board, run_cli
@@ -26,13 +27,11 @@ def test_process_executor_matches_local(reference_run: Path, tmp_path: Path, cap
     assert not list((out / "progress").iterdir())  # each cell's progress file goes with its record
 
 
-def test_dask_local_cluster_with_two_workers_matches_local(reference_run: Path, tmp_path: Path,
+def test_dask_local_cluster_with_two_workers_matches_local(dask_cluster: Any, reference_run: Path, tmp_path: Path,
                                                            capsys: pytest.CaptureFixture) -> None:
-    distributed = pytest.importorskip("distributed")
     out = tmp_path / "run"
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        assert run_cli([*SMALL, "--executor", "dask", "--scheduler", cluster.scheduler_address, "--out",
-                        str(out)]) == 0
+    cluster = dask_cluster
+    assert run_cli([*SMALL, "--executor", "dask", "--scheduler", cluster.scheduler_address, "--out", str(out)]) == 0
     printed = capsys.readouterr()
     assert f"dask ({cluster.scheduler_address}, 2 worker threads, retries 3)" in printed.out  # Dask's default
     assert "tiny_mlp x tiny_blobs fold 0 seed 0: epoch 1/8" in printed.err

@@ -108,11 +108,11 @@ def test_process_workers_log_to_the_mlflow_file_store(tmp_path: Path) -> None:
     _check_mlflow(out, records)
 
 
-def test_dask_workers_log_tensorboard_event_files(tmp_path: Path) -> None:
-    pytest.importorskip("distributed")
+def test_dask_workers_log_tensorboard_event_files(dask_cluster: Any, tmp_path: Path) -> None:
     pytest.importorskip("tensorboard")
     out = tmp_path / "run"
-    assert run_cli([*TWO, "--executor", "dask", "--workers", "2", "--tracker", "tensorboard", "--out", str(out)]) == 0
+    assert run_cli([*TWO, "--executor", "dask", "--scheduler", dask_cluster.scheduler_address, "--tracker",
+                    "tensorboard", "--out", str(out)]) == 0
     records = _cells(out)
     assert len(records) == 2
     for record in records.values():
