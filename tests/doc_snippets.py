@@ -376,7 +376,7 @@ class WarmPython:
             return PLAIN_SWITCH
         if not hasattr(os, "fork") or not Path("/proc/self/task").is_dir():
             return "no fork or /proc"
-        coverage = sorted(k for k in env if k.startswith("COVERAGE_"))
+        coverage = sorted(k for k in env if k.startswith(("COVERAGE_", "COV_CORE_")))  # coverage.py, pytest-cov < 7
         if coverage:
             return f"coverage measured ({', '.join(coverage)})"
         if env.get("OMP_NUM_THREADS") != "1":
