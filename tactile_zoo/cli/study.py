@@ -1,4 +1,4 @@
-"""``tactile-zoo study check|run|audit|report|compare FILE``: a pre-registered study (:mod:`tactile_zoo.study`);
+"""``tactile-zoo study check|freeze|run|audit|report|compare FILE``: a pre-registered study (:mod:`tactile_zoo.study`);
 ``compare``: one whose grids train your models only, set against a published set (:mod:`tactile_zoo.study.compare`)."""
 
 from __future__ import annotations
@@ -11,16 +11,17 @@ from ._common import echo, progress_on
 
 __all__ = ["add_study"]
 
-ACTIONS = ("check", "run", "audit", "report", "compare")
+ACTIONS = ("check", "freeze", "run", "audit", "report", "compare")
 
 
 def add_study(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("study", help="check, run, audit or report a pre-registered study file",
                        description="check: validate the file, print its grids' cells and estimate the CPU-hours. "
                                    "run: freeze the file (its hash and a copy into the results folder), then run "
-                                   "every grid with the bench (resumable). audit: check the cells against the "
-                                   "study's rules (exit 1 naming each broken one). report: markdown and CSV of the "
-                                   "results, the declared reads (recorded once) and the rules' outcomes. "
+                                   "every grid with the bench (resumable). freeze: only the freeze that run starts "
+                                   "with, for a plan committed before its first cell. audit: check the cells "
+                                   "against the study's rules (exit 1 naming each broken one). report: markdown and "
+                                   "CSV of the results, the declared reads (recorded once) and the rules' outcomes. "
                                    "compare: a study whose grids train only your models and whose `against` "
                                    "names a published set of the zoo's cells: refuse what cannot be compared "
                                    "(another split, dataset revision, protocol or seed set), run the grids, "
@@ -43,6 +44,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
     from ..study.checks import describe, plans
     from ..study.compare import load_comparison
     from ..study.compare_report import run_comparison
+    from ..study.freeze import freeze as freeze_study
     from ..study.freeze import freeze_status
     from ..study.plan import check_lines
 
@@ -56,6 +58,11 @@ def _cmd_study(args: argparse.Namespace) -> int:
             [p for p in (Path(os.getcwd()) / "benchmarks" / "results",) if p.is_dir()]
         for line in [*describe(study), *freeze_status(study), *check_lines(study, plans(study), history)]:
             echo(line)
+        return 0
+    if args.action == "freeze":
+        state = freeze_study(study)
+        echo(f"study {study.name} frozen {state['time']} (sha256 {state['sha256'][:12]}) in "
+             f"{study.results / 'study'}")
         return 0
     if args.action == "run":
         return run_study(study, quiet=not progress_on(args)).exit_code

@@ -55,8 +55,8 @@ READOUTS = ("gap", "taxels")
     **recipe_file("tactile_zoo", "convlstm"),
     causal=True,
     streaming=True,
-    # 2: the recurrence's numba kernels (backend "compiled"), selectable but not the default: in the one run that
-    # timed both (benchmarks/results/vs_pinned.csv, 2026-12-05) it did not beat "fused" (13.42 s against 13.27 s)
+    # 2: the recurrence's numba kernels (backend "compiled"), selectable but not the default: it lost to "fused" in
+    # both runs that timed them side by side (vs_pinned.csv 13.42 s against 13.27 s; vs_fcddbe0.csv 18.97 s, 18.06 s)
     revision=1,
     revisions={1: {"backend": "fused"}, 2: {"backend": "compiled"}},
 )

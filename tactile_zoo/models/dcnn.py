@@ -166,9 +166,9 @@ class _ConvBlock(nn.Sequential):
     **recipe_file("tactile_zoo", "dcnn"),
     causal=False,
     streaming=False,
-    revision=1,
-    # revision 2: batch statistics accurate to a float64 copy on the CPU, and the running statistics recomputed over
-    # the training split after training (issue 53), selectable; not yet the default (docs/revisions.md)
+    # revision 2 (the default since issue 53): batch statistics accurate to a float64 copy on the CPU, and the running
+    # statistics recomputed over the training split after training; 1 builds the committed cells (docs/revisions.md)
+    revision=2,
     revisions={1: {"bn_stats": "native", "precise_bn": False}, 2: {"bn_stats": "two_pass", "precise_bn": True}},
 )
 class DCNN(ClassifierMixin, nn.Module):
@@ -187,10 +187,12 @@ class DCNN(ClassifierMixin, nn.Module):
         bn_stats: how batch norm computes a training batch's statistics and its backward sums
             (:class:`~tactile_zoo.nn.backend.BatchNormStats`): ``"native"`` (torch's kernel; on the CPU, over the
             channels-last maps, scores 3e-2 from a float64 copy of the step), ``"two_pass"`` (float32 pairwise sums,
-            two-pass variance) or ``"float64"`` (the same sums in float64); see :mod:`tactile_zoo.nn.batch_norm`.
+            two-pass variance; the default, revision 2) or ``"float64"`` (the same sums in float64); see
+            :mod:`tactile_zoo.nn.batch_norm`.
         precise_bn: after training, the engine recomputes every batch norm's running statistics over the training
             split with the final weights (:func:`tactile_zoo.engine.train.recompute_bn_stats`), so evaluation does
-            not read moving averages that lag the weights (seed 6 of the ``full`` recipe on Ev-Objects; revision 2).
+            not read moving averages that lag the weights (seed 6 of the ``full`` recipe on Ev-Objects; on by default,
+            revision 2; revision 1, every committed cell's, is ``bn_stats="native"``, ``precise_bn=False``).
 
     Shapes:
         ``x (B, T, N, C)`` with ``T <= num_steps``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``.
@@ -198,8 +200,8 @@ class DCNN(ClassifierMixin, nn.Module):
 
     def __init__(self, spec: DatasetSpec, filters: tuple[int, int, int] = (31, 128, 57),
                  kernels: tuple[tuple[int, int], ...] = ((1, 2), (2, 3), (3, 1)),
-                 dense: tuple[int, int] = (103, 138), bn_momentum: float = 0.1, bn_stats: str = "native",
-                 precise_bn: bool = False) -> None:
+                 dense: tuple[int, int] = (103, 138), bn_momentum: float = 0.1, bn_stats: str = "two_pass",
+                 precise_bn: bool = True) -> None:
         super().__init__()
         if len(filters) != 3 or len(kernels) != 3 or len(dense) != 2:
             raise ConfigError(f"dcnn: need 3 filters, 3 kernels and 2 dense widths, got {filters}, {kernels}, {dense}")

@@ -11,7 +11,8 @@ The checks, over the cells of every grid that is not superseded (read through :m
 - **config hashes**: every cell is one the grid plans (its model, dataset, seed and configuration hash); grids that
   share a folder (a trial's arms) each take the cells they plan;
 - **cells present**: every grid's folder exists and holds cells of the grid (a misspelt folder would otherwise
-  pass every check over no cell);
+  pass every check over no cell); a grid of a study frozen by ``study freeze`` or ``study run`` (not a migrated
+  one) that holds no cell yet is reported as not run yet, a plan waiting for its cells;
 - **the budget**: the cells' own ``seconds`` summed, at most ``rules.budget_cpu_hours``;
 - **ensembles**: every declared member has run, and a recorded ensemble read exactly its declared members, from the
   cell files as they are now (and every recorded read's input files are unchanged); a recorded comparison given as
@@ -146,6 +147,7 @@ def audit(study: Study) -> AuditResult:
     everything: list[dict[str, Any]] = []
     own: list[dict[str, Any]] = []
     all_plans = plans(study)
+    waiting: set[str] = set()  # grids of a frozen plan that hold no cell yet
     for name, records in by_grid.items():
         plan = all_plans[name]
         reused = plan.spec.reused
@@ -155,7 +157,12 @@ def audit(study: Study) -> AuditResult:
         own += [] if reused else records
         result.lines.append(f"grid {name}: {len(ok)} ok cell(s) of {len(plan.cell_ids())} planned per fold, in "
                             f"{plan.folder}" + (" (reused)" if reused else ""))
-        if not plan.folder.is_dir():
+        if not records and not reused and state is not None and study.spec.freeze is None:
+            # frozen by `study run` or `study freeze` and not run yet: a plan, not a broken rule (a migrated
+            # study points at cells that exist, so there an empty grid is a misspelt folder)
+            result.lines.append(f"grid {name}: not run yet (frozen {state['time']})")
+            waiting.add(name)
+        elif not plan.folder.is_dir():
             result.fail("cells present", f"grid {name}: its folder {plan.folder} does not exist")
         elif not records:
             result.fail("cells present", f"grid {name}: {plan.folder} holds no cell of the grid")
@@ -199,18 +206,21 @@ def audit(study: Study) -> AuditResult:
                         + (" (reused cells not counted)" if len(own) < len(everything) else ""))
     if rules.budget_cpu_hours is not None and hours > rules.budget_cpu_hours:
         result.fail("budget", f"budget exceeded: {hours:.3f} CPU-hours spent, {rules.budget_cpu_hours:g} declared")
-    _ensembles(study, by_grid, result)
+    _ensembles(study, by_grid, result, waiting)
     return result
 
 
-def _ensembles(study: Study, by_grid: dict[str, list[dict[str, Any]]], result: AuditResult) -> None:
+def _ensembles(study: Study, by_grid: dict[str, list[dict[str, Any]]], result: AuditResult,
+               waiting: set[str]) -> None:
     recorded = recorded_reads(study)
     for read in study.reads().ensembles:
         grid = read.grid or study.grids()[0].name
         declared = [m[-1] for m in read_members(study, read)]
         have = {r["cell_id"] for r in by_grid.get(grid, []) if r.get("status") == "ok"}
         missing = [i for i in declared if i not in have]
-        if missing:
+        if missing and grid in waiting:
+            result.lines.append(f"ensemble {read.name}: waits for its members (grid {grid} not run yet)")
+        elif missing:
             result.fail("ensemble members", f"ensemble {read.name}: declared member(s) not present: "
                                             f"{', '.join(missing)}")
         entry = recorded.get(read.name)

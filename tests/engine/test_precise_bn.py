@@ -100,7 +100,7 @@ def test_without_the_flag_the_moving_averages_stay() -> None:
 
 def test_dcnn_declares_precise_bn_at_revision_2_only() -> None:
     spec = _splits()["train"].spec
-    assert tz.create_model("dcnn", spec).precise_bn is False
+    assert tz.create_model("dcnn", spec).precise_bn is True  # revision 2, the default
     assert tz.create_model("dcnn", spec, revision=1).precise_bn is False
     assert tz.create_model("dcnn", spec, revision=2).precise_bn is True
 

@@ -52,16 +52,17 @@ def test_training_step_is_float64_accurate(stats: str) -> None:
         assert torch.allclose(ours.to(theirs.dtype), theirs, rtol=1e-4, atol=1e-6), name
     # evaluation mode is torch's own path, whatever bn_stats says
     x = torch.rand(3, 32, SENSOR.num_nodes, 2)
-    native = tz.create_model("dcnn", SPEC)
+    native = tz.create_model("dcnn", SPEC, revision=1)
     native.load_state_dict(model.state_dict())
     with torch.no_grad():
         assert torch.equal(model.eval()(x), native.eval()(x))
 
 
-def test_the_old_path_is_the_default_and_misses() -> None:
-    """``native`` stays the default (committed cells rebuild bit for bit) and is what the accurate choices fix."""
-    model = tz.create_model("dcnn", SPEC)
+def test_the_old_path_is_revision_1_and_misses() -> None:
+    """``native`` is revision 1 (committed cells rebuild bit for bit) and is what the default, revision 2, fixes."""
+    model = tz.create_model("dcnn", SPEC, revision=1)
     assert all(bn.stats == "native" for bn in model.modules() if hasattr(bn, "stats"))
+    assert all(bn.stats == "two_pass" for bn in tz.create_model("dcnn", SPEC).modules() if hasattr(bn, "stats"))
     score_err, grad_err, _, _ = _errors("native")
     assert score_err > 1e-4 or grad_err > 1e-3, (score_err, grad_err)
 

@@ -33,9 +33,9 @@ pre_registered: false
 results: results
 grids:
   - {name: r3, reused: round 3, settings: {models: [sgnet, dcnn], datasets: ev_objects, recipe_name: full,
-                                           folds: 1, model_revisions: {sgnet: 2}, seeds: [0, 1]}}
+                                           folds: 1, model_revisions: {sgnet: 2, dcnn: 1}, seeds: [0, 1]}}
   - {name: r4, reused: round 4, settings: {models: [sgnet, dcnn], datasets: ev_objects, recipe_name: full,
-                                           folds: 1, model_revisions: {sgnet: 2}, seeds: [5, 6]}}
+                                           folds: 1, model_revisions: {sgnet: 2, dcnn: 1}, seeds: [5, 6]}}
   - {name: rerun, folder: rerun, reused: round 4 again, settings: {models: [sgnet], datasets: ev_objects,
                                            recipe_name: full, folds: 1, model_revisions: {sgnet: 2}, seeds: [5, 6]}}
 reads:
