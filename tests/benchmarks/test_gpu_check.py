@@ -154,10 +154,11 @@ def test_a_step_over_its_time_is_stopped_with_its_children(tmp_path: Path) -> No
     """The step starts a grandchild (as benchmarks.run starts bench children) and sleeps; when its time is up both
     are stopped, as the whole process group is."""
     pid_file = tmp_path / "grandchild.pid"
+    # -S: no site packages, so both interpreters start in tens of milliseconds, well within the 2 s the step has
     script = ("import os, subprocess, sys, time; "
-              "p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)']); "
+              "p = subprocess.Popen([sys.executable, '-S', '-c', 'import time; time.sleep(120)']); "
               f"open({str(pid_file)!r}, 'w').write(str(p.pid)); time.sleep(120)")
-    row = gpu_check.run_step([sys.executable, "-c", script], tmp_path / "step.log", timeout=5)
+    row = gpu_check.run_step([sys.executable, "-S", "-c", script], tmp_path / "step.log", timeout=2)
     assert row["status"] == "timeout" and row["exit_code"] is None and "time budget" in row["note"]
     assert pid_file.exists(), "the step did not start its grandchild within its time; nothing was checked"
     grandchild = int(pid_file.read_text())

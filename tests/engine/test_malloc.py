@@ -19,63 +19,82 @@ GLIBC = sys.platform.startswith("linux") and malloc._mallopt() is not None
 
 # Hold as many large blocks as the settings let glibc map (M_MMAP_MAX), then allocate, write and free a 40 MB block
 # (above glibc's largest mmap threshold, 32 MiB: by default a fresh mmap each time) and count the page faults of
-# writing a second one of the same size: none where it came back from the heap already faulted in.
+# writing a second one of the same size: none where it came back from the heap already faulted in. One child runs
+# its modes in order (an interpreter's start-up is most of its cost) and prints one line per mode; each mode frees
+# what it held, so the next starts from the allocator as that mode left it.
 _CHILD = textwrap.dedent("""
-    import ctypes, json, resource, sys
-    mode = sys.argv[1]
-    result = None
-    if mode == "tune":
-        from tactile_zoo.engine.malloc import tune_malloc
-        result = tune_malloc()
-    elif mode == "worker":
-        from tactile_zoo.bench.worker import setup_worker
-        setup_worker()
-    else:  # importing the package and its training layers changes nothing
-        import tactile_zoo, tactile_zoo.bench, tactile_zoo.cli, tactile_zoo.engine  # noqa: F401
-    from tactile_zoo.engine.malloc import SETTINGS
-    libc = ctypes.CDLL(None)
-    libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
-    libc.free.argtypes = [ctypes.c_void_p]
-    size = 40 << 20
-    # never written: no memory used; at most 64, so that a cap too high to matter leaves the block mapped
-    held = [libc.malloc(size) for _ in range(min(SETTINGS.get("M_MMAP_MAX", 0), 64))]
-    first = libc.malloc(size)
-    ctypes.memset(first, 1, size)
-    libc.free(first)
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    second = libc.malloc(size)
-    ctypes.memset(second, 2, size)
-    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
-    print(json.dumps({"result": result, "faults": faults, "byte": ctypes.string_at(second + size - 1, 1)[0]}))
+    import ctypes, json, os, resource, sys
+    for mode in sys.argv[1:]:
+        result = None
+        if mode == "tune":
+            from tactile_zoo.engine.malloc import tune_malloc
+            result = tune_malloc()
+        elif mode == "worker":
+            from tactile_zoo.bench.worker import setup_worker
+            setup_worker()
+        elif mode == "allow":  # the opt-out variable gone, as in a process started without it
+            os.environ.pop("TACTILE_ZOO_DEFAULT_MALLOC", None)
+            continue
+        else:  # importing the package and its training layers changes nothing
+            import tactile_zoo, tactile_zoo.bench, tactile_zoo.cli, tactile_zoo.engine  # noqa: F401
+        from tactile_zoo.engine.malloc import SETTINGS
+        libc = ctypes.CDLL(None)
+        libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+        libc.free.argtypes = [ctypes.c_void_p]
+        size = 40 << 20
+        # never written: no memory used; at most 64, so that a cap too high to matter leaves the block mapped
+        held = [libc.malloc(size) for _ in range(min(SETTINGS.get("M_MMAP_MAX", 0), 64))]
+        first = libc.malloc(size)
+        ctypes.memset(first, 1, size)
+        libc.free(first)
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        second = libc.malloc(size)
+        ctypes.memset(second, 2, size)
+        faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+        byte = ctypes.string_at(second + size - 1, 1)[0]
+        for block in [*held, second]:
+            libc.free(block)
+        print(json.dumps({"mode": mode, "result": result, "faults": faults, "byte": byte}), flush=True)
 """)
 
 
-def _child(mode: str, **env: str) -> dict:
+def _child(*modes: str, **env: str) -> dict[str, dict]:
+    """Each mode's measurement, in one fresh child that runs them in order."""
     environ = {key: value for key, value in os.environ.items() if key != "TACTILE_ZOO_DEFAULT_MALLOC"}
     environ.update({"PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", **env})
-    proc = subprocess.run([sys.executable, "-c", _CHILD, mode], env=environ, capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-c", _CHILD, *modes], env=environ, capture_output=True, text=True,
                           check=True, cwd=REPO)
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    rows = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith('{"mode"')]
+    assert [row["mode"] for row in rows] == [m for m in modes if m != "allow"], proc.stdout
+    return {row["mode"]: row for row in rows}
 
 
 FRESH_FAULTS = (40 << 20) // 4096 // 2  # at least half the buffer's 4 KiB pages faulted in
 
 
+@pytest.fixture(scope="module")
+def measured() -> dict[str, dict]:
+    """Two fresh children: one imports the package (and measures), then tunes; the other starts with the opt-out
+    variable set and tunes (which must do nothing), then drops it and sets up a bench worker."""
+    return {**_child("import", "tune"), **{f"opt_out_{k}": v for k, v in _child(
+        "tune", "allow", "worker", TACTILE_ZOO_DEFAULT_MALLOC="1").items()}}
+
+
 @pytest.mark.skipif(not GLIBC, reason="mallopt exists on glibc Linux only")
-def test_tuned_process_rewrites_a_freed_buffer_without_faults() -> None:
-    tuned = _child("tune")
+def test_tuned_process_rewrites_a_freed_buffer_without_faults(measured: dict[str, dict]) -> None:
+    tuned = measured["tune"]
     assert tuned["result"] == {name: 1 for name in malloc.SETTINGS}  # glibc accepted every setting
     assert tuned["faults"] < 500, tuned
-    worker = _child("worker")  # every bench worker (and the serial executor's process) applies it
+    worker = measured["opt_out_worker"]  # every bench worker (and the serial executor's process) applies it
     assert worker["faults"] < 500, worker
-    imported = _child("import")  # an import leaves the library user's allocator alone
-    assert imported["faults"] > FRESH_FAULTS, imported
+    imported = measured["import"]  # an import leaves the library user's allocator alone
+    assert imported["result"] is None and imported["faults"] > FRESH_FAULTS, imported
     assert tuned["byte"] == imported["byte"] == worker["byte"] == 2
 
 
 @pytest.mark.skipif(not GLIBC, reason="mallopt exists on glibc Linux only")
-def test_opt_out_keeps_the_defaults() -> None:
-    out = _child("tune", TACTILE_ZOO_DEFAULT_MALLOC="1")
+def test_opt_out_keeps_the_defaults(measured: dict[str, dict]) -> None:
+    out = measured["opt_out_tune"]
     assert out["result"] is None
     assert out["faults"] > FRESH_FAULTS, out
 
