@@ -11,8 +11,10 @@ import resource
 import stat
 import subprocess
 import sys
+import textwrap
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -88,29 +90,49 @@ def test_save_writes_a_new_file_and_replaces_its_own_checkpoint(tmp_path: Path, 
     assert sorted(p.name for p in path.parent.iterdir()) == ["model.pt"]
 
 
-def _limited(argv: list[str], limit: int) -> subprocess.CompletedProcess:
-    """``argv`` run by ``tactile-zoo`` in a subprocess whose files may not grow beyond ``limit`` bytes (a full disk,
-    as ``ulimit -f`` makes one; Python ignores SIGXFSZ, so a write past it fails with EFBIG)."""
-    code = (f"import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
-            f"from tactile_zoo.cli import main; sys.exit(main({argv!r}))")
+_SPLIT = "--- next run ---"
+
+
+def _limited(runs: list[tuple[list[str], int | None]]) -> tuple[list[int], list[str], list[list[Any]]]:
+    """Each ``tactile-zoo ARGV`` of ``runs`` in turn, in one subprocess (an interpreter's start-up is most of a run's
+    cost), its files not allowed to grow beyond ``limit`` bytes (a full disk, as ``ulimit -f`` makes one; Python
+    ignores SIGXFSZ, so a write past it fails with EFBIG), or without a limit where it is None. Each run's exit
+    status, its stderr, and the names in the ``--save`` path's folder and that file's sha256 after it."""
+    code = textwrap.dedent(f"""
+        import hashlib, json, os, resource, sys
+        from tactile_zoo.cli import main
+        for argv, limit in {runs!r}:
+            soft = resource.RLIM_INFINITY if limit is None else limit
+            resource.setrlimit(resource.RLIMIT_FSIZE, (soft, resource.RLIM_INFINITY))
+            code = main(argv)
+            save = argv[argv.index("--save") + 1]
+            digest = hashlib.sha256(open(save, "rb").read()).hexdigest() if os.path.exists(save) else None
+            print(json.dumps([code, sorted(os.listdir(os.path.dirname(save))), digest]), flush=True)
+            print({_SPLIT!r}, file=sys.stderr, flush=True)
+    """)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")])),
            "OMP_NUM_THREADS": "1"}
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    results = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("[")]
+    errors = done.stderr.split(_SPLIT + "\n")
+    assert len(results) == len(runs) and len(errors) == len(runs) + 1 and errors[-1] == "", done
+    return [r[0] for r in results], errors[:-1], [r[1:] for r in results]
 
 
 @pytest.mark.skipif(not hasattr(resource, "RLIMIT_FSIZE"), reason="no file size limit on this platform")
 def test_a_full_disk_is_one_line_naming_the_path_and_leaves_nothing(tmp_path: Path) -> None:
     path = tmp_path / "model.pt"
-    done = _limited([*TRAIN, "--save", str(path)], 4096)
-    assert done.returncode == 2, done.stderr
-    assert done.stderr.splitlines() == [f"tactile-zoo: error: --save {path}: cannot write the checkpoint (File too "
-                                        f"large); nothing was written there"]
-    assert list(tmp_path.iterdir()) == []
-    assert main([*TRAIN, "--save", str(path)]) == 0
-    before = path.read_bytes()
-    done = _limited([*TRAIN, "--save", str(path), "--seed", "1"], 4096)  # replacing its own checkpoint
-    assert done.returncode == 2 and "cannot write the checkpoint" in done.stderr
-    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["model.pt"]
+    codes, errors, listings = _limited([([*TRAIN, "--save", str(path)], 4096),
+                                        ([*TRAIN, "--save", str(path)], None),
+                                        ([*TRAIN, "--save", str(path), "--seed", "1"], 4096)])  # replacing its own
+    assert codes[0] == 2, errors[0]
+    assert errors[0].splitlines() == [f"tactile-zoo: error: --save {path}: cannot write the checkpoint (File too "
+                                      f"large); nothing was written there"]
+    assert listings[0] == [[], None]
+    assert codes[1] == 0 and listings[1][0] == ["model.pt"] and is_checkpoint(path), errors[1]
+    assert codes[2] == 2 and "cannot write the checkpoint" in errors[2]
+    assert listings[2] == listings[1]  # the checkpoint as it was, byte for byte, and nothing beside it
 
 
 def test_evaluate_names_a_file_that_is_not_a_checkpoint_in_one_line(tmp_path: Path,
