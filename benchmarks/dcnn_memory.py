@@ -85,8 +85,10 @@ def _malloc(settings: str | dict[str, int] | None) -> str:
 
 
 def measure(variant: str, root: Path | None, samples: int | None,
-            malloc: str | dict[str, int] | None = None, epochs: int = 1) -> dict[str, Any]:
-    """Train ``dcnn`` one epoch with the ``variant``'s pools in this process; one CSV row plus its test logits."""
+            malloc: str | dict[str, int] | None = None, epochs: int = 1,
+            test_samples: int | None = None) -> dict[str, Any]:
+    """Train ``dcnn`` one epoch with the ``variant``'s pools in this process; one CSV row plus its test logits (of at
+    most ``test_samples`` test samples, class-balanced and seeded: the same ones in every case)."""
     import resource
 
     from torch import nn
@@ -100,6 +102,8 @@ def measure(variant: str, root: Path | None, samples: int | None,
     train, test, source = _splits(root)
     if samples is not None and samples < len(train):
         train = take(train, samples, seed=0)
+    if test_samples is not None and test_samples < len(test):
+        test = take(test, test_samples, seed=0)
     recipe = model_recipe("dcnn")
     seed_everything(0)
     model = instantiate_model("dcnn", train.spec)
@@ -133,9 +137,11 @@ def child(job: dict[str, Any], variant: str, malloc: str | dict[str, int] | None
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def run(ctx: Context, samples: int | None = None) -> Path:
+def run(ctx: Context, samples: int | None = None, test_samples: int | None = None) -> Path:
+    """The three cases, each in a fresh child; ``samples`` training samples (``--quick``: 32, else all 200), and the
+    logits compared over ``test_samples`` test samples (all 60 unless given: the suite's test takes fewer)."""
     root = data_root(ctx)
-    job = {"root": None if root is None else str(root), "threads": ctx.threads,
+    job = {"root": None if root is None else str(root), "threads": ctx.threads, "test_samples": test_samples,
            "samples": samples if samples is not None else (32 if ctx.quick else None)}
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
     rows = []
@@ -147,6 +153,8 @@ def run(ctx: Context, samples: int | None = None) -> Path:
         row["target"] = "peak < 3 GB (issue 18), the same outputs"
         row["note"] = "one training epoch, then the test split in one batch; fresh child process, 1 thread" \
             if row["samples"] == 200 else f"{row['samples']} training samples (--quick)"
+        if test_samples is not None:
+            row["note"] += f"; logits of {test_samples} test samples"
         ctx.log(f"  {row['case']}: training peak {row['peak_rss_mb']} MB, eval peak {row['eval_peak_rss_mb']} MB, "
                 f"process peak {row['process_peak_rss_mb']} MB, {row['train_page_faults']} page faults, "
                 f"{row['train_sys_s']} s system time, logits differ by {row['max_logit_diff']:g}")
@@ -165,7 +173,8 @@ def main(argv: list[str] | None = None) -> int:
         job = json.loads(args.child)
         torch.set_num_threads(job["threads"])
         root = None if job["root"] is None else Path(job["root"])
-        print(json.dumps(measure(job["variant"], root, job["samples"], job.get("malloc"), job.get("epochs", 1))))
+        print(json.dumps(measure(job["variant"], root, job["samples"], job.get("malloc"), job.get("epochs", 1),
+                                 job.get("test_samples"))))
         return 0
     ctx = Context(quick=args.quick, threads=1, root=args.root, **({"out": args.out} if args.out else {}))
     path = run(ctx)

@@ -16,7 +16,7 @@ from tactile_zoo.engine.malloc import SETTINGS, apply_mallopt  # noqa: E402
 
 def test_tuned_malloc_row_computes_the_same_logits(tmp_path: Path) -> None:
     ctx = common.Context(threads=1, quick=True, repeats=1, out=tmp_path, log=lambda _msg: None)
-    with dcnn_memory.run(ctx, samples=8).open() as fh:
+    with dcnn_memory.run(ctx, samples=8, test_samples=8).open() as fh:  # the logits of 8 test samples compared
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == ["benchmark", "case", *dcnn_memory.COLUMNS, "note", *common.ENV_COLUMNS]
     assert [r["case"] for r in rows] == ["index_only", "maxpool2d", "index_only_tuned"]
