@@ -58,6 +58,17 @@ def _is_int(value: Any) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
 
+def _all_ints(values: list[Any]) -> bool:
+    """Whether every item of ``values`` is an int (not a bool). A parsed list of plain ints is settled by the set of
+    its items' types, at C speed: the per-sample predictions were most of a record's check, item by item."""
+    return set(map(type, values)) <= {int} or all(map(_is_int, values))
+
+
+def _all_counts(values: list[Any]) -> bool:
+    """Whether every item of ``values`` is an int (not a bool), 0 or more."""
+    return _all_ints(values) and (not values or min(values) >= 0)
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
@@ -158,7 +169,7 @@ def _check_metrics(metrics: Mapping[str, Any]) -> list[str]:
                 problems.append(f"{where}.{key} is {_shown(split[key])}, expected a number between 0 and 1")
         confusion = split.get("confusion")
         if confusion is not None and not (isinstance(confusion, list) and all(
-                isinstance(row, list) and all(_is_count(v) for v in row) for row in confusion)):
+                isinstance(row, list) and _all_counts(row) for row in confusion)):
             problems.append(f"{where}.confusion is not a matrix of counts")
     return problems
 
@@ -196,7 +207,7 @@ def _check_details(record: Mapping[str, Any]) -> list[str]:
                                          and all(a is None or _is_fraction(a) for a in balanced)):
             problems.append("prefix.balanced_accuracy is not a list of numbers between 0 and 1")
         steps = prefix.get("steps")
-        if steps is not None and not (isinstance(steps, list) and all(_is_count(n) for n in steps)):
+        if steps is not None and not (isinstance(steps, list) and _all_counts(steps)):
             problems.append("prefix.steps is not a list of non-negative integers")
         problems += _check_keys(prefix, _PREFIX, required=False, where="prefix.")
     if isinstance(record.get("reference"), dict):
@@ -211,7 +222,7 @@ def _check_details(record: Mapping[str, Any]) -> list[str]:
             continue
         targets, predicted = values.get("targets"), values.get("predictions")
         if not (isinstance(targets, list) and isinstance(predicted, list) and len(targets) == len(predicted)
-                and all(_is_int(v) for v in targets) and all(_is_int(v) for v in predicted)):
+                and _all_ints(targets) and _all_ints(predicted)):
             problems.append(f"{where} needs lists 'targets' and 'predictions' of equal length, of class indices")
         groups = values.get("groups")
         if groups is not None and not (isinstance(groups, list) and isinstance(targets, list)

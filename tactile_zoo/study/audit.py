@@ -27,8 +27,9 @@ those are not the study's.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from ..bench.records import InvalidCellsError, run_records
@@ -89,9 +90,11 @@ def _grid_of(record: dict[str, Any], grids: list[Any], all_plans: dict[str, Any]
     return next((g for g in grids if plans_it(g)), next((g for g in grids if not g.reused), None))
 
 
-def study_records(study: Study) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
+def study_records(study: Study, read: Callable[[Path], list[dict[str, Any]]] = run_records
+                  ) -> tuple[dict[str, list[dict[str, Any]]], list[str]]:
     """Per grid that is not superseded, its cell records; and a line per grid folder with damaged cell files. Grids
-    may share a folder (a trial's arms): each cell goes to the grid that plans it."""
+    may share a folder (a trial's arms): each cell goes to the grid that plans it. ``read`` reads a folder's records
+    (a caller that reads the same folders again passes a memo of :func:`run_records`)."""
     all_plans = plans(study)
     by_folder: dict[str, list[Any]] = {}
     for grid in study.grids():
@@ -102,7 +105,7 @@ def study_records(study: Study) -> tuple[dict[str, list[dict[str, Any]]], list[s
         if all(g.superseded for g in grids):
             continue
         try:
-            records = run_records(study.folder(grids[0]))
+            records = read(study.folder(grids[0]))
         except InvalidCellsError as exc:
             damaged.append(str(exc))
             continue
@@ -119,8 +122,9 @@ def _expected_reads(record: dict[str, Any]) -> int:
     return 0 if evaluation == "tuning" else int(record.get("epochs_run") or 0) if evaluation == "reference" else 1
 
 
-def audit(study: Study) -> AuditResult:
-    """Every check of the module docstring; ``failures`` is empty when the study kept its rules."""
+def audit(study: Study, records: tuple[dict[str, list[dict[str, Any]]], list[str]] | None = None) -> AuditResult:
+    """Every check of the module docstring; ``failures`` is empty when the study kept its rules. ``records``: what
+    :func:`study_records` gives for the study, when the caller has read it already (read here otherwise)."""
     result = AuditResult(rules={k: True for k in ("freeze", "test split", "one CPU type", "config hashes",
                                                   "cells present", "budget", "ensemble members")})
     state = read_freeze(study)
@@ -141,7 +145,7 @@ def audit(study: Study) -> AuditResult:
         if changed or amended or unfrozen:
             result.fail("freeze", f"{study.where}: not the file that was frozen ({state['time']}): "
                                   f"{'; '.join([*changed, *amended, *unfrozen])}")
-    by_grid, damaged = study_records(study)
+    by_grid, damaged = records if records is not None else study_records(study)
     for text in damaged:
         result.fail("config hashes", text)
     everything: list[dict[str, Any]] = []

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from .. import _files
 from ..bench.intervals import records_interval
-from ..bench.records import cell_files, run_records, scan_cells
+from ..bench.records import cell_files, scan_cells
 from ..errors import ResultsError
 from .checks import load_study
 from .publish_rounds import (
@@ -215,7 +215,7 @@ def index_block(ctx: Context) -> str:
             folder = study.folder(grid).resolve()
             shown = folder.relative_to(results).as_posix() if folder.is_relative_to(results) else str(folder)
             # a superseded folder may hold its cell files loose, as a run's cells/ folder does
-            cells = len(run_records(folder)) if cell_files(folder) else len(scan_cells(folder).records)
+            cells = len(ctx.records(folder)) if cell_files(folder) else len(scan_cells(folder).records)
             marks = (", superseded" if grid.superseded else "") + (", reused" if grid.reused else "")
             folders[shown] = f"`{shown}/` ({cells}{marks})"
         frozen = "yes, frozen " + study.spec.freeze.time[:10] if study.spec.freeze else \

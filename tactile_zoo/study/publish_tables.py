@@ -65,6 +65,7 @@ class Context:
     repo: Path
     _cells: dict[tuple[str, str | None], list[dict[str, Any]]] = field(default_factory=dict)
     _reads: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+    _folders: dict[Path, list[dict[str, Any]]] = field(default_factory=dict)
     rendered: dict[tuple[str, str], str] = field(default_factory=dict)  # (page, block) -> its body
 
     def parts(self, page: str, block: str, table: str | None = None) -> list[tuple[Study, Publication]]:
@@ -80,6 +81,15 @@ class Context:
                                f"({', '.join(s.name for s, _ in found)}); one only")
         return found[0] if found else None
 
+    def records(self, folder: Path) -> list[dict[str, Any]]:
+        """The cell records of ``folder`` (:func:`~tactile_zoo.bench.records.run_records`), read once per context:
+        the blocks read the same folders several times over (the committed results, 3x), and decoding and checking
+        the cell files was most of a page check's time. The records are shared, so nothing here may change one."""
+        key = Path(folder).resolve()
+        if key not in self._folders:
+            self._folders[key] = run_records(key) if cell_files(key) else []
+        return self._folders[key]
+
     def grids(self, study: Study, publication: Publication | None = None) -> list[GridSpec]:
         grids = [g for g in study.grids() if not g.superseded]
         return [study.grid(publication.grid)] if publication is not None and publication.grid else grids
@@ -93,7 +103,7 @@ class Context:
             for grid in self.grids(study, publication):
                 plan, folder = plans(study)[grid.name], study.folder(grid)
                 protocol = ((grid.given().get("dataset_kwargs") or {}).get("biotac_dos") or {}).get("protocol")
-                for rec in run_records(folder) if cell_files(folder) else []:
+                for rec in self.records(folder):
                     cfg, stored = plan.configs.get((rec["model"], rec["dataset"])), rec.get("config") or {}
                     if cfg is not None and rec.get("status") == "ok" and revision_gaps(rec) == [] \
                             and recipe_name_of(stored) == cfg.recipe_name \
@@ -105,12 +115,12 @@ class Context:
 
     def left_out(self, study: Study) -> int:
         """How many cell files of the study's grids the tables leave out (not ok, another recipe, older code)."""
-        return sum(len(run_records(study.folder(g))) for g in self.grids(study)) - len(self.cells(study))
+        return sum(len(self.records(study.folder(g))) for g in self.grids(study)) - len(self.cells(study))
 
     def reads(self, study: Study) -> dict[str, dict[str, Any]]:
         """The study's declared reads: the recorded values (computed, not recorded, where a read is not yet)."""
         if study.name not in self._reads:
-            by_grid, _ = study_records(study)
+            by_grid, _ = study_records(study, read=self.records)
             records = {r["cell_id"]: r for recs in by_grid.values() for r in recs}
             folders = {g.name: study.folder(g) for g in study.grids()}
             self._reads[study.name] = compute_reads(study, records, folders, record=False, by_grid=by_grid)

@@ -177,11 +177,12 @@ def write_report(study: Study, out: str | Path | None = None) -> dict[str, Path]
     every declared read whose cells are in; returns the paths written."""
     folder = Path(out) if out is not None else study.results / "study"
     folder.mkdir(parents=True, exist_ok=True)
-    records_by_grid, _ = study_records(study)
+    read = study_records(study)  # once: the reads, the audit and the summary all take these records
+    records_by_grid = read[0]
     records = {r["cell_id"]: r for recs in records_by_grid.values() for r in recs}
     folders = {g.name: study.folder(g) for g in study.grids()}
     reads = compute_reads(study, records, folders, by_grid=records_by_grid)
-    result = audit(study)
+    result = audit(study, records=read)
     summary = summary_table(records_by_grid)
     state = read_freeze(study)
     rules = study.rules()

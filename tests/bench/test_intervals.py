@@ -63,3 +63,28 @@ def test_biotac_folds_share_the_recordings_of_the_unseen_objects() -> None:
     assert by_recording[1] - by_recording[0] > 2 * (by_window[1] - by_window[0])  # 10 units, not 60
     with pytest.raises(ValueError, match="cell 1: 5 groups for 60 samples"):
         bootstrap_accuracy(cells, groups=[groups, groups[:5]], resamples=R)
+
+
+def test_a_repeated_interval_is_remembered_and_any_other_input_is_computed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A page asks for one interval in several places: a repeat (the same runs, resamples and seed) is answered from
+    the memo with the same components; another seed, resample count or run is drawn afresh; the memo is bounded."""
+    from tactile_zoo.bench import intervals
+
+    monkeypatch.setattr(intervals, "_MEMO", type(intervals._MEMO)())
+    monkeypatch.setattr(intervals, "_MEMO_SIZE", 3)
+    drawn = []
+    real = intervals._variance_components
+    monkeypatch.setattr(intervals, "_variance_components", lambda *a: drawn.append(a[1:]) or real(*a))
+    correct = np.array([1.0, 0.0, 1.0, 1.0])
+    runs = [(correct, np.ones(4), b"set"), (correct[::-1].copy(), np.ones(4), b"set")]
+    first = variance_components(runs, resamples=50, seed=0)
+    assert variance_components(runs, resamples=50, seed=0) == first and drawn == [(50, 0)]
+    assert variance_components([(r[0].copy(), r[1].copy(), r[2]) for r in runs], resamples=50, seed=0) == first
+    assert drawn == [(50, 0)]  # equal contents, other arrays: still a repeat
+    variance_components(runs, resamples=50, seed=1)
+    variance_components(runs, resamples=60, seed=0)
+    other = variance_components(runs[:1], resamples=50, seed=0)
+    assert drawn == [(50, 0), (50, 1), (60, 0), (50, 0)] and other != first
+    assert len(intervals._MEMO) == 3
+    variance_components(runs, resamples=50, seed=0)  # pushed out by the three after it: drawn again, equal
+    assert drawn[-1] == (50, 0) and len(drawn) == 5 and variance_components(runs, resamples=50, seed=0) == first

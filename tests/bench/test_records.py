@@ -282,3 +282,30 @@ def test_numbers_no_float_can_hold_are_named_not_a_traceback(reference_run: Path
     path.write_text(json.dumps({**record, "notes": "DEEP"}).replace('"DEEP"', "[" * 100_000 + "]" * 100_000))
     result = read_record(path)
     assert isinstance(result, InvalidCell) and "cannot be read as a cell record" in result.reason
+
+
+@pytest.mark.parametrize(("part", "bad"), [
+    ("targets", True), ("targets", 1.0), ("targets", "1"), ("predictions", False), ("confusion", -1),
+    ("confusion", True), ("steps", -2), ("steps", 2.0)])
+def test_lists_of_integers_refuse_any_other_item(part: str, bad: object) -> None:
+    """The per-sample lists are checked by their items' types at once (fast path): a bool, a float, a string or a
+    negative count among plain ints is still refused, and plain ints (int subclasses, one by one) pass."""
+    import enum
+
+    from tactile_zoo.bench.schema import check_record
+
+    class Label(enum.IntEnum):
+        A = 1
+
+    base = {"cell_id": "c", "status": "ok", "model": "m", "dataset": "d", "fold": 0, "seed": 0, "config_hash": "h",
+            "epochs_run": 3, "best_epoch": 2, "train_seconds": 1.0,
+            "metrics": {"test": {"accuracy": 0.5, "n": 4, "confusion": [[1, 1], [0, 2]]}},
+            "predictions": {"test": {"targets": [0, 1, Label.A, 1], "predictions": [0, 0, 1, 1]}},
+            "prefix": {"fractions": [0.5, 1.0], "accuracy": [0.5, 0.75], "steps": [5, 10]}}
+    assert check_record(base) == []
+    record = json.loads(json.dumps(base))
+    where = {"targets": record["predictions"]["test"]["targets"],
+             "predictions": record["predictions"]["test"]["predictions"],
+             "confusion": record["metrics"]["test"]["confusion"][1], "steps": record["prefix"]["steps"]}[part]
+    where[-1] = bad
+    assert len(check_record(record)) == 1, check_record(record)

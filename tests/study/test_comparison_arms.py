@@ -174,3 +174,30 @@ def test_an_interval_entirely_below_zero_is_a_measured_drop(high: float, met: bo
                                           "decision": {"met": "back", "missed": "stays"}})
     outcome = threshold_outcome(threshold, {"difference": -0.02, "low": -0.04, "high": high, "p_value": 0.9})
     assert outcome is not None and outcome["met"] is met and outcome["bound"] == "< 0"
+
+
+def test_a_report_reads_each_cell_file_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The reads, the audit and the summary of ``write_report`` share one reading of the study's cells: the committed
+    results' cell files hold every test prediction, and decoding them twice was a report's time twice."""
+    study = load_study(_write(tmp_path))
+    seen: list[Path] = []
+    real = records.read_record
+    monkeypatch.setattr(records, "read_record", lambda path: seen.append(Path(path)) or real(path))
+    write_report(study, tmp_path / "report")
+    assert len(seen) == 10 and len(set(seen)) == 10, sorted(seen)  # r3 and r4: 4 each, the rerun grid's 2
+
+
+def test_the_published_tables_read_each_cell_file_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The page blocks count, pool and read the same folders over and over: their context reads each folder once."""
+    from tactile_zoo.study.publish import Context, index_block
+
+    study = load_study(_write(tmp_path))
+    seen: list[Path] = []
+    real = records.read_record
+    monkeypatch.setattr(records, "read_record", lambda path: seen.append(Path(path)) or real(path))
+    ctx = Context(studies={study.name: study}, repo=tmp_path)
+    assert len(ctx.cells(study)) == 10 and ctx.left_out(study) == 0
+    assert "cross" in ctx.reads(study)
+    assert "/r3/` (4, reused)" in index_block(ctx)
+    assert ctx.records(tmp_path / "results" / "r3") is ctx.records(tmp_path / "results" / "r3" / ".." / "r3")
+    assert len(seen) == 10 and len(set(seen)) == 10, sorted(seen)
