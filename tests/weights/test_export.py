@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from export_cases import BATCH, IN_CHILD, SEED, STEPS, child_result
+from export_cases import build_case as _case
 
 import tactile_zoo as tz
 from tactile_zoo import registry
@@ -55,27 +57,6 @@ def _grouped(names: list[str]) -> list[Any]:
     return [pytest.param(name, marks=pytest.mark.xdist_group(f"export_{name}")) for name in names]
 
 
-#: the dataset each model is exported for and its hyper-parameters: both kinds of input (events without globals,
-#: readings with 8 global features), and bins of several frames for every binned model (ConvLSTM and CNN-LSTM bin
-#: ceil(T / max_frames) frames), so that the 7 frames below end in a partial bin
-CASES: dict[str, tuple[str, dict[str, Any]]] = {
-    "sgnet": ("sim_evtouch", {}), "dcnn": ("sim_biotac_slip", {}),
-    "convlstm": ("sim_uskin_textures", {"max_frames": 4}), "cnn_lstm": ("sim_evtouch", {"max_frames": 4}),
-    "tacformer": ("sim_evtouch", {}), "x_tacformer": ("sim_uskin_textures", {}),
-    "deeptactile": ("sim_evtouch", {"bin_size": 2, "block_config": (2, 1), "growth_rate": 8, "init_features": 16,
-                                    "hidden": (32, 32)}),
-}
-#: DeepTactile narrow and one layer shorter (2 + 1 dense layers, with the transition between): the exports unroll
-#: every layer per bin: with the source's widths (3 + 3 layers, 64 + 32 per layer) the export took 38 CPU seconds,
-#: narrow 24, and the narrow one holds every kind of operation. Bins of 2 frames: with bins of 4, its output spike
-#: counters stay 0 over these 7 frames, and the exact comparison of spikes would compare zeros
-#: the multi-barrel SNN small (its read-out has 28M parameters) and short (its convolutions' 201 frames by default
-#: would unroll 11 steps of 8 populations into the graphs)
-CASES["multibarrel"] = ("sim_evtouch", {"readout_channels": 16, "kernel_size": 3, "dilation": 1, "readout_kernel": 2})
-DEFAULT_CASE = ("sim_uskin_textures", {})
-#: small simulator splits (the smallest number of steps each simulator allows, at least 8)
-DATA = {"sim_evtouch": {"num_steps": 20}, "sim_uskin_textures": {"num_steps": 10}, "sim_biotac_slip": {"num_steps": 8}}
-STEPS, BATCH = 7, 2
 #: state tensors that count spikes, compared exactly under onnxruntime too (counters are, for every model)
 SPIKE_STATES = {"sgnet": {"count"}, "tacformer": {"core[2]"}, "x_tacformer": {"core[0][2]"},
                 "deeptactile": {"core[1]"}}
@@ -110,44 +91,23 @@ class Exported:
         return self.result.files[(fmt, graph)]
 
 
-def _case(name: str) -> tuple[torch.nn.Module, Any, torch.Tensor, torch.Tensor | None]:
-    dataset, hparams = CASES.get(name, DEFAULT_CASE)
-    ds = tz.load_dataset(dataset, split="test", n_train_per_class=2, n_test_per_class=1, seed=0, **DATA[dataset])
-    torch.manual_seed(0)
-    model = tz.create_model(name, ds.spec, **hparams)
-    if registry.get_model_entry(name).meta["recipe"]["loss"] == "mse_rate":  # scores are spike rates
-        _calibrate(model, ds.x, ds.g if ds.spec.num_globals else None)
-    x = ds.x[:BATCH, :STEPS].clone()
-    g = ds.g[:BATCH, :STEPS].clone() if ds.spec.num_globals else None
-    return model.eval(), ds.spec, x, g
-
-
-def _calibrate(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None) -> None:
-    """Batch-norm running statistics of one training-mode pass over the samples, as training leaves them: an untrained
-    spiking network evaluated with batch norm's initial statistics (mean 0, variance 1) falls silent (DeepTactile's
-    spike counts would all stay 0, and the exact comparisons would compare zeros). Spiking models only: D-CNN's
-    logits grow after it, and onnxruntime's rounding with them, past the absolute tolerance above."""
-    norms = [m for m in model.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
-    for norm in norms:
-        norm.reset_running_stats()
-        norm.momentum = None  # a cumulative average: after one pass, that pass's statistics
-    if norms:
-        with torch.no_grad():
-            model.train()(x, g)
-
-
 @pytest.fixture(scope="session")
 def exported(tmp_path_factory: pytest.TempPathFactory) -> Any:
     """``exported(name)``: the model, its inputs and its export (made once per model and worker: session scope, as a
-    worker may run other modules' tests between two of this module's)."""
+    worker may run other modules' tests between two of this module's). The multi-barrel SNN is exported in a child
+    process (tests/weights/export_cases.py: the same model, bit for bit), whose output test_export_quiet.py checks."""
     done: dict[str, Exported] = {}
     formats = ("torchscript", "onnx") if ONNX else ("torchscript",)
 
     def get(name: str) -> Exported:
         if name not in done:
             model, spec, x, g = _case(name)
-            result = export_model(model, tmp_path_factory.mktemp(name), name=name, spec=spec, formats=formats,
-                                  batch=BATCH, steps=STEPS, seed=3)
+            if name in IN_CHILD:
+                files, manifest_path = child_result(name, formats, tmp_path_factory.mktemp(f"{name}_child"))
+                result = ExportResult(files, json.loads(manifest_path.read_text()), manifest_path)
+            else:
+                result = export_model(model, tmp_path_factory.mktemp(name), name=name, spec=spec, formats=formats,
+                                      batch=BATCH, steps=STEPS, seed=SEED)
             done[name] = Exported(name, model, spec, x, g, result)
         return done[name]
 
