@@ -20,6 +20,7 @@ BENCHMARKS = {
     "progress_overhead": "progress_overhead",
     "dcnn_memory": "dcnn_memory",
     "predict_memory": "predict_memory",
+    "multibarrel_cost": "multibarrel_cost",
     "vs_pinned": "vs_pinned",
     "profile_models": "profile_models",
     "grid_size": "grid_size",

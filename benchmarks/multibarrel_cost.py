@@ -1,0 +1,115 @@
+"""The cost of an Ev-Objects ``zoo`` cell of the multi-barrel SNN, from measured epochs (issue 53).
+
+A cell of the ``zoo`` recipe trains 200 epochs of one optimiser step each: the batch of 600 holds Ev-Objects' 468
+training recordings whole, run as micro-batches of 120 (``micro_batch_size``), then scores the 108 validation
+recordings. Every epoch does the same work, so a cell costs about ``max_epochs`` times one epoch; the first epoch
+carries the allocator's warm-up, so the estimate takes the last measured epoch (``cpu_hours`` in the ``cell`` row),
+and the CSV keeps every epoch.
+
+One fresh child process on 1 torch thread (as the bench cells run) builds the model with seed 0 and runs
+``tz.fit(..., recipe="zoo", epochs=N)`` on the real train and validation splits: ``cpu_s`` are the child's CPU
+seconds between two epochs' ends (training and validation), ``wall_s`` the epoch's wall seconds as ``fit`` records
+them, and ``peak_rss_mb`` the child's resident-set high-water mark over its life. Targets (issue 53): a cell at most
+4 CPU-hours, a peak of at most 16 GB. CPU seconds are only a cost on quiet cores: the ``load`` column is the 1-minute
+load average before and after the child ran.
+
+Needs Ev-Objects (``--root``, or ``../shared/data``): the cost of the model's columns depends on the spikes, so
+synthetic events would measure something else. Run it alone: ``python -m benchmarks.multibarrel_cost [--epochs N]``
+(about 3 minutes of one core for 2 epochs, 11-12 GB); it writes ``results/multibarrel_cost.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from .common import REPO, BenchmarkSkipped, Context, data_root, model_recipe, write_csv
+
+NAME = "multibarrel_cost"
+TITLE = "multi-barrel SNN: CPU seconds per `zoo` epoch on Ev-Objects and the cell's CPU-hours; peak RSS"
+COLUMNS = ("epoch", "wall_s", "cpu_s", "cpu_hours", "max_epochs", "batch_size", "micro_batch_size", "n_train",
+           "n_val", "peak_rss_mb", "load", "target")
+TARGET = "a cell <= 4 CPU-hours, peak <= 16 GB (issue 53)"
+
+
+def _child(root: str, epochs: int) -> dict[str, Any]:
+    """Train ``epochs`` epochs of the ``zoo`` recipe in this (fresh) process; per epoch its wall and CPU seconds."""
+    import resource
+    import time
+
+    import torch
+
+    torch.set_num_threads(1)
+    import tactile_zoo as tz
+    from tactile_zoo.registry.lookup import load_dataset
+
+    train = load_dataset("ev_objects", root=root, split="train")
+    val = load_dataset("ev_objects", root=root, split="val")
+    ends: list[tuple[int, float, float]] = []  # (epoch, fit's wall seconds, process CPU seconds at its end)
+    start = time.process_time()
+    result = tz.fit("multibarrel", train, val_dataset=val, recipe="zoo", epochs=epochs, seed=0, device="cpu",
+                    progress=False, callback=lambda row: ends.append((row["epoch"], row["seconds"],
+                                                                      time.process_time())))
+    cpu = [end - before for (_, _, end), before in zip(ends, [start, *(e for _, _, e in ends)])]
+    return {"epochs": [{"epoch": epoch, "wall_s": wall, "cpu_s": c} for (epoch, wall, _), c in zip(ends, cpu)],
+            "max_epochs": model_recipe("multibarrel").max_epochs,  # the registered cell's (fit's is ``epochs``)
+            "batch_size": result.recipe.batch_size,
+            "micro_batch_size": result.recipe.micro_batch_size, "n_train": result.n_train, "n_val": result.n_val,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def _load() -> str:
+    return f"{os.getloadavg()[0]:.2f}" if hasattr(os, "getloadavg") else ""
+
+
+def run(ctx: Context, epochs: int | None = None) -> Path:
+    root = data_root(ctx)
+    if root is None or not (root / "ev_objects" / "raw" / "Ev-Objects.zip").exists():
+        raise BenchmarkSkipped("needs Ev-Objects (--root DATA holding ev_objects/raw/Ev-Objects.zip): the columns' "
+                               "cost depends on the recordings' spikes")
+    epochs = epochs if epochs is not None else (1 if ctx.quick else 2)
+    env = {**os.environ, "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    before = _load()
+    proc = subprocess.run([sys.executable, "-m", "benchmarks.multibarrel_cost", "--child",
+                           json.dumps({"root": str(root), "epochs": epochs})],
+                          cwd=REPO, env=env, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"the child failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    load = f"{before} -> {_load()}"
+    shared = {k: out[k] for k in ("max_epochs", "batch_size", "micro_batch_size", "n_train", "n_val")}
+    rows: list[dict[str, Any]] = [{"case": "epoch", **e, **shared, "load": load} for e in out["epochs"]]
+    last = out["epochs"][-1]
+    rows.append({"case": "cell", "epoch": last["epoch"], "cpu_s": last["cpu_s"],
+                 "cpu_hours": last["cpu_s"] * out["max_epochs"] / 3600, **shared,
+                 "peak_rss_mb": out["peak_rss_mb"], "load": load, "target": TARGET,
+                 "note": f"max_epochs x the last of {len(out['epochs'])} measured epochs"})
+    ctx.log(f"  {len(out['epochs'])} epochs: CPU s {[round(e['cpu_s'], 1) for e in out['epochs']]}; a cell "
+            f"{rows[-1]['cpu_hours']:.2f} CPU-hours; peak {out['peak_rss_mb']:.0f} MB; load {load}")
+    return write_csv(ctx, NAME, COLUMNS, rows)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=TITLE)
+    parser.add_argument("--root", type=Path, default=None)
+    parser.add_argument("--epochs", type=int, default=None, help="epochs to measure (default 2; --quick 1)")
+    parser.add_argument("--quick", action="store_true", help="1 epoch")
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        job = json.loads(args.child)
+        print(json.dumps(_child(job["root"], job["epochs"])))
+        return
+    ctx = Context(threads=1, quick=args.quick, root=args.root, **({"out": args.out} if args.out else {}))
+    print(run(ctx, epochs=args.epochs).read_text())
+
+
+if __name__ == "__main__":
+    main()

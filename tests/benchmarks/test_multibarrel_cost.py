@@ -1,0 +1,55 @@
+"""benchmarks.multibarrel_cost: a cell's CPU-hours are the registered epochs times the last measured epoch, each
+epoch's CPU seconds are the child's between two epochs' ends; without Ev-Objects it skips, saying why. The child
+(minutes of training, 11-12 GB) is not run here: its answer is given, as the real child prints it."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
+    sys.path.insert(0, str(REPO))
+
+from benchmarks import BENCHMARKS, common, multibarrel_cost  # noqa: E402
+
+
+def test_the_cell_costs_its_epochs_times_the_last_measured_epoch(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "data" / "ev_objects" / "raw").mkdir(parents=True)
+    (tmp_path / "data" / "ev_objects" / "raw" / "Ev-Objects.zip").touch()
+    answer = {"epochs": [{"epoch": 1, "wall_s": 120.0, "cpu_s": 90.0}, {"epoch": 2, "wall_s": 80.0, "cpu_s": 72.0}],
+              "max_epochs": 200, "batch_size": 600, "micro_batch_size": 120, "n_train": 468, "n_val": 108,
+              "peak_rss_mb": 11800.0}
+    asked: list[Any] = []
+    real = subprocess.run
+
+    def child(argv: list[str], **kwargs: Any) -> subprocess.CompletedProcess:
+        if "benchmarks.multibarrel_cost" not in argv:  # the CSV's environment columns (git, the CPU) run for real
+            return real(argv, **kwargs)
+        asked.append(json.loads(argv[-1]))
+        assert argv[1:4] == ["-m", "benchmarks.multibarrel_cost", "--child"] and kwargs["env"]["OMP_NUM_THREADS"] == "1"
+        return subprocess.CompletedProcess(argv, 0, "a log line\n" + json.dumps(answer) + "\n", "")
+
+    monkeypatch.setattr(multibarrel_cost.subprocess, "run", child)
+    ctx = common.Context(threads=1, out=tmp_path, root=tmp_path / "data", log=lambda _msg: None)
+    with multibarrel_cost.run(ctx).open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert asked == [{"root": str(tmp_path / "data"), "epochs": 2}]
+    assert [(r["case"], r["epoch"], r["cpu_s"]) for r in rows] == [("epoch", "1", "90.0"), ("epoch", "2", "72.0"),
+                                                                  ("cell", "2", "72.0")]
+    assert float(rows[-1]["cpu_hours"]) == 4.0 and rows[-1]["peak_rss_mb"] == "11800.0"  # 72 s x 200 epochs
+    assert BENCHMARKS["multibarrel_cost"] == "multibarrel_cost"
+
+
+def test_without_ev_objects_it_skips_naming_what_it_needs(tmp_path: Path) -> None:
+    ctx = common.Context(threads=1, out=tmp_path, root=tmp_path, log=lambda _msg: None)
+    with pytest.raises(common.BenchmarkSkipped, match="needs Ev-Objects"):
+        multibarrel_cost.run(ctx)
+    assert not list(tmp_path.iterdir())
