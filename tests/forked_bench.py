@@ -9,18 +9,25 @@ command line through ``tactile_zoo.cli.main``, as ``python -m tactile_zoo.cli`` 
 plugin module such as tests/reliability/kill_points.py is imported fresh under it. It is a process of its own, with
 its own pid, claims and files: SIGKILL ends it where it is (exit status -9), and what it wrote stays written.
 
-The tests of how a bench *starts* and of the signals a terminal sends (SIGINT, SIGTERM) keep real ``python -m``
-children (tests/bench/conftest.py ``bench_subprocess``).
+A forked child has the signal dispositions of a new interpreter (SIGINT raises ``KeyboardInterrupt``, SIGTERM and
+SIGQUIT are the defaults) and, when ``PYTHONFAULTHANDLER`` is set, faulthandler on, so the tests of SIGINT and
+SIGTERM use it too (tests/bench/test_process_faults.py). :func:`fork_python` runs a script as ``python -c`` would.
+:func:`dask_forkserver` lets the Dask nannies of a ``LocalCluster`` in the test process fork their worker processes
+from the same server. The tests of how a bench *starts* keep real ``python -m`` children (tests/bench/conftest.py
+``bench_subprocess``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
 import multiprocessing
 import multiprocessing.forkserver
 import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 #: what a bench child imports before its first cell is written
@@ -62,10 +69,11 @@ class ForkedBench:
         return self.log.with_suffix(".out").read_text(), self.log.with_suffix(".err").read_text()
 
 
-def _bench_child(argv: list[str], log: str, env: dict[str, str]) -> None:
-    """In the forked child: SIGINT and SIGQUIT as a fresh interpreter has them, ``env``, stdout and stderr to the log
-    files, then ``tactile-zoo ARGV``; the process ends with its exit code."""
+def _child_setup(log: str, env: dict[str, str]) -> None:
+    """In the forked child: SIGINT, SIGTERM and SIGQUIT as a fresh interpreter has them, ``env``, stdout and stderr
+    to the log files, faulthandler as ``PYTHONFAULTHANDLER`` asks, and a resource tracker of its own."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGQUIT, signal.SIG_DFL)
     os.environ.update(env)
     for fd, suffix in ((1, ".out"), (2, ".err")):
@@ -82,15 +90,26 @@ def _bench_child(argv: list[str], log: str, env: dict[str, str]) -> None:
     if tracker._fd is not None:
         os.close(tracker._fd)
     tracker._fd = tracker._pid = None
+    if os.environ.get("PYTHONFAULTHANDLER"):  # SIGABRT then prints every thread's stack (conftest.hung_stacks)
+        faulthandler.enable()
+
+
+def _bench_child(argv: list[str], log: str, env: dict[str, str]) -> None:
+    """In the forked child: :func:`_child_setup`, then ``tactile-zoo ARGV``; the process ends with its exit code.
+
+    It ends as an interpreter does (``SystemExit``: :mod:`multiprocessing` runs its exit functions, so the
+    semaphores of a pool that was shut down are released, not reported leaked by the resource tracker)."""
+    _child_setup(log, env)
     from tactile_zoo.cli import main
 
-    try:
-        code = main(argv)
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    sys.exit(main(argv))
+
+
+def _python_child(source: str, argv: list[str], log: str, env: dict[str, str]) -> None:
+    """In the forked child: :func:`_child_setup`, then ``source`` as ``python -c SOURCE ARGV`` runs it."""
+    _child_setup(log, env)
+    sys.argv = ["-c", *argv]
+    exec(compile(source, "<string>", "exec"), {"__name__": "__main__"})  # noqa: S102 - the test's own script
 
 
 def _server() -> multiprocessing.context.BaseContext:
@@ -116,3 +135,26 @@ def fork_bench(argv: list[str], log: Path, **env: str) -> ForkedBench:
                                 name=f"bench-{Path(log).name}")
     process.start()
     return ForkedBench(process, Path(log))
+
+
+def fork_python(source: str, argv: list[str], log: Path, **env: str) -> ForkedBench:
+    """``python -c SOURCE ARGV`` in a child forked from the warm server (the package already imported), with ``env``
+    added to its environment; its stdout and stderr are in ``<log>.out`` and ``<log>.err``."""
+    process = _server().Process(target=_python_child, args=(source, list(argv), str(log),
+                                                            {"OMP_NUM_THREADS": "1", **env}),
+                                name=f"python-{Path(log).name}")
+    process.start()
+    return ForkedBench(process, Path(log))
+
+
+@contextlib.contextmanager
+def dask_forkserver() -> Iterator[None]:
+    """Within the block, the Dask nannies this process starts (``LocalCluster(processes=True)``, also the one
+    ``--executor dask`` starts) fork their worker processes from the warm server (Dask's ``forkserver`` method)
+    instead of spawning new interpreters that import torch and the package on their first cell. The server is
+    started first, so Dask's own preload list (set on its first use of the method) never replaces :data:`PRELOAD`."""
+    import dask
+
+    _server()
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        yield

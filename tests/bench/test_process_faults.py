@@ -1,7 +1,8 @@
 """Faults with real processes: SIGKILL mid-run then resume, and two bench processes on one output folder.
 
-The SIGKILL and two-processes children are forked from a warm server (tests/forked_bench.py: processes of their own,
-without an interpreter's start-up); the SIGINT and SIGTERM children are real ``python -m tactile_zoo.cli`` ones."""
+Every child is forked from a warm server (tests/forked_bench.py: processes of their own, with a new interpreter's
+signal dispositions, without its start-up): the SIGKILL, two-processes, SIGINT and SIGTERM bench children, and the
+killed run of the pool-exit test. The pool workers of a process bench are spawned by the product, as ever."""
 
 from __future__ import annotations
 
@@ -17,8 +18,8 @@ from typing import Any
 
 import pytest
 import tiny_zoo
-from conftest import bench_subprocess, hung_stacks, read_board, run_cli
-from forked_bench import fork_bench
+from conftest import hung_stacks, read_board, run_cli
+from forked_bench import fork_bench, fork_python
 
 from tactile_zoo.bench.config import BenchConfig
 from tactile_zoo.bench.runner import run_bench
@@ -126,23 +127,25 @@ def _alive(pid: int) -> bool:
         state = Path(f"/proc/{pid}/status").read_text()
     except FileNotFoundError:
         return False
-    return "\\nState:\\tZ" not in state  # a zombie has exited; only its parent's wait() is missing
+    return "\nState:\tZ" not in state  # a zombie has exited; only its parent's wait() is missing
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads process states from /proc")
 def test_pool_workers_exit_when_the_run_is_killed(tmp_path: Path) -> None:
     """SIGKILL leaves the run no chance to shut its pool down: the worker, busy in a 300 s cell, must leave by
-    itself instead of training on for nobody."""
-    import subprocess
-    import sys
-
+    itself instead of training on for nobody. The run is forked from the warm server; its pool worker is spawned."""
     from tactile_zoo.bench.executors import PARENT_POLL_S
 
     started = tmp_path / "started"
-    run = subprocess.Popen([sys.executable, "-c", _ORPHAN_SCRIPT, str(started)], stdout=subprocess.PIPE, text=True)
+    run = fork_python(_ORPHAN_SCRIPT, [str(started)], tmp_path / "run")
     try:
-        worker = int(run.stdout.readline())
-        assert _alive(worker)
+        deadline = time.time() + 120
+        while not (printed := (tmp_path / "run.out").read_text() if (tmp_path / "run.out").exists() else ""):
+            assert run.poll() is None, run.communicate()
+            assert time.time() < deadline, "the run never printed its worker's pid"
+            time.sleep(0.01)
+        worker = int(printed)
+        assert worker != run.pid and _alive(worker)
         deadline = time.time() + 60
         while not started.exists() and time.time() < deadline:
             time.sleep(0.01)
@@ -152,7 +155,7 @@ def test_pool_workers_exit_when_the_run_is_killed(tmp_path: Path) -> None:
         time.sleep(1.2 * PARENT_POLL_S)
         assert _alive(worker)
         run.send_signal(signal.SIGKILL)
-        run.wait(timeout=30)
+        assert run.wait(timeout=30) == -signal.SIGKILL
         deadline = time.time() + 60  # generous: it polls every second
         while _alive(worker) and time.time() < deadline:
             time.sleep(0.1)
@@ -174,9 +177,10 @@ def test_an_interrupted_process_bench_leaves_no_cell_listed_as_running(tmp_path:
     from tactile_zoo.cli import main
 
     out = tmp_path / "run"
-    proc = bench_subprocess(["--models", "tiny_slow", "--datasets", "tiny_blobs", "--seeds", "0", "--threads", "1",
-                             "--no-plots", "--executor", "process", "--workers", "1", "--epochs", "5000",
-                             "--set", "patience=null", "--out", str(out)])
+    proc = fork_bench(["bench", "--plugin-module", "tiny_zoo", "--models", "tiny_slow", "--datasets", "tiny_blobs",
+                       "--seeds", "0", "--threads", "1", "--no-plots", "--executor", "process", "--workers", "1",
+                       "--epochs", "5000", "--set", "patience=null", "--out", str(out)], tmp_path / "child",
+                      PYTHONFAULTHANDLER="1")
     try:
         deadline = time.time() + 240
         while not (states := running_cells(out)) and time.time() < deadline:
@@ -213,10 +217,10 @@ def test_sigterm_stops_a_process_bench_as_ctrl_c_does(tmp_path: Path, capsys: py
     from tactile_zoo.cli import main
 
     out = tmp_path / "run"
-    proc = bench_subprocess(["--models", "tiny_slow,tiny_mlp", "--datasets", "tiny_blobs", "--seeds", "0",
-                             "--threads", "1", "--no-plots", "--executor", "process", "--workers", "2",
-                             "--set", "tiny_slow:max_epochs=5000", "--set", "tiny_slow:patience=null",
-                             "--out", str(out)])
+    proc = fork_bench(["bench", "--plugin-module", "tiny_zoo", "--models", "tiny_slow,tiny_mlp", "--datasets",
+                       "tiny_blobs", "--seeds", "0", "--threads", "1", "--no-plots", "--executor", "process",
+                       "--workers", "2", "--set", "tiny_slow:max_epochs=5000", "--set", "tiny_slow:patience=null",
+                       "--out", str(out)], tmp_path / "child", PYTHONFAULTHANDLER="1")
     try:
         deadline = time.time() + 240
         while time.time() < deadline:  # tiny_mlp finished (8 epochs), tiny_slow still training (5000)
