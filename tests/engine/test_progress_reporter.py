@@ -7,13 +7,13 @@ import io
 import logging
 import os
 import select
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
 import torch
+from forked_bench import fork_python
 
 import tactile_zoo as tz
 from tactile_zoo.cli import main
@@ -26,24 +26,73 @@ REPO = TESTS.parent
 TRAIN = ["train", "tiny_mlp", "tiny_blobs", "--plugin-module", "tiny_zoo", "--epochs", "2"]
 
 
-def _env() -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(TESTS), os.environ.get("PYTHONPATH", "")]),
-            "OMP_NUM_THREADS": "1"}
-
-
 def _epoch_lines(err: str) -> list[str]:
     return [line for line in err.splitlines() if line.startswith("train TinyMLP on tiny_blobs: ")]
 
 
-def test_piped_train_logs_a_line_per_epoch_and_q_silences_them(capsys: pytest.CaptureFixture) -> None:
+# ``tactile-zoo TRAIN`` with stderr (``"2"``) or stdout and stderr (``"1 2"``) on the file that $TZ_TEST_STDIO names
+# (a FIFO: a pipe; a pseudo-terminal's follower: a terminal), in a child forked from the warm server of
+# tests/forked_bench.py (torch, the package and the tiny zoo imported once), not a new interpreter (5-6 s each)
+_CHILD = """
+import os, sys
+fd = os.open(os.environ["TZ_TEST_STDIO"], os.O_WRONLY | os.O_NOCTTY)
+for target in map(int, os.environ["TZ_TEST_FDS"].split()):
+    os.dup2(fd, target)
+os.close(fd)
+# new text streams on them, buffered as a new interpreter's are (line by line on a terminal)
+sys.stdout, sys.stderr = open(1, "w", closefd=False), open(2, "w", closefd=False)
+from tactile_zoo.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _run_on(path: Path, leader: int, keep: int, fds: str, log: Path, timeout: float = 300) -> tuple[int, str]:
+    """``tactile-zoo TRAIN`` in a forked child writing on ``path``; its exit status and what this process read from
+    ``leader``. ``keep``, this process's own descriptor of ``path``, stays open until the child ends, so that the
+    reads wait for the child rather than end before it has opened its side."""
+    child = fork_python(_CHILD, TRAIN, log, TZ_TEST_STDIO=str(path), TZ_TEST_FDS=fds,
+                        PYTHONPATH=os.pathsep.join([str(REPO), str(TESTS)]))
+    chunks: list[bytes] = []
+
+    def read(wait: float) -> None:  # until nothing comes for ``wait`` seconds, or the other side is closed
+        while select.select([leader], [], [], wait)[0]:
+            try:
+                data = os.read(leader, 65536)
+            except OSError:  # a terminal whose other side is closed
+                return
+            if not data:
+                return
+            chunks.append(data)
+
+    deadline = time.monotonic() + timeout
+    try:
+        while child.poll() is None and time.monotonic() < deadline:
+            read(0.2)
+        code = child.wait(timeout=60)
+        os.close(keep)
+        keep = -1
+        read(1.0)
+    finally:
+        child.kill()
+        for fd in (keep, leader):
+            if fd >= 0:
+                os.close(fd)
+    return code, b"".join(chunks).decode("utf-8", "replace")
+
+
+def test_piped_train_logs_a_line_per_epoch_and_q_silences_them(tmp_path: Path, capsys: pytest.CaptureFixture
+                                                               ) -> None:
     """``train`` printed nothing until it ended. Piped (no terminal), each epoch is one plain line on stderr, with no
     carriage return; ``-q`` (the command's, or tactile-zoo's before it) leaves only the result."""
-    cmd = [sys.executable, "-m", "tactile_zoo.cli", *TRAIN]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=_env())
-    assert proc.returncode == 0, proc.stderr
-    lines = _epoch_lines(proc.stderr)
-    assert [line.split(": ")[1].split(",")[0] for line in lines] == ["1/2 epochs", "2/2 epochs"], proc.stderr
-    assert "\r" not in proc.stderr and "val_acc" in lines[0]
+    fifo = tmp_path / "stderr"
+    os.mkfifo(fifo)
+    leader = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)
+    code, err = _run_on(fifo, leader, os.open(fifo, os.O_WRONLY), "2", tmp_path / "train")
+    assert code == 0, err
+    lines = _epoch_lines(err)
+    assert [line.split(": ")[1].split(",")[0] for line in lines] == ["1/2 epochs", "2/2 epochs"], err
+    assert "\r" not in err and "val_acc" in lines[0]
+    assert "test accuracy" in (tmp_path / "train.out").read_text()  # stdout was not on the pipe
     in_process = [a for a in TRAIN if a not in ("--plugin-module", "tiny_zoo")]  # the tiny zoo is registered here
     for argv in ([*in_process, "-q"], ["-q", *in_process]):
         assert main(argv) == 0
@@ -51,42 +100,19 @@ def test_piped_train_logs_a_line_per_epoch_and_q_silences_them(capsys: pytest.Ca
         assert captured.err == "" and "test accuracy" in captured.out
 
 
-def _run_in_pty(cmd: list[str], timeout: float = 300) -> tuple[int, str]:
-    """Run ``cmd`` with stdout and stderr on a new pseudo-terminal, as from a terminal window (whose size the kernel
-    reports as 0 x 0: nobody set it, as under ``script`` or ``docker exec -t``)."""
+@pytest.mark.skipif(sys.platform == "win32", reason="needs a pseudo-terminal")
+def test_train_on_a_terminal_shows_a_bar(tmp_path: Path) -> None:
+    """On a terminal the epochs are a live bar (redrawn with carriage returns), not log lines. tqdm hid every bar on
+    a terminal reporting 0 rows; the bar is drawn there too (a new pseudo-terminal, whose size the kernel reports
+    as 0 x 0: nobody set it, as under ``script`` or ``docker exec -t``)."""
     import pty
 
     leader, follower = pty.openpty()
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=follower, stderr=follower, env=_env(),
-                            close_fds=True)
-    os.close(follower)
-    chunks, deadline = [], time.monotonic() + timeout
-    try:
-        while time.monotonic() < deadline:
-            ready, _, _ = select.select([leader], [], [], 0.2)
-            if ready:
-                try:
-                    data = os.read(leader, 65536)
-                except OSError:  # the terminal closed: the command ended
-                    break
-                if not data:
-                    break
-                chunks.append(data)
-            elif proc.poll() is not None:
-                break
-    finally:
-        os.close(leader)
-    return proc.wait(timeout=60), b"".join(chunks).decode("utf-8", "replace")
-
-
-@pytest.mark.skipif(sys.platform == "win32", reason="needs a pseudo-terminal")
-def test_train_on_a_terminal_shows_a_bar() -> None:
-    """On a terminal the epochs are a live bar (redrawn with carriage returns), not log lines. tqdm hid every bar on
-    a terminal reporting 0 rows; the bar is drawn there too."""
-    code, text = _run_in_pty([sys.executable, "-m", "tactile_zoo.cli", *TRAIN])
+    code, text = _run_on(Path(os.ttyname(follower)), leader, follower, "1 2", tmp_path / "train")
     assert code == 0, text
     assert "\r" in text and "|" in text and "train TinyMLP on tiny_blobs" in text and "/2" in text, text
     assert "epochs, loss" not in text  # no log lines
+    assert "test accuracy" in text  # stdout was on the terminal too
 
 
 def test_progress_degrades_to_log_lines_and_can_be_turned_off(caplog: pytest.LogCaptureFixture) -> None:
