@@ -9,8 +9,6 @@ import json
 import os
 import resource
 import stat
-import subprocess
-import sys
 import textwrap
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,12 +18,12 @@ import numpy as np
 import pytest
 import tiny_zoo
 import torch
+from forked_bench import fork_python
 
 from tactile_zoo.cli import main
 from tactile_zoo.engine import load_checkpoint
 from tactile_zoo.engine.checkpoint import is_checkpoint
 
-TESTS = Path(__file__).resolve().parent
 TRAIN = ["train", "tiny_mlp", "tiny_blobs", "--plugin-module", "tiny_zoo", "--epochs", "1", "-q"]
 
 
@@ -93,11 +91,13 @@ def test_save_writes_a_new_file_and_replaces_its_own_checkpoint(tmp_path: Path, 
 _SPLIT = "--- next run ---"
 
 
-def _limited(runs: list[tuple[list[str], int | None]]) -> tuple[list[int], list[str], list[list[Any]]]:
-    """Each ``tactile-zoo ARGV`` of ``runs`` in turn, in one subprocess (an interpreter's start-up is most of a run's
-    cost), its files not allowed to grow beyond ``limit`` bytes (a full disk, as ``ulimit -f`` makes one; Python
-    ignores SIGXFSZ, so a write past it fails with EFBIG), or without a limit where it is None. Each run's exit
-    status, its stderr, and the names in the ``--save`` path's folder and that file's sha256 after it."""
+def _limited(runs: list[tuple[list[str], int | None]], log: Path) -> tuple[list[int], list[str], list[list[Any]]]:
+    """Each ``tactile-zoo ARGV`` of ``runs`` in turn, in one child process forked from the warm server of
+    tests/forked_bench.py (the package imported: an interpreter's start-up is most of a run's cost), its files not
+    allowed to grow beyond ``limit`` bytes (a full disk, as ``ulimit -f`` makes one; Python ignores SIGXFSZ, so a
+    write past it fails with EFBIG), or without a limit where it is None. Each run's exit status, its stderr, and the
+    names in the ``--save`` path's folder and that file's sha256 after it. The child's stdout and stderr are files
+    (``log``, in another folder), under the limit too: what it prints stays far below 4 KiB."""
     code = textwrap.dedent(f"""
         import hashlib, json, os, resource, sys
         from tactile_zoo.cli import main
@@ -110,22 +110,27 @@ def _limited(runs: list[tuple[list[str], int | None]]) -> tuple[list[int], list[
             print(json.dumps([code, sorted(os.listdir(os.path.dirname(save))), digest]), flush=True)
             print({_SPLIT!r}, file=sys.stderr, flush=True)
     """)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")])),
-           "OMP_NUM_THREADS": "1"}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
-    assert done.returncode == 0, done.stderr
-    results = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("[")]
-    errors = done.stderr.split(_SPLIT + "\n")
-    assert len(results) == len(runs) and len(errors) == len(runs) + 1 and errors[-1] == "", done
+    child = fork_python(code, [], log)
+    try:
+        status = child.wait(timeout=300)
+    finally:
+        child.kill()
+    out, err = child.communicate()
+    assert status == 0, err
+    results = [json.loads(line) for line in out.splitlines() if line.startswith("[")]
+    errors = err.split(_SPLIT + "\n")
+    assert len(results) == len(runs) and len(errors) == len(runs) + 1 and errors[-1] == "", (out, err)
     return [r[0] for r in results], errors[:-1], [r[1:] for r in results]
 
 
 @pytest.mark.skipif(not hasattr(resource, "RLIMIT_FSIZE"), reason="no file size limit on this platform")
-def test_a_full_disk_is_one_line_naming_the_path_and_leaves_nothing(tmp_path: Path) -> None:
+def test_a_full_disk_is_one_line_naming_the_path_and_leaves_nothing(tmp_path: Path,
+                                                                   tmp_path_factory: pytest.TempPathFactory) -> None:
     path = tmp_path / "model.pt"
     codes, errors, listings = _limited([([*TRAIN, "--save", str(path)], 4096),
                                         ([*TRAIN, "--save", str(path)], None),
-                                        ([*TRAIN, "--save", str(path), "--seed", "1"], 4096)])  # replacing its own
+                                        ([*TRAIN, "--save", str(path), "--seed", "1"], 4096)],  # replacing its own
+                                       tmp_path_factory.mktemp("full-disk-logs") / "child")
     assert codes[0] == 2, errors[0]
     assert errors[0].splitlines() == [f"tactile-zoo: error: --save {path}: cannot write the checkpoint (File too "
                                       f"large); nothing was written there"]
