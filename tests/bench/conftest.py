@@ -82,9 +82,14 @@ def dask_cluster() -> Iterator[object]:
     """Two single-threaded Dask worker processes on 127.0.0.1, started once per test process for the tests that run
     a grid on a cluster given by ``--scheduler`` (each worker imports torch and the package once, on its first
     cell, instead of once per test). The tests of the cluster that ``--executor dask`` starts itself, and of a
-    worker's death, have their own."""
+    worker's death, have their own. The workers are forked from the warm server of tests/forked_bench.py (torch and
+    the package imported once), not spawned as new interpreters."""
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    from forked_bench import dask_forkserver
+
+    with dask_forkserver():
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    with cluster:
         yield cluster
 
 

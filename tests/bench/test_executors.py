@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 from conftest import SMALL, read_board, run_cli
+from forked_bench import dask_forkserver
 
 #: these tests share the session's reference run: one xdist worker computes it once
 pytestmark = pytest.mark.xdist_group("tiny_bench")
@@ -42,8 +43,9 @@ def test_dask_local_cluster_with_two_workers_matches_local(dask_cluster: Any, re
 def test_dask_local_cluster_with_dashboard_and_plugin_shipping(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     pytest.importorskip("distributed")
     out = tmp_path / "run"
-    assert run_cli(["--models", "tiny_mlp", "--datasets", "tiny_blobs", "--no-plots", "--executor", "dask",
-                    "--workers", "1", "--retries", "2", "--dashboard", "127.0.0.1:0", "--out", str(out)]) == 0
+    with dask_forkserver():  # the cluster's worker forked from the warm server, not a new interpreter
+        assert run_cli(["--models", "tiny_mlp", "--datasets", "tiny_blobs", "--no-plots", "--executor", "dask",
+                        "--workers", "1", "--retries", "2", "--dashboard", "127.0.0.1:0", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "1 worker threads, retries 2, dashboard http://127.0.0.1:" in text
 
