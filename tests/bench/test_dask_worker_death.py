@@ -1,7 +1,10 @@
 """A Dask worker that dies inside a cell is survived: the cell is rescheduled, recorded once, with ``attempts == 2``.
 
 A real cluster on 127.0.0.1: ``dask scheduler`` and two ``dask worker`` processes (one thread each, under nannies,
-which restart a killed worker). A plugin module, shipped to the workers by ``--plugin-module``, registers an epoch
+which restart a killed worker). Each nanny forks its worker processes from a ``forkserver`` that has imported
+distributed, torch and the package once (:data:`NANNY_PRELOAD`), so the worker a death restarts is running in a
+second, not after a new interpreter's imports; the plugin module is still never on the workers' path, it comes by
+upload. A plugin module, shipped to the workers by ``--plugin-module``, registers an epoch
 listener (:func:`tactile_zoo.bench.progress.add_listener`) that SIGKILLs its own worker process right after epoch 2
 of one chosen cell, the first time only: the marker file it creates with ``O_EXCL`` says it already happened. So the
 death falls on an epoch boundary, not on a timer.
@@ -66,6 +69,19 @@ progress.add_listener(_die_once)
 '''
 
 
+#: run in each nanny before it starts its worker: worker processes forked from a warm server (Dask's own
+#: ``forkserver`` method; ``get_mp_context`` sets its preload list once, so it is called first, then the list replaced)
+NANNY_PRELOAD = """
+import multiprocessing
+
+from distributed.utils import get_mp_context
+
+assert get_mp_context() is multiprocessing.get_context("forkserver")
+multiprocessing.get_context("forkserver").set_forkserver_preload(
+    ["distributed", "tactile_zoo.bench.executors", "torch._dynamo", "sklearn.metrics"])
+"""
+
+
 def _stop(procs: list[subprocess.Popen]) -> None:
     for proc in procs:
         if proc.poll() is None:
@@ -87,8 +103,10 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
     plugin_dir.mkdir()
     (plugin_dir / f"{PLUGIN}.py").write_text(PLUGIN_SOURCE)
     marker = root / "killed.marker"
+    (root / "tz_nanny_preload.py").write_text(NANNY_PRELOAD)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the plugins must come by upload
-    env.update(OMP_NUM_THREADS="1", TZ_DEATH_MARKER=str(marker))
+    env.update(OMP_NUM_THREADS="1", TZ_DEATH_MARKER=str(marker),
+               DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD="forkserver")
     dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
     scheduler_file = root / "scheduler.json"
     procs: list[subprocess.Popen] = []
@@ -113,8 +131,8 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
             procs.append(subprocess.Popen(
                 [sys.executable, "-m", "distributed.cli.dask_worker", address, "--host", "127.0.0.1",
                  "--nthreads", "1", "--nworkers", "1", "--no-dashboard", "--death-timeout", "60",
-                 "--local-directory", str(root / f"w{i}")], env=env, stdout=log, stderr=subprocess.STDOUT,
-                cwd=root))
+                 "--preload-nanny", str(root / "tz_nanny_preload.py"), "--local-directory", str(root / f"w{i}")],
+                env=env, stdout=log, stderr=subprocess.STDOUT, cwd=root))
         with distributed.Client(address, timeout="30s") as client:
             client.wait_for_workers(2, timeout=120)
         yield {"address": address, "marker": marker, "plugin_dir": plugin_dir, "root": root}
