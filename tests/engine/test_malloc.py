@@ -4,37 +4,41 @@ skipped with TACTILE_ZOO_DEFAULT_MALLOC=1 and off glibc, and make a rewritten la
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
 import pytest
+from forked_bench import fork_python
 
 from tactile_zoo.engine import malloc
 
-REPO = Path(__file__).resolve().parents[2]
 GLIBC = sys.platform.startswith("linux") and malloc._mallopt() is not None
 
 # Hold as many large blocks as the settings let glibc map (M_MMAP_MAX), then allocate, write and free a 40 MB block
 # (above glibc's largest mmap threshold, 32 MiB: by default a fresh mmap each time) and count the page faults of
 # writing a second one of the same size: none where it came back from the heap already faulted in. One child runs
-# its modes in order (an interpreter's start-up is most of its cost) and prints one line per mode; each mode frees
-# what it held, so the next starts from the allocator as that mode left it.
+# its modes in order and prints one line per mode; each mode frees what it held, so the next starts from the
+# allocator as that mode left it. The children are forked from the warm server of tests/forked_bench.py, which
+# imported torch and the package (an interpreter's start-up is most of a child's cost) and never tunes malloc: a
+# child starts with glibc's defaults, as a new process does.
 _CHILD = textwrap.dedent("""
     import ctypes, json, os, resource, sys
+    os.environ.pop("TACTILE_ZOO_DEFAULT_MALLOC", None)
     for mode in sys.argv[1:]:
         result = None
+        if mode in ("opt_out", "allow"):  # the opt-out variable set, or gone (as in a process started without it)
+            if mode == "opt_out":
+                os.environ["TACTILE_ZOO_DEFAULT_MALLOC"] = "1"
+            else:
+                os.environ.pop("TACTILE_ZOO_DEFAULT_MALLOC", None)
+            continue
         if mode == "tune":
             from tactile_zoo.engine.malloc import tune_malloc
             result = tune_malloc()
         elif mode == "worker":
             from tactile_zoo.bench.worker import setup_worker
             setup_worker()
-        elif mode == "allow":  # the opt-out variable gone, as in a process started without it
-            os.environ.pop("TACTILE_ZOO_DEFAULT_MALLOC", None)
-            continue
         else:  # importing the package and its training layers changes nothing
             import tactile_zoo, tactile_zoo.bench, tactile_zoo.cli, tactile_zoo.engine  # noqa: F401
         from tactile_zoo.engine.malloc import SETTINGS
@@ -58,14 +62,17 @@ _CHILD = textwrap.dedent("""
 """)
 
 
-def _child(*modes: str, **env: str) -> dict[str, dict]:
-    """Each mode's measurement, in one fresh child that runs them in order."""
-    environ = {key: value for key, value in os.environ.items() if key != "TACTILE_ZOO_DEFAULT_MALLOC"}
-    environ.update({"PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", **env})
-    proc = subprocess.run([sys.executable, "-c", _CHILD, *modes], env=environ, capture_output=True, text=True,
-                          check=True, cwd=REPO)
-    rows = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith('{"mode"')]
-    assert [row["mode"] for row in rows] == [m for m in modes if m != "allow"], proc.stdout
+def _child(log: Path, *modes: str) -> dict[str, dict]:
+    """Each mode's measurement, in one forked child that runs them in order (its output in ``log``.out/.err)."""
+    child = fork_python(_CHILD, list(modes), log)
+    try:
+        status = child.wait(timeout=300)
+    finally:
+        child.kill()
+    out, err = child.communicate()
+    assert status == 0, err
+    rows = [json.loads(line) for line in out.splitlines() if line.startswith('{"mode"')]
+    assert [row["mode"] for row in rows] == [m for m in modes if m not in ("opt_out", "allow")], (out, err)
     return {row["mode"]: row for row in rows}
 
 
@@ -73,11 +80,12 @@ FRESH_FAULTS = (40 << 20) // 4096 // 2  # at least half the buffer's 4 KiB pages
 
 
 @pytest.fixture(scope="module")
-def measured() -> dict[str, dict]:
-    """Two fresh children: one imports the package (and measures), then tunes; the other starts with the opt-out
-    variable set and tunes (which must do nothing), then drops it and sets up a bench worker."""
-    return {**_child("import", "tune"), **{f"opt_out_{k}": v for k, v in _child(
-        "tune", "allow", "worker", TACTILE_ZOO_DEFAULT_MALLOC="1").items()}}
+def measured(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
+    """Two children: one imports the package (and measures), then tunes; the other sets the opt-out variable and
+    tunes (which must do nothing), then drops it and sets up a bench worker."""
+    logs = tmp_path_factory.mktemp("malloc")
+    return {**_child(logs / "a", "import", "tune"), **{f"opt_out_{k}": v for k, v in _child(
+        logs / "b", "opt_out", "tune", "allow", "worker").items()}}
 
 
 @pytest.mark.skipif(not GLIBC, reason="mallopt exists on glibc Linux only")
