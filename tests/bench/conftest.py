@@ -80,10 +80,10 @@ def read_board(path: Path, drop_timing: bool = True) -> list[dict[str, str]]:
 @pytest.fixture(scope="session")
 def dask_cluster() -> Iterator[object]:
     """Two single-threaded Dask worker processes on 127.0.0.1, started once per test process for the tests that run
-    a grid on a cluster given by ``--scheduler`` (each worker imports torch and the package once, on its first
-    cell, instead of once per test). The tests of the cluster that ``--executor dask`` starts itself, and of a
-    worker's death, have their own. The workers are forked from the warm server of tests/forked_bench.py (torch and
-    the package imported once), not spawned as new interpreters."""
+    a grid on a cluster given by ``--scheduler`` (started once, not once per test). The workers are forked from the
+    warm server of tests/forked_bench.py, which has imported torch and the package, not spawned as new interpreters
+    that import them on their first cell. The tests of the cluster that ``--executor dask`` starts itself, and of a
+    worker's death, have their own."""
     distributed = pytest.importorskip("distributed")
     from forked_bench import dask_forkserver
 
