@@ -67,7 +67,7 @@ def calibrate(model: torch.nn.Module, x: torch.Tensor, g: torch.Tensor | None) -
     """Batch-norm running statistics of one training-mode pass over the samples, as training leaves them: an untrained
     spiking network evaluated with batch norm's initial statistics (mean 0, variance 1) falls silent (DeepTactile's
     spike counts would all stay 0, and the exact comparisons would compare zeros). Spiking models only: D-CNN's
-    logits grow after it, and onnxruntime's rounding with them, past the absolute tolerance above."""
+    logits grow after it, and onnxruntime's rounding with them, past test_export.py's absolute tolerance (1e-5)."""
     norms = [m for m in model.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
     for norm in norms:
         norm.reset_running_stats()
