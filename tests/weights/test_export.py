@@ -97,14 +97,25 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> Any:
     worker may run other modules' tests between two of this module's). The multi-barrel SNN is exported in a child
     process (tests/weights/export_cases.py: the same model, bit for bit), whose output test_export_quiet.py checks."""
     done: dict[str, Exported] = {}
+    described: dict[str, Exported] = {}
     formats = ("torchscript", "onnx") if ONNX else ("torchscript",)
 
-    def get(name: str) -> Exported:
+    def get(name: str, *, files: bool = True) -> Exported:
+        """``files=False``: a test that reads only the JSON description, in another model's xdist group, gets the
+        export its worker made already, else a TorchScript-only one (the description does not depend on the formats;
+        the model's own group, maybe on the other worker, makes the full one)."""
+        if name not in done and not files:
+            if name not in described:
+                model, spec, x, g = _case(name)
+                result = export_model(model, tmp_path_factory.mktemp(f"{name}_described"), name=name, spec=spec,
+                                      formats=("torchscript",), batch=BATCH, steps=STEPS, seed=SEED)
+                described[name] = Exported(name, model, spec, x, g, result)
+            return described[name]
         if name not in done:
             model, spec, x, g = _case(name)
             if name in IN_CHILD:
-                files, manifest_path = child_result(name, formats, tmp_path_factory.mktemp(f"{name}_child"))
-                result = ExportResult(files, json.loads(manifest_path.read_text()), manifest_path)
+                written, manifest_path = child_result(name, formats, tmp_path_factory.mktemp(f"{name}_child"))
+                result = ExportResult(written, json.loads(manifest_path.read_text()), manifest_path)
             else:
                 result = export_model(model, tmp_path_factory.mktemp(name), name=name, spec=spec, formats=formats,
                                       batch=BATCH, steps=STEPS, seed=SEED)
@@ -319,7 +330,7 @@ def test_the_json_file_describes_the_files(exported: Any, name: str) -> None:
 @pytest.mark.xdist_group("export_x_tacformer")
 def test_the_kinds_of_state(exported: Any) -> None:
     """SGnet's state is its LIF membranes, output spike count and step counter; a binned model's adds the open bin."""
-    sgnet = [(s["path"], s["kind"]) for s in exported("sgnet").result.manifest["step"]["state"]]
+    sgnet = [(s["path"], s["kind"]) for s in exported("sgnet", files=False).result.manifest["step"]["state"]]
     assert sgnet == [("mems[0]", "tensor"), ("mems[1]", "tensor"), ("mems[2]", "tensor"), ("mems[3]", "tensor"),
                      ("count", "tensor"), ("steps", "counter")]
     x_tac = exported("x_tacformer").result.manifest["step"]
@@ -335,7 +346,7 @@ def test_initial_state_reads_the_json_file(exported: Any, tmp_path: Path) -> Non
     assert [tuple(t.shape) for t in from_file] == [tuple(s["shape"]) for s in desc["step"]["state"]]
     assert any(bool(torch.isneginf(t).all()) for t in from_file)
     with pytest.raises(ExportError, match="no step"):
-        initial_state(exported("dcnn").result.manifest)
+        initial_state(exported("dcnn", files=False).result.manifest)
 
 
 # ----------------------------------------------------------------------------------------------------- failures
