@@ -1,13 +1,13 @@
 """A Dask worker that dies inside a cell is survived: the cell is rescheduled, recorded once, with ``attempts == 2``.
 
-A real cluster on 127.0.0.1: ``dask scheduler`` and two ``dask worker`` processes (one thread each, under nannies,
-which restart a killed worker). Each nanny forks its worker processes from a ``forkserver`` that has imported
-distributed, torch and the package once (:data:`NANNY_PRELOAD`), so the worker a death restarts is running in a
-second, not after a new interpreter's imports; the plugin module is still never on the workers' path, it comes by
-upload. A plugin module, shipped to the workers by ``--plugin-module``, registers an epoch
-listener (:func:`tactile_zoo.bench.progress.add_listener`) that SIGKILLs its own worker process right after epoch 2
-of one chosen cell, the first time only: the marker file it creates with ``O_EXCL`` says it already happened. So the
-death falls on an epoch boundary, not on a timer.
+A real cluster on 127.0.0.1: ``dask scheduler`` and one ``dask worker --nworkers 2`` process: two worker processes
+(one thread each) under two nannies, which restart a killed worker. The nannies fork their worker processes from
+one ``forkserver`` that has imported distributed, torch and the package once (:data:`NANNY_PRELOAD`), so the worker
+a death restarts is running in a second, not after a new interpreter's imports; the plugin module is still never
+on the workers' path, it comes by upload. A plugin module, shipped to the workers by ``--plugin-module``, registers
+an epoch listener (:func:`tactile_zoo.bench.progress.add_listener`) that SIGKILLs its own worker process right after
+epoch 2 of one chosen cell, the first time only: the marker file it creates with ``O_EXCL`` says it already
+happened. So the death falls on an epoch boundary, not on a timer.
 
 The run must end with every cell ok, the killed cell recorded once with 2 attempts, and the leaderboard equal to an
 uninterrupted local run's. With ``--retries 0`` the same run fails the cell, and the same checks fail
@@ -125,14 +125,13 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
             except (FileNotFoundError, json.JSONDecodeError, KeyError):
                 time.sleep(0.2)
         assert address, (root / "scheduler.log").read_text()
-        for i in range(2):
-            log = open(root / f"worker{i}.log", "w")  # noqa: SIM115 - closed in finally
-            logs.append(log)
-            procs.append(subprocess.Popen(
-                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--host", "127.0.0.1",
-                 "--nthreads", "1", "--nworkers", "1", "--no-dashboard", "--death-timeout", "60",
-                 "--preload-nanny", str(root / "tz_nanny_preload.py"), "--local-directory", str(root / f"w{i}")],
-                env=env, stdout=log, stderr=subprocess.STDOUT, cwd=root))
+        log = open(root / "workers.log", "w")  # noqa: SIM115 - closed in finally
+        logs.append(log)
+        procs.append(subprocess.Popen(  # two nannies in one process: one forkserver imports torch for both
+            [sys.executable, "-m", "distributed.cli.dask_worker", address, "--host", "127.0.0.1",
+             "--nthreads", "1", "--nworkers", "2", "--no-dashboard", "--death-timeout", "60",
+             "--preload-nanny", str(root / "tz_nanny_preload.py"), "--local-directory", str(root / "workers")],
+            env=env, stdout=log, stderr=subprocess.STDOUT, cwd=root))
         with distributed.Client(address, timeout="30s") as client:
             client.wait_for_workers(2, timeout=120)
         yield {"address": address, "marker": marker, "plugin_dir": plugin_dir, "root": root}
