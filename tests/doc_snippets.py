@@ -240,8 +240,9 @@ FIXTURES = {
 # ------------------------------------------------------------------------------------------------ the warm server
 #: set to 1 to run every Python child in a fresh ``python -c`` (the plain path), never in the warm server
 PLAIN_SWITCH = "DOC_SNIPPETS_PLAIN"
-#: what the warm server imports once: torch (about 2 s of CPU a child) and PyG (3 s more), never the package itself
-WARM_PRELOAD = ("torch", "torch_geometric")
+#: what the warm server imports once: torch (about 2 s of CPU a child), PyG (3 s more), and what the package imports on
+#: its first fit or evaluate: numba (its kernels, 0.4 s) and sklearn.metrics (0.8 s); never the package itself
+WARM_PRELOAD = ("torch", "torch_geometric", "numba", "sklearn.metrics")
 #: variables a child's environment may hold apart from the server's (the server checks that its imports read none):
 #: the path (rebuilt per child), pytest's current test, the package's own, MLflow's (``bench --tracker mlflow`` sets
 #: one in the tests' process)
