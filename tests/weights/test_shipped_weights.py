@@ -16,9 +16,9 @@ through ``create_model(..., pretrained=...)`` and evaluated on its real test spl
 files of real test samples (X-Tacformer on Ev-Objects and on BioTac-DoS), classified by ``tactile-zoo predict MODEL
 --pretrained DATASET`` with the pack installed by pip, get exactly ``evaluate``'s prediction for each.
 
-Cost, measured in CPU seconds on one thread: the BioTac-DoS test split (5290 windows) is read once per loading
-configuration (window 10; window 5 for SGnet; window 5 in raw units for ConvLSTM), about 1 s each, and each model
-evaluates it once: 1-4 s each, ConvLSTM about 22 s. The Ev entries are marked ``slow``.
+Cost, measured in CPU seconds on one thread: the BioTac-DoS test split is read once per loading configuration
+(window 10: 5290 windows; window 5 for SGnet and, in raw units, for ConvLSTM: 10,705), about 1 s each, and each model
+evaluates it once: 1-4 s each, ConvLSTM about 17 s. The Ev entries are marked ``slow``.
 """
 
 from __future__ import annotations
