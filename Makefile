@@ -41,6 +41,9 @@ test: install
 	# the checkout's modules compiled once (1 s) for the suite's child interpreters: where PYTHONDONTWRITEBYTECODE is
 	# set, each child would compile every module of the package it imports again
 	$(BIN)/python -m compileall -q -j 0 tactile_zoo tests benchmarks tools examples plugins hubconf.py > /dev/null
+	# numba's kernels compiled into their on-disk cache in the background while pytest collects (a fresh checkout
+	# has none, and both workers would compile the same kernels at once): tools/warm_kernels.py
+	OMP_NUM_THREADS=1 $(BIN)/python -m tools.warm_kernels > /dev/null 2>&1 &
 	# one BLAS/OpenMP thread per xdist worker: two workers on two cores, no oversubscription
 	OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadgroup
 
