@@ -13,8 +13,7 @@ A forked child has the signal dispositions of a new interpreter (SIGINT raises `
 SIGQUIT are the defaults) and, when ``PYTHONFAULTHANDLER`` is set, faulthandler on, so the tests of SIGINT and
 SIGTERM use it too (tests/bench/test_process_faults.py). :func:`fork_python` runs a script as ``python -c`` would.
 :func:`dask_forkserver` lets the Dask nannies of a ``LocalCluster`` in the test process fork their worker processes
-from the same server. The tests of how a bench *starts* keep real ``python -m`` children (tests/bench/conftest.py
-``bench_subprocess``).
+from the same server. The tests of how a bench's own workers *start* keep the processes the product spawns.
 """
 
 from __future__ import annotations

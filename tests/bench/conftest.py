@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import csv
-import os
 import signal
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -33,32 +31,10 @@ def run_cli(args: list[str]) -> int:
     return main(["bench", "--plugin-module", "tiny_zoo", *args] if args and args[0].startswith("-") else args)
 
 
-def subprocess_env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(TESTS), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
-    env["OMP_NUM_THREADS"] = "1"
-    env["PYTHONFAULTHANDLER"] = "1"  # SIGABRT then prints every thread's stack: see hung_stacks()
-    return env
-
-
-def _default_interrupts() -> None:
-    """In the child before it execs: SIGINT and SIGQUIT as a terminal gives them. A suite started in the background
-    of a shell without job control (``make test &`` in a script) inherits both ignored, and an ignored SIGINT stays
-    ignored through exec: the child would then train on through the SIGINT a test sends it."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
-
-
-def bench_subprocess(args: list[str], **kw: object) -> subprocess.Popen:
-    """``python -m tactile_zoo.cli bench --plugin-module tiny_zoo ARGS`` as a real child process."""
-    cmd = [sys.executable, "-m", "tactile_zoo.cli", "bench", "--plugin-module", "tiny_zoo", *args]
-    return subprocess.Popen(cmd, env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_default_interrupts, **kw)
-
-
 def hung_stacks(proc: subprocess.Popen) -> str:
-    """The stacks of every thread of a child that stopped answering (it runs with ``PYTHONFAULTHANDLER``, so SIGABRT
-    makes it print them), for the failure message: an intermittent hang is then diagnosable from one CI log."""
+    """The stacks of every thread of a child that stopped answering, for the failure message: an intermittent hang is
+    then diagnosable from one CI log (forked children run with faulthandler on where ``PYTHONFAULTHANDLER`` is set,
+    tests/forked_bench.py, so SIGABRT makes them print their stacks)."""
     proc.send_signal(signal.SIGABRT)
     try:
         _, err = proc.communicate(timeout=30)
