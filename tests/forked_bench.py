@@ -146,6 +146,19 @@ def fork_python(source: str, argv: list[str], log: Path, **env: str) -> ForkedBe
     return ForkedBench(process, Path(log))
 
 
+def run_python(source: str, argv: list[str], log: Path, timeout: float = 300, **env: str) -> tuple[str, str]:
+    """:func:`fork_python` run to its end: its stdout and stderr, after asserting that it exited 0 (its stderr is
+    the failure message); a child still running after ``timeout`` seconds is killed and fails the same way."""
+    child = fork_python(source, argv, log, **env)
+    try:
+        status = child.wait(timeout=timeout)
+    finally:
+        child.kill()
+    out, err = child.communicate()
+    assert status == 0, err
+    return out, err
+
+
 @contextlib.contextmanager
 def dask_forkserver() -> Iterator[None]:
     """Within the block, the Dask nannies this process starts (``LocalCluster(processes=True)``, also the one

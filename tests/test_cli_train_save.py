@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import tiny_zoo
 import torch
-from forked_bench import fork_python
+from forked_bench import run_python
 
 from tactile_zoo.cli import main
 from tactile_zoo.engine import load_checkpoint
@@ -110,13 +110,7 @@ def _limited(runs: list[tuple[list[str], int | None]], log: Path) -> tuple[list[
             print(json.dumps([code, sorted(os.listdir(os.path.dirname(save))), digest]), flush=True)
             print({_SPLIT!r}, file=sys.stderr, flush=True)
     """)
-    child = fork_python(code, [], log)
-    try:
-        status = child.wait(timeout=300)
-    finally:
-        child.kill()
-    out, err = child.communicate()
-    assert status == 0, err
+    out, err = run_python(code, [], log)
     results = [json.loads(line) for line in out.splitlines() if line.startswith("[")]
     errors = err.split(_SPLIT + "\n")
     assert len(results) == len(runs) and len(errors) == len(runs) + 1 and errors[-1] == "", (out, err)

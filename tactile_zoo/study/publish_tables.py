@@ -23,7 +23,7 @@ from typing import Any
 from .. import registry
 from ..bench.intervals import records_interval
 from ..bench.paired import holm, records_paired
-from ..bench.records import cell_files, recipe_name_of, revision_gaps, run_records
+from ..bench.records import recipe_name_of, revision_gaps, run_records
 from ..errors import ResultsError
 from .audit import cpu_type_clash, cpu_types, study_records
 from .checks import plans
@@ -87,7 +87,7 @@ class Context:
         the cell files was most of a page check's time. The records are shared, so nothing here may change one."""
         key = Path(folder).resolve()
         if key not in self._folders:
-            self._folders[key] = run_records(key) if cell_files(key) else []
+            self._folders[key] = run_records(key)  # [] where the folder has no cells/ folder
         return self._folders[key]
 
     def grids(self, study: Study, publication: Publication | None = None) -> list[GridSpec]:

@@ -9,7 +9,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from forked_bench import fork_python
+from forked_bench import run_python
 
 from tactile_zoo.engine import malloc
 
@@ -64,13 +64,7 @@ _CHILD = textwrap.dedent("""
 
 def _child(log: Path, *modes: str) -> dict[str, dict]:
     """Each mode's measurement, in one forked child that runs them in order (its output in ``log``.out/.err)."""
-    child = fork_python(_CHILD, list(modes), log)
-    try:
-        status = child.wait(timeout=300)
-    finally:
-        child.kill()
-    out, err = child.communicate()
-    assert status == 0, err
+    out, err = run_python(_CHILD, list(modes), log)
     rows = [json.loads(line) for line in out.splitlines() if line.startswith('{"mode"')]
     assert [row["mode"] for row in rows] == [m for m in modes if m not in ("opt_out", "allow")], (out, err)
     return {row["mode"]: row for row in rows}
