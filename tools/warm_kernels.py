@@ -1,6 +1,6 @@
 """Fill the numba kernels' on-disk cache: one forward and backward pass of every built-in model on a tiny simulator
-batch (ConvLSTM on its compiled path too), so that each kernel the models call is compiled once and written beside
-its module (``tactile_zoo/nn/_kernels/__pycache__``).
+batch (ConvLSTM on its compiled path too), and the LIF kernel's parallel builds on two threads, so that each kernel the
+models and tests call is compiled once and written beside its module (``tactile_zoo/nn/_kernels/__pycache__``).
 
     python -m tools.warm_kernels
 
@@ -41,7 +41,31 @@ def warm() -> list[str]:
             model(ds.x[:2], None).float().sum().backward()
         except Exception as exc:  # a model this cannot warm is compiled by the tests that use it, as before
             failed.append(f"{name}{kwargs or ''}: {type(exc).__name__}: {exc}")
-    return failed
+    return failed + warm_parallel_lif()
+
+
+def warm_parallel_lif() -> list[str]:
+    """One forward and backward pass of the fused LIF on two threads over more neurons than one chunk of the kernel
+    (``CHUNK``) and more elements than ``SERIAL_BELOW``: the kernel's parallel builds, which the models' passes above
+    (one thread) never reach and tests/nn/test_lif_kernel.py runs on two threads (each worker compiled them, about 6
+    CPU seconds each, when the cache lacked them); the failure, if any."""
+    from tactile_zoo.nn import backend
+    from tactile_zoo.nn.lif import MultiStepLIF
+
+    kernels = backend.lif_kernels()
+    if kernels is None:  # no numba kernel on this machine: nothing to compile
+        return []
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        steps = -(-kernels.SERIAL_BELOW // (kernels.CHUNK + 1))  # (steps, CHUNK + 1) holds at least SERIAL_BELOW
+        x = torch.rand(steps, kernels.CHUNK + 1, requires_grad=True)
+        MultiStepLIF(backend="fused")(x).sum().backward()
+    except Exception as exc:
+        return [f"parallel LIF: {type(exc).__name__}: {exc}"]
+    finally:
+        torch.set_num_threads(before)
+    return []
 
 
 if __name__ == "__main__":
