@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 import torch
+from forked_bench import fork_python
 
 REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
@@ -24,6 +25,27 @@ from benchmarks import BENCHMARKS, bench_wall, common, gpu_check, run  # noqa: E
 
 def _summary(out: Path) -> dict[str, Any]:
     return json.loads((out / "gpu_check.json").read_text())
+
+
+# ``python -m pytest ARGV`` from the repository root, in a child forked from the warm server of tests/forked_bench.py
+_PYTEST = "import os, sys, pytest; os.chdir(sys.argv[1]); sys.exit(pytest.main(sys.argv[2:]))"
+
+
+def _forked_step(command: list[str], log: Path, timeout: float, env: dict[str, str] | None = None
+                 ) -> dict[str, Any]:
+    """:func:`gpu_check.run_step` for a ``python -m pytest`` step, the child forked from the warm server (torch and
+    the package imported: an interpreter's start-up was 3 of the child's 8 CPU seconds) with the step's environment;
+    ``run_step`` itself, a process group of its own, is tested below (and by the failing parity test's real child)."""
+    assert command[:3] == [sys.executable, "-m", "pytest"], command
+    start = time.perf_counter()
+    child = fork_python(_PYTEST, [str(REPO), *command[3:]], log, **(env or {}))
+    try:
+        code = child.wait(timeout=timeout)
+    finally:
+        child.kill()
+    out, err = child.communicate()
+    return {"status": "ok" if code == 0 else "FAIL", "exit_code": code,
+            "seconds": round(time.perf_counter() - start, 1), "note": "" if code == 0 else (out + err)[-600:]}
 
 
 # ------------------------------------------------------------------------------------------------ without CUDA
@@ -56,9 +78,11 @@ def test_a_missing_package_is_named_and_exits_2(monkeypatch: pytest.MonkeyPatch,
 
 
 # ------------------------------------------------------------------------------------------------ the parity step
-def test_allow_cpu_runs_the_parity_tests_cpu_against_cpu(tmp_path: Path) -> None:
-    """The real test file in a child pytest, the device side on the CPU: the selected tests ran (not skipped) and
-    passed, and their measurements are in the JUnit XML."""
+def test_allow_cpu_runs_the_parity_tests_cpu_against_cpu(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The real test file in a child pytest (forked: :func:`_forked_step`), the device side on the CPU: the selected
+    tests ran (not skipped: the step's environment says ``cpu``) and passed, and their measurements are in the JUnit
+    XML."""
+    monkeypatch.setattr(gpu_check, "run_step", _forked_step)
     assert gpu_check.main(["--allow-cpu", "--only", "parity", "--models", "dcnn,tacformer", "--datasets",
                            "sim_biotac_slip", "--out", str(tmp_path)]) == 0
     [row] = _summary(tmp_path)["steps"]
