@@ -1,15 +1,15 @@
 """``examples/studies/my_recordings.yaml``: a study on a user's own recordings passes ``study check`` once the trials
-are there, and says where they belong when they are not (run in a subprocess: its plugin registers a dataset)."""
+are there, and says where they belong when they are not (run in a child process: its plugin registers a dataset; the
+child is forked from the warm server of tests/forked_bench.py, torch and the package already imported)."""
 
 from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
+from forked_bench import run_python
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "studies"
 #: ``study check`` of each study file given, in one child (one start-up for both): [exit code, stdout, stderr] each.
@@ -27,11 +27,10 @@ print(json.dumps(out))
 """
 
 
-def _checks(*folders: Path) -> list[tuple[int, str, str]]:
+def _checks(log: Path, *folders: Path) -> list[tuple[int, str, str]]:
     studies = [str(folder / "my_recordings.yaml") for folder in folders]
-    done = subprocess.run([sys.executable, "-c", CHECKS, *studies], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    return [tuple(result) for result in json.loads(done.stdout.splitlines()[-1])]
+    out, _ = run_python(CHECKS, studies, log)
+    return [tuple(result) for result in json.loads(out.splitlines()[-1])]
 
 
 def test_the_recordings_study_checks_on_the_users_trials(tmp_path: Path) -> None:
@@ -46,7 +45,7 @@ def test_the_recordings_study_checks_on_the_users_trials(tmp_path: Path) -> None
         folder.mkdir(parents=True)
         for trial in range(5):  # a BioTac SP: 24 taxels x 1 channel, 12 steps
             np.savetxt(folder / f"{trial}.csv", rng.normal(size=(12, 24)), delimiter=",")
-    (code, _, err), (done, out, err2) = _checks(missing, present)
+    (code, _, err), (done, out, err2) = _checks(tmp_path / "checks", missing, present)
     assert code == 2 and "my_grasps" in err and "raw" in err, err
     assert done == 0, err2
     assert "30 cells: 2 model(s) x 1 dataset(s)" in out
