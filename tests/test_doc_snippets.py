@@ -444,7 +444,8 @@ print(json.dumps({"name": __name__, "argv": sys.argv, "orig_argv": sys.orig_argv
 """
 EXITS = ["import sys; print('out'); sys.exit(3)", "import sys; sys.exit('bye')", "1 +",
          "def f():\n    raise ValueError(1)\nf()", "import atexit, threading, time\natexit.register(print, 'at exit')\n"
-         "threading.Thread(target=lambda: (time.sleep(0.1), print('thread'))).start()\nprint('main')"]
+         "threading.Thread(target=lambda: (time.sleep(0.1), print('thread'))).start()\nprint('main')",
+         "import sys\nclass Kept:\n    def __del__(self):\n        print('finalised', file=sys.stderr)\nkept = Kept()"]
 
 
 def test_a_warm_child_is_a_fresh_python_c(tmp_path: Path, plugins: dict[str, Path]) -> None:
