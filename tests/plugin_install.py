@@ -32,7 +32,10 @@ def pip_install(plugin: Path, work: Path) -> Path:
     shutil.copytree(plugin, source, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
     proc = subprocess.run(
         [sys.executable, "-m", "pip", "install", "--no-index", "--no-deps", "--no-build-isolation",
-         "--disable-pip-version-check", "--no-input", "--quiet", "--target", str(target), str(source)],
+         "--disable-pip-version-check", "--no-input", "--quiet", "--target", str(target), str(source),
+         # the wheel pip builds and unpacks at once is stored, not deflated: the same files installed, a CPU-second
+         # less for the 54 MB weight pack
+         "--config-settings=--build-option=--compression=stored"],
         capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, f"pip could not install {plugin}:\n{proc.stdout}\n{proc.stderr}"
     return target
