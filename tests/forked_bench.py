@@ -146,15 +146,21 @@ def fork_python(source: str, argv: list[str], log: Path, **env: str) -> ForkedBe
     return ForkedBench(process, Path(log))
 
 
-def run_python(source: str, argv: list[str], log: Path, timeout: float = 300, **env: str) -> tuple[str, str]:
-    """:func:`fork_python` run to its end: its stdout and stderr, after asserting that it exited 0 (its stderr is
-    the failure message); a child still running after ``timeout`` seconds is killed and fails the same way."""
+def finish_python(source: str, argv: list[str], log: Path, timeout: float = 300, **env: str) -> tuple[int, str, str]:
+    """:func:`fork_python` run to its end: its exit status, stdout and stderr; a child still running after
+    ``timeout`` seconds is killed (:class:`subprocess.TimeoutExpired`)."""
     child = fork_python(source, argv, log, **env)
     try:
         status = child.wait(timeout=timeout)
     finally:
         child.kill()
-    out, err = child.communicate()
+    return (status, *child.communicate())
+
+
+def run_python(source: str, argv: list[str], log: Path, timeout: float = 300, **env: str) -> tuple[str, str]:
+    """:func:`finish_python` of a child that must exit 0 (its stderr is the failure message): its stdout and
+    stderr."""
+    status, out, err = finish_python(source, argv, log, timeout, **env)
     assert status == 0, err
     return out, err
 

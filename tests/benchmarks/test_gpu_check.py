@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 import torch
-from forked_bench import fork_python
+from forked_bench import finish_python
 
 REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
@@ -38,12 +38,7 @@ def _forked_step(command: list[str], log: Path, timeout: float, env: dict[str, s
     ``run_step`` itself, a process group of its own, is tested below (and by the failing parity test's real child)."""
     assert command[:3] == [sys.executable, "-m", "pytest"], command
     start = time.perf_counter()
-    child = fork_python(_PYTEST, [str(REPO), *command[3:]], log, **(env or {}))
-    try:
-        code = child.wait(timeout=timeout)
-    finally:
-        child.kill()
-    out, err = child.communicate()
+    code, out, err = finish_python(_PYTEST, [str(REPO), *command[3:]], log, timeout, **(env or {}))
     return {"status": "ok" if code == 0 else "FAIL", "exit_code": code,
             "seconds": round(time.perf_counter() - start, 1), "note": "" if code == 0 else (out + err)[-600:]}
 
