@@ -96,6 +96,9 @@ class _Transition(nn.Module):
     family="dense spiking graph network (tdBN)",
     reference={"type": "article", "authors": ["Guo", "Long", "Yu", "Li", "Chen", "Yan", "Li", "Gu", "Guo"],
                "journal": "IEEE Transactions on Instrumentation and Measurement"},
+    # small sizes for the contract suite (tests/models/test_zoo.py): one dense layer per block, narrow, one hidden
+    # layer, so every kind of layer is still checked (0.9 M parameters at full size on NeuTouch, 30 k here)
+    test_hparams={"block_config": [1, 1], "growth_rate": 8, "init_features": 16, "hidden": [32]},
     **recipe_file("tactile_zoo", "deeptactile"),
     causal=True,
     streaming=True,
