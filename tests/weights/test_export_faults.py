@@ -6,19 +6,23 @@ staging folder exists while it waits, so a test can signal the export, or start 
 nowhere else. Every child is bounded by a timeout and killed in ``finally``. The other exports are D-CNN's forward in
 TorchScript: a real model's file of half a megabyte, without the graph library's import (2 s in every child) or a
 step to trace; which model it is does not matter to the folder.
+
+The children are ``tactile-zoo export`` command lines forked from the warm server of tests/forked_bench.py (torch
+and the package imported once per test process; a fresh interpreter spent 3-4 CPU seconds importing them, six
+times): processes of their own, with a new interpreter's signal dispositions, so SIGTERM and SIGKILL end them as
+they end ``python -m tactile_zoo.cli``, their stdout and stderr in files, the file size limit set before ``main``.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from forked_bench import ForkedBench, fork_python
 
 from tactile_zoo.cli import main
 from tactile_zoo.export.folder import MARKER
@@ -49,23 +53,38 @@ class Gated(nn.Module):
 TIMEOUT = 240  # seconds any child may take: imports on a loaded two-core machine take 10-20 s
 
 
-def _export(tmp_path: Path, out: Path, gate: Path | None, *extra: str, **popen: object) -> subprocess.Popen:
+#: ``tactile-zoo ARGV[1:]`` as ``python -m tactile_zoo.cli`` runs it, with ARGV[0] first on the module path (where
+#: gated_model.py is); with ``TZ_TEST_FSIZE`` set, under that file size limit, which fails a write as a full disk
+#: does (EFBIG: the child inherits the server interpreter's SIGXFSZ ignored, as every new interpreter sets it)
+_CLI = """import os, resource, sys
+sys.stderr.reconfigure(line_buffering=True)  # as a new interpreter's stderr is: a line is seen when it is said
+sys.path.insert(0, sys.argv[1])
+if os.environ.get("TZ_TEST_FSIZE"):
+    sys.dont_write_bytecode = True  # no cached module past the limit either
+    limit = int(os.environ["TZ_TEST_FSIZE"])
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+from tactile_zoo.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+def _cli(tmp_path: Path, argv: list[str], log: str, **env: str) -> ForkedBench:
+    """``tactile-zoo ARGV`` in a child forked from the warm server, its stdout and stderr in ``tmp_path/log.*``."""
+    return fork_python(_CLI, [str(tmp_path), *argv], tmp_path / log, **{"GATE": "", "TZ_TEST_FSIZE": "", **env})
+
+
+def _export(tmp_path: Path, out: Path, gate: Path | None, log: str = "gated") -> ForkedBench:
     (tmp_path / "gated_model.py").write_text(GATED)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")]),
-           "OMP_NUM_THREADS": "1"}
-    env.pop("GATE", None)
-    if gate is not None:
-        env["GATE"] = str(gate)
-    cmd = [sys.executable, "-m", "tactile_zoo.cli", "export", "gated", "--plugin-module", "gated_model",
-           "--spec-from", "sim_biotac_slip", "--steps", "4", "--format", "torchscript", "--out", str(out), *extra]
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)
+    argv = ["export", "gated", "--plugin-module", "gated_model", "--spec-from", "sim_biotac_slip", "--steps", "4",
+            "--format", "torchscript", "--out", str(out)]
+    return _cli(tmp_path, argv, log, **({} if gate is None else {"GATE": str(gate)}))
 
 
 def _staging(out: Path) -> list[Path]:
     return sorted(out.glob(".tactile-zoo-export.*.tmp")) if out.is_dir() else []
 
 
-def _wait_for_staging(proc: subprocess.Popen, out: Path) -> Path:
+def _wait_for_staging(proc: ForkedBench, out: Path) -> Path:
     deadline = time.time() + TIMEOUT
     while time.time() < deadline:
         found = _staging(out)
@@ -77,7 +96,7 @@ def _wait_for_staging(proc: subprocess.Popen, out: Path) -> Path:
     pytest.fail("no staging folder appeared")
 
 
-def _finish(proc: subprocess.Popen) -> tuple[str, str]:
+def _finish(proc: ForkedBench) -> tuple[str, str]:
     try:
         return proc.communicate(timeout=TIMEOUT)
     finally:
@@ -128,14 +147,13 @@ def test_two_exports_into_one_folder_take_turns(tmp_path: Path) -> None:
     second = None
     try:
         staging = _wait_for_staging(first, out)
-        second = subprocess.Popen([sys.executable, "-m", "tactile_zoo.cli", *DCNN, "--out", str(out)],
-                                  env={**os.environ, "OMP_NUM_THREADS": "1"}, stdout=subprocess.PIPE,
-                                  stderr=subprocess.PIPE, text=True)
-        seen = []
-        for line in second.stderr:  # it says it waits, and then does: the first still holds the folder
-            seen.append(line)
-            if "waiting for it to finish" in line:
+        second = _cli(tmp_path, [*DCNN, "--out", str(out)], "second")
+        seen, err, deadline = [], second.log.with_suffix(".err"), time.time() + TIMEOUT
+        while time.time() < deadline and second.poll() is None:  # it says it waits, and then does (the first
+            seen = err.read_text().splitlines() if err.exists() else []  # still holds the folder)
+            if any("waiting for it to finish" in line for line in seen):
                 break
+            time.sleep(0.05)
         assert seen and seen[-1].strip() == f"another tactile-zoo export is writing into {out}; waiting for it to " \
                                             f"finish", seen
         time.sleep(1.0)
@@ -157,19 +175,12 @@ def test_two_exports_into_one_folder_take_turns(tmp_path: Path) -> None:
 def test_a_full_disk_is_one_line_and_leaves_nothing(tmp_path: Path, existing: bool) -> None:
     """A full disk (here a file size limit, which fails a write the same way) aborted the process from C++ (exit
     134: torch writing straight to the file) and left the staging folder."""
-    import resource
-
     out = tmp_path / "robot"
     if existing:
         assert main([*DCNN, "--out", str(out)]) == 0
     before = _snapshot(out) if existing else None
 
-    def limit() -> None:  # Python ignores SIGXFSZ, so a write past the limit fails with EFBIG
-        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
-
-    proc = subprocess.Popen([sys.executable, "-m", "tactile_zoo.cli", *DCNN, "--out", str(out)],
-                            env={**os.environ, "OMP_NUM_THREADS": "1", "PYTHONDONTWRITEBYTECODE": "1"},
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=limit)
+    proc = _cli(tmp_path, [*DCNN, "--out", str(out)], "full", TZ_TEST_FSIZE="4096")
     _, err = _finish(proc)
     assert proc.returncode == 2, err
     errors = [line for line in err.splitlines() if line.startswith("tactile-zoo: error:")]
