@@ -11,11 +11,11 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from forked_bench import finish_python
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -138,19 +138,33 @@ def _plant(dest: Path) -> list[str]:
     return sorted(contents)
 
 
-def _run(dest: Path, *args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
+def _run(dest: Path, source: str, timeout: float = 240) -> None:
+    """``python -c SOURCE`` in the copy, forked from the warm server of tests/forked_bench.py (torch and sklearn
+    imported once per test process): the child first forgets the checkout's package and tools, then imports the
+    copy's (:data:`IN_THE_COPY`)."""
     env = {**os.environ, "PYTHONPATH": str(dest), "OMP_NUM_THREADS": "1", "TACTILE_ZOO_NO_PLUGINS": "1"}
-    result = subprocess.run([sys.executable, *args], cwd=dest, env=env, capture_output=True, text=True,
-                            timeout=timeout)
-    assert result.returncode == 0, f"{' '.join(args)}:\n{result.stdout[-4000:]}\n{result.stderr[-4000:]}"
-    return result
+    code, out, err = finish_python(IN_THE_COPY + source, [str(dest)], dest.parent / "child", timeout, **env)
+    assert code == 0, f"{source}:\n{out[-4000:]}\n{err[-4000:]}"
+
+
+#: the child's first lines: the copy's folder, and its package and tools in place of the checkout's (which the warm
+#: server imported; the copy's are imported afresh, as a new interpreter with PYTHONPATH=<copy> would)
+IN_THE_COPY = """
+import os, sys
+os.chdir(sys.argv[1])
+for name in [m for m in sys.modules if m.split(".")[0] in ("tactile_zoo", "tools", "tiny_zoo", "conftest")]:
+    del sys.modules[name]
+sys.path.insert(0, sys.argv[1])
+import tactile_zoo
+assert tactile_zoo.__file__.startswith(sys.argv[1] + os.sep), f"not the copy's package: {tactile_zoo.__file__}"
+"""
 
 
 #: the zoo's tests run on the planted model (``-k NAME``)
 ZOO_TESTS = ["tests/models/test_zoo.py", "tests/models/test_recipe_files.py", "tests/revisions/test_revisions.py",
              f"tests/models/test_{NAME}.py"]
-#: in one child (one start-up, one import of the package and PyG): the generators write, then their --check passes,
-#: then the zoo's tests on the planted model, as the suite runs them
+#: in one child (one import of the copy's package): the generators write, then their --check passes, then the zoo's
+#: tests on the planted model, as the suite runs them
 GENERATE_AND_TEST = f"""
 import sys
 from tools import fidelity, model_pages
@@ -171,7 +185,7 @@ def test_a_planted_model_needs_only_the_listed_files(tmp_path: Path) -> None:
     dest = tmp_path / "project"
     _copy(dest)
     _plant(dest)
-    _run(dest, "-c", GENERATE_AND_TEST)
+    _run(dest, GENERATE_AND_TEST)
     count = count_word(len(zoo_models()) + 1)
     for rel, blocks in BLOCKS.items():
         text = (dest / rel).read_text()
