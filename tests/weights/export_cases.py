@@ -1,6 +1,7 @@
 """The models tests/weights/test_export.py exports, as it builds them, and the multi-barrel SNN's export made in a
-child process: a clean interpreter whose stdout and stderr tests/weights/test_export_quiet.py checks (onnxruntime
-printed warnings from C++, past Python's streams), and whose files test_export.py's tests then check against eager.
+child process (forked from the warm server of tests/forked_bench.py, with a bare environment) whose stdout and stderr
+tests/weights/test_export_quiet.py checks (onnxruntime printed warnings from C++, past Python's streams), and whose
+files test_export.py's tests then check against eager.
 One export serves both (its ONNX export is the costliest of the module's: about 4,800 nodes, 15 CPU seconds).
 :func:`one_onnx_registry` lets the test process's ONNX exports share the exporter's operator registry.
 
@@ -12,7 +13,6 @@ from __future__ import annotations
 import contextlib
 import json
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -133,21 +133,38 @@ def _child_main(name: str, out: str, formats: str) -> None:
     print("exported")
 
 
-_CHILD = "import sys; sys.path.insert(0, sys.argv[1]); import export_cases; export_cases._child_main(*sys.argv[2:])"
+#: the child's script: the bare environment a user's shell gives it (the server's environment was the test
+#: process's), the working folder, the export, then the interpreter's exit functions, as a ``python -c`` ends
+_CHILD = """import atexit, os, sys
+os.environ.clear()
+os.environ.update({"PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1", "HOME": sys.argv[2]})
+os.chdir(sys.argv[2])
+sys.path.insert(0, sys.argv[1])
+import export_cases
+export_cases._child_main(*sys.argv[3:])
+atexit._run_exitfuncs()
+"""
 _DONE: dict[tuple[str, str], tuple[subprocess.CompletedProcess, Path]] = {}
 
 
 def child_export(name: str, formats: tuple[str, ...], folder: Path) -> tuple[subprocess.CompletedProcess, Path]:
-    """Export ``name`` as the tests do, in a fresh interpreter with a bare environment (as a user's shell runs it),
+    """Export ``name`` as the tests do, in a child process with a bare environment (as a user's shell runs it),
     into ``folder / name``, once per test process and formats: the finished process (its output captured) and the
-    export's folder. ``folder``: a fresh folder for the first call."""
+    export's folder. ``folder``: a fresh folder for the first call.
+
+    The child is forked from the warm server of tests/forked_bench.py (torch and the package imported: a fresh
+    interpreter spent about 6 of its 24 CPU seconds importing them), with a new interpreter's stdout and stderr:
+    file descriptors 1 and 2 of its own, where what onnx, onnxscript and onnxruntime import, print or log (from
+    C++ too) during the export lands, as it would on a user's terminal. What torch and the package print when
+    imported, the server printed: other tests run them fresh (``python -m tactile_zoo.cli``)."""
     key = (name, ",".join(formats))
     if key not in _DONE:
+        from forked_bench import finish_python  # the test process's (tests/ is on its module path)
+
         out = folder / name
-        env = {"PATH": "/usr/bin:/bin", "OMP_NUM_THREADS": "1", "HOME": str(folder)}
-        proc = subprocess.run([sys.executable, "-c", _CHILD, str(Path(__file__).parent), name, str(out), key[1]],
-                              capture_output=True, text=True, timeout=600, env=env, cwd=folder)
-        _DONE[key] = (proc, out)
+        argv = [str(Path(__file__).parent), str(folder), name, str(out), key[1]]
+        status, stdout, stderr = finish_python(_CHILD, argv, folder / f"{name}.child", timeout=600)
+        _DONE[key] = (subprocess.CompletedProcess(["python", "-c", _CHILD, *argv], status, stdout, stderr), out)
     return _DONE[key]
 
 

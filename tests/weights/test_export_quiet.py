@@ -19,8 +19,9 @@ from tactile_zoo.export import onnx_available, onnxruntime_available
                     reason='needs onnx, onnxscript and onnxruntime: pip install "tactile-zoo[export]"')
 def test_the_multibarrel_onnx_export_prints_nothing(tmp_path_factory: pytest.TempPathFactory) -> None:
     """The multi-barrel SNN as tests/weights/test_export.py exports it (small, two steps of its columns: 12 of these
-    warnings from the check's session when it logs warnings too), to TorchScript and ONNX, in a fresh interpreter
-    with a bare environment: the export whose files test_export.py then checks (one export for both, per worker)."""
+    warnings from the check's session when it logs warnings too), to TorchScript and ONNX, in a child process with
+    a bare environment and stdout and stderr of its own (export_cases.child_export): the export whose files
+    test_export.py then checks (one export for both, per worker)."""
     proc, out = child_export("multibarrel", ("torchscript", "onnx"), tmp_path_factory.mktemp("multibarrel_child"))
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout == "exported\n"
