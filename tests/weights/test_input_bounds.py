@@ -1,26 +1,25 @@
 """Issue 28, bounded input: ``predict`` and ``stream`` read a recording in bounded memory, refuse a file above the size
 limit, and refuse anything that is not a regular file (a device behind a symlink, a FIFO) without opening it.
 
-The memory and non-regular-file checks run the real command in a subprocess: one child runs every command of this
-module in turn (the interpreter and torch start once, not six times), each with its own stdout and stderr (the file
-descriptors themselves, so that what C code writes is seen too), its exit code, and the process's peak resident
-memory (``ru_maxrss``) after it. Peak memory on a 1 GiB file is compared with the peak after the same command on a
-small file, run first. A command that would hang on a FIFO is stopped by an alarm in the child (and the child by the
-subprocess timeout) instead of hanging the suite.
+The memory and non-regular-file checks run the real command in a subprocess: one child runs every command of this module
+in turn (forked from the warm server of tests/forked_bench.py, torch and the package imported: not six interpreters, nor
+one), each with its own stdout and stderr (the file descriptors themselves, so that what C code writes is seen too), its
+exit code, and the process's peak resident memory (``ru_maxrss``) after it. Peak memory on a 1 GiB file is compared with
+the peak after the same command on a small file, run first. A command that would hang on a FIFO is stopped by an alarm
+in the child (and the child by the subprocess timeout) instead of hanging the suite.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import resource
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from forked_bench import finish_python
 from weights_helpers import MODEL, Trained, sample_table
 
 import tactile_zoo as tz
@@ -28,7 +27,6 @@ from tactile_zoo.errors import ConfigError, DatasetError
 
 #: The documented setting of the input size limit, in MiB (default 2048).
 MAX_INPUT_ENV = "TACTILE_ZOO_MAX_INPUT_MB"
-PACKAGE_ROOT = Path(tz.__file__).resolve().parent.parent
 #: seconds a refusal may take in the child before it counts as hung (imports are done by then: the first command,
 #: on the small file, paid for them)
 HANG_S = 120
@@ -41,6 +39,11 @@ HANG_S = 120
 _RUNNER = """
 import json, os, resource, signal, sys, traceback
 from tactile_zoo.cli import main
+
+os.environ.pop("TACTILE_ZOO_MAX_INPUT_MB", None)  # the default limit
+# a reader that loops on /dev/zero would eat the machine's memory before the timeout; with this ceiling it fails
+# fast with MemoryError instead (the fixed reader never gets near it: its baseline is a few hundred MiB)
+resource.setrlimit(resource.RLIMIT_DATA, (6 * 2**30, 6 * 2**30))
 
 class Hung(BaseException):
     pass
@@ -87,18 +90,6 @@ KINDS = ("a character device", "a FIFO (named pipe)")
 COMMANDS = ("predict", "stream")
 
 
-def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if k != MAX_INPUT_ENV}  # the default limit
-    env.update(PYTHONPATH=os.pathsep.join([str(PACKAGE_ROOT), env.get("PYTHONPATH", "")]), OMP_NUM_THREADS="1")
-    return env
-
-
-def _limit_heap() -> None:
-    # a reader that loops on /dev/zero would eat the machine's memory before the timeout; with this ceiling it fails
-    # fast with MemoryError instead (the fixed reader never gets near it: its baseline is a few hundred MiB)
-    resource.setrlimit(resource.RLIMIT_DATA, (6 * 2**30, 6 * 2**30))
-
-
 def _local(trained: Trained) -> list[str]:
     return ["--weights", str(trained.file), "--manifest", str(trained.manifest)]
 
@@ -109,9 +100,9 @@ def _run_cli(commands: dict[Any, tuple[list[str], int]], folder: Path, timeout: 
     command the child did not finish gets exit code ``None`` and the child's failure."""
     results = folder / "results.jsonl"
     try:
-        proc = subprocess.run([sys.executable, "-c", _RUNNER, str(results), json.dumps(list(commands.values()))],
-                              capture_output=True, text=True, timeout=timeout, env=_env(), preexec_fn=_limit_heap)
-        failure = f"the child exited {proc.returncode}: {proc.stderr[-2000:]}" if proc.returncode else ""
+        status, _, err = finish_python(_RUNNER, [str(results), json.dumps(list(commands.values()))],
+                                       folder / "child", timeout)
+        failure = f"the child exited {status}: {err[-2000:]}" if status else ""
     except subprocess.TimeoutExpired:
         failure = f"the child ran past {timeout} s"
     rows = [json.loads(line) for line in results.read_text().splitlines()] if results.exists() else []
