@@ -165,6 +165,22 @@ def run_python(source: str, argv: list[str], log: Path, timeout: float = 300, **
     return out, err
 
 
+
+def package_from(root: Path) -> str:
+    """The first lines of a :func:`fork_python` source that runs in ``root`` with ``root``'s own ``tactile_zoo`` (a
+    copy of the project, another commit's tree) in place of the checkout's, which the server imported: the child
+    forgets that package, ``tools`` and the modules importing them, then imports ``root``'s, as a new interpreter
+    with ``PYTHONPATH=root`` would (torch and the other libraries stay imported)."""
+    return f"""
+import os, sys
+os.chdir({str(root)!r})
+for name in [m for m in sys.modules if m.split(".")[0] in ("tactile_zoo", "tools", "tiny_zoo", "conftest")]:
+    del sys.modules[name]
+sys.path.insert(0, {str(root)!r})
+import tactile_zoo
+assert tactile_zoo.__file__.startswith({str(root) + os.sep!r}), f"not {str(root)}: {{tactile_zoo.__file__}}"
+"""
+
 @contextlib.contextmanager
 def dask_forkserver() -> Iterator[None]:
     """Within the block, the Dask nannies this process starts (``LocalCluster(processes=True)``, also the one

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from forked_bench import finish_python
+from forked_bench import finish_python, package_from
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -140,24 +140,10 @@ def _plant(dest: Path) -> list[str]:
 
 def _run(dest: Path, source: str, timeout: float = 240) -> None:
     """``python -c SOURCE`` in the copy, forked from the warm server of tests/forked_bench.py (torch and sklearn
-    imported once per test process): the child first forgets the checkout's package and tools, then imports the
-    copy's (:data:`IN_THE_COPY`)."""
+    imported once per test process) and importing the copy's package and tools in place of the checkout's."""
     env = {**os.environ, "PYTHONPATH": str(dest), "OMP_NUM_THREADS": "1", "TACTILE_ZOO_NO_PLUGINS": "1"}
-    code, out, err = finish_python(IN_THE_COPY + source, [str(dest)], dest.parent / "child", timeout, **env)
+    code, out, err = finish_python(package_from(dest) + source, [], dest.parent / "child", timeout, **env)
     assert code == 0, f"{source}:\n{out[-4000:]}\n{err[-4000:]}"
-
-
-#: the child's first lines: the copy's folder, and its package and tools in place of the checkout's (which the warm
-#: server imported; the copy's are imported afresh, as a new interpreter with PYTHONPATH=<copy> would)
-IN_THE_COPY = """
-import os, sys
-os.chdir(sys.argv[1])
-for name in [m for m in sys.modules if m.split(".")[0] in ("tactile_zoo", "tools", "tiny_zoo", "conftest")]:
-    del sys.modules[name]
-sys.path.insert(0, sys.argv[1])
-import tactile_zoo
-assert tactile_zoo.__file__.startswith(sys.argv[1] + os.sep), f"not the copy's package: {tactile_zoo.__file__}"
-"""
 
 
 #: the zoo's tests run on the planted model (``-k NAME``)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from forked_bench import finish_python
+from forked_bench import finish_python, package_from
 
 REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
@@ -85,15 +85,12 @@ def test_child_runs_against_both_versions(version: str, tmp_path: Path) -> None:
     job = {"model": "cnn_lstm", "threads": 1, "batches": 1, "device": "cpu", "root": None, "batch_size": 4}
     (tmp_path / "no-data").mkdir()  # an empty data home: the synthetic stand-in, whatever the user's data home holds
     env = vs_pinned.child_env(root, 1, {"TACTILE_ZOO_DATA": str(tmp_path / "no-data")})
-    env.pop("TACTILE_ZOO_DEFAULT_MALLOC", None)
-    if version == "current":  # forked from the warm server, which imported this version (the package, torch) once
-        env["TACTILE_ZOO_DEFAULT_MALLOC"] = "0"  # the child's environment is the server's updated: set, not unset
-        code, stdout, stderr = finish_python(vs_pinned.CHILD.read_text(), [json.dumps(job)], tmp_path / "child",
-                                             **env)
-    else:  # the pinned commit's package: a fresh interpreter, as vs_pinned runs it
-        proc = subprocess.run([sys.executable, "-P", str(vs_pinned.CHILD), json.dumps(job)], cwd=root, env=env,
-                              capture_output=True, text=True, check=False)
-        code, stdout, stderr = proc.returncode, proc.stdout, proc.stderr
+    # forked from the warm server (torch imported once per test process), with the version's own package: the
+    # checkout's, which the server imported, or the pinned tree's in its place (tests/forked_bench.package_from)
+    env["TACTILE_ZOO_DEFAULT_MALLOC"] = "0"  # the child's environment is the server's updated: set, not unset
+    source = ("" if version == "current" else package_from(root)) + \
+        f"import runpy; runpy.run_path({str(vs_pinned.CHILD)!r}, run_name='__main__')"  # the script by path, as -P
+    code, stdout, stderr = finish_python(source, [json.dumps(job)], tmp_path / "child", **env)
     assert code == 0, stderr[-2000:]
     got = json.loads(stdout.strip().splitlines()[-1])
     assert (got["batch_size"], got["samples_timed"], got["data"]) == (4, 4, "synthetic")
