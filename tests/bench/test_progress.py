@@ -147,12 +147,14 @@ def test_report_running_checks_the_process_behind_each_progress_file(tmp_path: P
     cell is running only while the process that writes its file exists and is the same process (not a later one
     given the same pid); anything else is listed as stopped, and a process on another host as not checked."""
     import socket
-    import subprocess
-    import sys
+
+    from forked_bench import run_python
 
     folder = tmp_path / "progress"
     folder.mkdir()
-    subprocess.run([sys.executable, "-c", _WRITE_AND_EXIT, str(folder)], check=True, timeout=120)
+    # a process of its own that writes the file and exits: forked from the warm server (tests/forked_bench.py), not
+    # a new interpreter importing torch and the package, since how it started is not what is checked here
+    run_python(_WRITE_AND_EXIT, [str(folder)], tmp_path / "writer", timeout=120)
     (state,) = progress.running_cells(tmp_path)  # written by a process that has exited since
     assert state["pid"] != os.getpid() and state["pid_start"] and progress.process_alive(
         state["pid"], state["host"], state["pid_start"]) is False
