@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import importlib.util
+import io
 import signal
 import subprocess
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -76,3 +80,30 @@ def reference_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     tiny_zoo.register()
     assert run_cli([*[a for a in SMALL if a != "--no-plots"], "--out", str(out), "-q"]) == 0  # with plots
     return out
+
+
+@dataclass(frozen=True)
+class ProcessRun:
+    """The SMALL grid run once by ``--executor process --workers 2``: its folder, exit code, what it printed, and
+    the tracker its workers logged each cell to (``mlflow`` where MLflow is installed, else ``None``)."""
+
+    out: Path
+    code: int
+    stdout: str
+    stderr: str
+    tracker: str | None
+
+
+@pytest.fixture(scope="session")
+def process_run(tmp_path_factory: pytest.TempPathFactory) -> ProcessRun:
+    """One run of the process executor for the tests of its numbers and output (test_executors.py) and of what its
+    workers log to MLflow (test_trackers.py): each spawned worker imports torch, the package, sklearn and MLflow
+    (seconds of CPU), so they share one pool of two instead of starting two."""
+    out = tmp_path_factory.mktemp("process") / "run"
+    tracker = "mlflow" if importlib.util.find_spec("mlflow") is not None else None
+    tiny_zoo.register()
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = run_cli([*SMALL, "--executor", "process", "--workers", "2", *(["--tracker", tracker] if tracker else []),
+                        "--out", str(out)])
+    return ProcessRun(out, code, stdout.getvalue(), stderr.getvalue(), tracker)

@@ -9,22 +9,22 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import SMALL, read_board, run_cli
+from conftest import SMALL, ProcessRun, read_board, run_cli
 from forked_bench import dask_forkserver
 
 #: these tests share the session's reference run: one xdist worker computes it once
 pytestmark = pytest.mark.xdist_group("tiny_bench")
 
 
-def test_process_executor_matches_local(reference_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    out = tmp_path / "run"
-    assert run_cli([*SMALL, "--executor", "process", "--workers", "2", "--out", str(out)]) == 0
-    printed = capsys.readouterr()
-    assert "process (2 workers x 1 thread)" in printed.out
+def test_process_executor_matches_local(process_run: ProcessRun, reference_run: Path) -> None:
+    out = process_run.out  # SMALL on 2 spawned workers, which also logged to MLflow (tests/bench/conftest.py)
+    assert process_run.code == 0, process_run.stderr
+    assert "process (2 workers x 1 thread)" in process_run.stdout
     assert read_board(out) == read_board(reference_run)
     # the workers' epochs reach the runner as they happen: one log line per epoch (stderr is not a terminal here)
     for cell in ("tiny_mlp x tiny_blobs fold 0 seed 0", "tiny_rate x tiny_kfold fold 1 seed 0"):
-        assert f"{cell}: epoch 1/8 val_acc " in printed.err and f"{cell}: epoch 2/8 val_acc " in printed.err
+        assert f"{cell}: epoch 1/8 val_acc " in process_run.stderr
+        assert f"{cell}: epoch 2/8 val_acc " in process_run.stderr
     assert not list((out / "progress").iterdir())  # each cell's progress file goes with its record
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import run_cli
+from conftest import ProcessRun, run_cli
 
 from tactile_zoo.bench.rundir import BENCH_FORMAT
 from tactile_zoo.cli import main
@@ -99,13 +99,14 @@ def test_bench_logs_each_cell_to_tensorboard(tmp_path: Path) -> None:
     _check_tensorboard(out, record)
 
 
-def test_process_workers_log_to_the_mlflow_file_store(tmp_path: Path) -> None:
+def test_process_workers_log_to_the_mlflow_file_store(process_run: ProcessRun) -> None:
+    """The SMALL grid's 6 cells on 2 spawned workers, each worker logging the cells it ran (the run of
+    tests/bench/conftest.py that test_executors.py checks against a local run)."""
     pytest.importorskip("mlflow")
-    out = tmp_path / "run"
-    assert run_cli([*TWO, "--executor", "process", "--workers", "2", "--tracker", "mlflow", "--out", str(out)]) == 0
-    records = _cells(out)
-    assert len(records) == 2 and all(r["status"] == "ok" for r in records.values())
-    _check_mlflow(out, records)
+    assert process_run.tracker == "mlflow" and process_run.code == 0, process_run.stderr
+    records = _cells(process_run.out)
+    assert len(records) == 6 and all(r["status"] == "ok" for r in records.values())
+    _check_mlflow(process_run.out, records)
 
 
 def test_dask_workers_log_tensorboard_event_files(dask_cluster: Any, tmp_path: Path) -> None:
