@@ -1,13 +1,12 @@
 """A Dask worker that dies inside a cell is survived: the cell is rescheduled, recorded once, with ``attempts == 2``.
 
-A real cluster on 127.0.0.1: ``dask scheduler`` and one ``dask worker --nworkers 2`` process: two worker processes
-(one thread each) under two nannies, which restart a killed worker. The nannies fork their worker processes from
-one ``forkserver`` that has imported distributed, torch and the package once (:data:`NANNY_PRELOAD`), so the worker
-a death restarts is running in a second, not after a new interpreter's imports; the plugin module is still never
-on the workers' path, it comes by upload. A plugin module, shipped to the workers by ``--plugin-module``, registers
-an epoch listener (:func:`tactile_zoo.bench.progress.add_listener`) that SIGKILLs its own worker process right after
-epoch 2 of one chosen cell, the first time only: the marker file it creates with ``O_EXCL`` says it already
-happened. So the death falls on an epoch boundary, not on a timer.
+A real cluster on 127.0.0.1: a scheduler and two worker processes (one thread each) under two nannies, which restart
+a killed worker (a ``LocalCluster`` of processes, started by this module). The nannies fork their worker processes
+from the warm server of tests/forked_bench.py, which has imported torch and the package once, so the worker a death
+restarts is running in a second, not after a new interpreter's imports. A plugin module, shipped to the workers by
+``--plugin-module``, registers an epoch listener (:func:`tactile_zoo.bench.progress.add_listener`) that SIGKILLs its
+own worker process right after epoch 2 of one chosen cell, the first time only: the marker file it creates with
+``O_EXCL`` says it already happened. So the death falls on an epoch boundary, not on a timer.
 
 The run must end with every cell ok, the killed cell recorded once with 2 attempts, and the leaderboard equal to an
 uninterrupted local run's. With ``--retries 0`` the same run fails the cell, and the same checks fail
@@ -19,16 +18,13 @@ from __future__ import annotations
 import collections
 import json
 import os
-import signal
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 from conftest import SMALL, read_board, run_cli
+from forked_bench import dask_forkserver
 
 from tactile_zoo.bench import rundir
 
@@ -40,8 +36,8 @@ pytestmark = pytest.mark.xdist_group("tiny_bench")
 #: the cell whose worker dies: (model, dataset, fold)
 DOOMED = ("tiny_rate", "tiny_kfold", 1)
 PLUGIN = "tz_death_plugin"
-PLUGIN_SOURCE = f'''
-"""Test plugin: kill this worker process at the end of epoch 2 of one cell, once per marker file."""
+PLUGIN_SOURCE = """
+\"\"\"Test plugin: kill this worker process at the end of epoch 2 of one cell, once per marker file.\"\"\"
 import os
 import signal
 
@@ -49,15 +45,16 @@ import tiny_zoo  # noqa: F401 - the tiny models and datasets, registered on impo
 
 from tactile_zoo.bench import progress
 
-DOOMED = ({DOOMED[0]!r}, {DOOMED[1]!r}, {DOOMED[2]!r})
+DOOMED = {doomed!r}
+MARKER = {marker!r}
+RUNNER = {runner!r}  # the test process, which imports the plugin too: never killed
 
 
 def _die_once(state):
-    marker = os.environ.get("TZ_DEATH_MARKER")
-    if not marker or (state["model"], state["dataset"], state["fold"]) != DOOMED or state["epoch"] != 2:
+    if os.getpid() == RUNNER or (state["model"], state["dataset"], state["fold"]) != DOOMED or state["epoch"] != 2:
         return
     try:
-        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        fd = os.open(MARKER, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
     except FileExistsError:
         return  # the second attempt
     os.write(fd, str(os.getpid()).encode())
@@ -66,80 +63,24 @@ def _die_once(state):
 
 
 progress.add_listener(_die_once)
-'''
-
-
-#: run in each nanny before it starts its worker: worker processes forked from a warm server (Dask's own
-#: ``forkserver`` method; ``get_mp_context`` sets its preload list once, so it is called first, then the list replaced)
-NANNY_PRELOAD = """
-import multiprocessing
-
-from distributed.utils import get_mp_context
-
-assert get_mp_context() is multiprocessing.get_context("forkserver")
-multiprocessing.get_context("forkserver").set_forkserver_preload(
-    ["distributed", "tactile_zoo.bench.executors", "torch._dynamo", "sklearn.metrics"])
 """
-
-
-def _stop(procs: list[subprocess.Popen]) -> None:
-    for proc in procs:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)  # nannies close their workers on SIGINT
-    deadline = time.monotonic() + 20
-    for proc in procs:
-        try:
-            proc.wait(timeout=max(0.1, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
 
 
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
-    """A scheduler and two single-threaded workers on 127.0.0.1, random ports; always torn down."""
+    """A scheduler and two single-threaded worker processes under nannies on 127.0.0.1, random ports; always torn
+    down. Every worker process (the restarted one too) is forked from the warm server: the multiprocessing method
+    stays set while the cluster lives."""
     root = tmp_path_factory.mktemp("cluster")
     plugin_dir = root / "plugin"
     plugin_dir.mkdir()
-    (plugin_dir / f"{PLUGIN}.py").write_text(PLUGIN_SOURCE)
     marker = root / "killed.marker"
-    (root / "tz_nanny_preload.py").write_text(NANNY_PRELOAD)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the plugins must come by upload
-    env.update(OMP_NUM_THREADS="1", TZ_DEATH_MARKER=str(marker),
-               DASK_DISTRIBUTED__WORKER__MULTIPROCESSING_METHOD="forkserver")
-    dask = [sys.executable, "-m", "distributed.cli.dask_scheduler"]
-    scheduler_file = root / "scheduler.json"
-    procs: list[subprocess.Popen] = []
-    logs = []
-    try:
-        log = open(root / "scheduler.log", "w")  # noqa: SIM115 - closed in finally
-        logs.append(log)
-        procs.append(subprocess.Popen([*dask, "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                                       "--scheduler-file", str(scheduler_file)], env=env, stdout=log,
-                                      stderr=subprocess.STDOUT, cwd=root))
-        deadline = time.monotonic() + 60
-        address = None
-        while address is None and time.monotonic() < deadline:  # the file appears before its JSON is written
-            try:
-                address = json.loads(scheduler_file.read_text())["address"]
-            except (FileNotFoundError, json.JSONDecodeError, KeyError):
-                time.sleep(0.2)
-        assert address, (root / "scheduler.log").read_text()
-        log = open(root / "workers.log", "w")  # noqa: SIM115 - closed in finally
-        logs.append(log)
-        procs.append(subprocess.Popen(  # two nannies in one process: one forkserver imports torch for both
-            [sys.executable, "-m", "distributed.cli.dask_worker", address, "--host", "127.0.0.1",
-             "--nthreads", "1", "--nworkers", "2", "--no-dashboard", "--death-timeout", "60",
-             "--preload-nanny", str(root / "tz_nanny_preload.py"), "--local-directory", str(root / "workers")],
-            env=env, stdout=log, stderr=subprocess.STDOUT, cwd=root))
-        with distributed.Client(address, timeout="30s") as client:
-            client.wait_for_workers(2, timeout=120)
-        yield {"address": address, "marker": marker, "plugin_dir": plugin_dir, "root": root}
-    finally:
-        _stop(procs[1:])
-        _stop(procs[:1])
-        for log in logs:
-            log.close()
+    (plugin_dir / f"{PLUGIN}.py").write_text(PLUGIN_SOURCE.format(doomed=DOOMED, marker=str(marker),
+                                                                   runner=os.getpid()))
+    with dask_forkserver(), distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+            local_directory=str(root / "workers")) as local:
+        yield {"address": local.scheduler_address, "marker": marker, "plugin_dir": plugin_dir, "root": root}
 
 
 def _bench(cluster: dict[str, Any], out: Path, retries: int, monkeypatch: pytest.MonkeyPatch
