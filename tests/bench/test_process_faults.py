@@ -67,7 +67,7 @@ def test_sigkill_mid_run_loses_nothing_and_resume_matches(uninterrupted: Path, t
     survivors = {p.stem: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
     assert 1 <= len(survivors) < 6
     monkeypatch.setattr(tiny_zoo, "SLOW_S", 0.0)  # the resume, in this process, needs no time to be killed in
-    outcome = run_bench(BenchConfig(**CONFIG, out=str(out)), quiet=True)
+    outcome = run_bench(BenchConfig(**CONFIG, out=str(out)), quiet=True, plots=False)  # as the grid's --no-plots
     assert outcome.exit_code == 0
     assert set(survivors) <= set(outcome.reused)  # finished cells are not recomputed...
     assert not set(survivors) & set(outcome.ran) and len(outcome.ran) + len(outcome.reused) == 6

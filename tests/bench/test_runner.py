@@ -86,7 +86,7 @@ def test_a_changed_hyper_parameter_gives_new_cells(reference_run: Path, tmp_path
     out = _copy(reference_run, tmp_path)
     cfg = BenchConfig(models=["tiny_mlp", "tiny_rate"], datasets=["tiny_blobs", "tiny_kfold"], folds=2, threads=1,
                       out=str(out), model_overrides={"tiny_mlp": {"hparams": {"hidden": 8}}})
-    outcome = run_bench(cfg, quiet=True)
+    outcome = run_bench(cfg, quiet=True, plots=False)  # the plots cost seconds and are not what is checked here
     assert outcome.exit_code == 0
     assert sorted({c.split("__")[0] for c in outcome.ran}) == ["tiny_mlp"] and len(outcome.ran) == 3
     assert len(outcome.reused) == 3 and all(c.startswith("tiny_rate") for c in outcome.reused)
@@ -109,7 +109,7 @@ def test_failures_are_isolated_and_retried(tmp_path: Path, capsys: pytest.Captur
     assert "out of memory" in board["tiny_oom"]["error"]
     cfg = BenchConfig(models=["tiny_mlp", "tiny_broken", "tiny_nan", "tiny_oom"], datasets=["tiny_blobs"],
                       out=str(tmp_path / "run"), threads=1)
-    again = run_bench(cfg, quiet=True)
+    again = run_bench(cfg, quiet=True, plots=False)  # the same plots as the first run's: drawn once
     assert again.exit_code == 1 and len(again.ran) == 3 and len(again.reused) == 1  # failed cells are retried
 
 
@@ -164,7 +164,7 @@ def test_ctrl_c_stops_cleanly_and_the_rerun_resumes(tmp_path: Path, monkeypatch:
     assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
     monkeypatch.setattr(executors, "run_cell", real)
     outcome = run_bench(BenchConfig(models=["tiny_mlp", "tiny_rate"], datasets=["tiny_blobs", "tiny_kfold"], folds=2,
-                                    threads=1, out=str(out)), quiet=True)
+                                    threads=1, out=str(out)), quiet=True, plots=False)  # plots: seconds, unchecked
     assert outcome.exit_code == 0 and len(outcome.reused) == 2 and len(outcome.ran) == 4
 
 
@@ -235,7 +235,7 @@ def test_a_cell_claimed_elsewhere_waits_until_the_rest_is_done_then_is_taken_ove
         return real(self, cell_id, blocking)
 
     monkeypatch.setattr(rundir.RunDir, "claim", held_once)
-    outcome = run_bench(cfg)
+    outcome = run_bench(cfg, plots=False)  # the plots cost seconds and are not what is checked here
     text = capsys.readouterr().out
     assert outcome.exit_code == 0 and outcome.ran == [second, first] and outcome.reused == []
     assert asked == [(first, False), (second, False), (first, True)]  # deferred, then the blocking wait
