@@ -79,6 +79,7 @@ def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]
                                                                    runner=os.getpid()))
     with dask_forkserver(), distributed.LocalCluster(
             n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+            scheduler_kwargs={"dashboard_address": ":0"},  # no dashboard; its HTTP routes on a free port, not 8787
             local_directory=str(root / "workers")) as local:
         yield {"address": local.scheduler_address, "marker": marker, "plugin_dir": plugin_dir, "root": root}
 
