@@ -27,11 +27,12 @@ only when asked for: ``pip install "tactile-zoo[tensorboard]"`` / ``pip install 
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -135,6 +136,26 @@ def _tensorboard(record: Mapping[str, Any], folder: Path) -> Path:
     return logdir
 
 
+@contextlib.contextmanager
+def _locked(folder: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on ``folder`` itself for the block (processes on one machine, or on a file system that
+    maps ``flock`` to its own locks); unserialised where the platform or file system has none."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        yield
+        return
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError:  # a file system without locks (some network mounts)
+            pass
+        yield
+    finally:
+        os.close(fd)  # closing the descriptor releases the lock
+
+
 def _mlflow(record: Mapping[str, Any], folder: Path, experiment: str) -> str:
     import tempfile
 
@@ -144,18 +165,15 @@ def _mlflow(record: Mapping[str, Any], folder: Path, experiment: str) -> str:
     # MLflow 3 keeps the file store in maintenance mode and refuses it unless this opt-out is set; it is the one
     # backend that needs no server and no database, so every worker of a run can write its own runs beside the others
     os.environ.setdefault("MLFLOW_ALLOW_FILE_STORE", "true")
-    client = MlflowClient(tracking_uri=(folder / "mlruns").resolve().as_uri())
-    found = client.get_experiment_by_name(experiment)
-    if found is None:
-        try:
-            experiment_id = client.create_experiment(experiment)
-        except Exception:  # another worker created it between our look-up and our create
-            again = client.get_experiment_by_name(experiment)
-            if again is None:
-                raise
-            experiment_id = again.experiment_id
-    else:
-        experiment_id = found.experiment_id
+    store = folder / "mlruns"
+    store.mkdir(parents=True, exist_ok=True)
+    # the file store gives a new experiment a random id and does not check its name under a lock: two workers that
+    # both found no experiment made two named alike, and the runs of one were missing from the other (seen with 2
+    # process workers). The look-up and the create hold the store's lock, so every worker finds the one experiment
+    with _locked(store):
+        client = MlflowClient(tracking_uri=store.resolve().as_uri())
+        found = client.get_experiment_by_name(experiment)
+        experiment_id = found.experiment_id if found is not None else client.create_experiment(experiment)
     run = client.create_run(experiment_id, run_name=str(record["cell_id"]),
                             tags={"status": str(record.get("status")), "tactile_zoo.cell_id": str(record["cell_id"])})
     run_id = run.info.run_id

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -161,3 +162,44 @@ def test_train_logs_its_cell_to_both_trackers(tmp_path: Path, capsys: pytest.Cap
     assert record["config_hash"] == cell_id.rsplit("__", 1)[1]
     assert {k: v for k, v in record["metrics"]["test"].items() if k != "confusion"} == summary["test"]
     _check_mlflow(tmp_path, {cell_id: record})
+
+
+_RACE = """
+import sys, time
+from pathlib import Path
+import mlflow.tracking  # imported before the start, so the workers' look-ups meet
+from tactile_zoo.bench.trackers import log_record
+folder, name = Path(sys.argv[1]), sys.argv[2]
+(folder / f"{name}.ready").touch()
+while not (folder / "go").exists():
+    time.sleep(0.001)
+assert log_record("mlflow", {"cell_id": name, "status": "ok", "metrics": {"test": {"accuracy": 0.5}}}, folder)
+"""
+
+
+def test_workers_logging_at_once_share_one_experiment(tmp_path: Path) -> None:
+    """Four processes log their first cell at the same moment into a new store: one experiment ``tactile-zoo`` holds
+    the four runs (the file store does not check names under a lock: without the tracker's own lock the workers
+    made experiments named alike, and one's runs were missing from the other's)."""
+    pytest.importorskip("mlflow")
+    from forked_bench import fork_python
+    from mlflow.tracking import MlflowClient
+
+    names = [f"cell{i}" for i in range(4)]
+    children = [fork_python(_RACE, [str(tmp_path), n], tmp_path / n, MLFLOW_ALLOW_FILE_STORE="true") for n in names]
+    try:
+        deadline = time.monotonic() + 120
+        while not all((tmp_path / f"{n}.ready").exists() for n in names):
+            assert time.monotonic() < deadline and all(c.poll() is None for c in children), \
+                [c.communicate(1) for c in children if c.poll() is not None]
+            time.sleep(0.01)
+        (tmp_path / "go").touch()
+        for child in children:
+            assert child.wait(120) == 0, child.communicate(1)
+    finally:
+        for child in children:
+            child.kill()
+    client = MlflowClient(tracking_uri=(tmp_path / "mlruns").resolve().as_uri())
+    named = [e for e in client.search_experiments() if e.name == "tactile-zoo"]
+    assert len(named) == 1, [e.experiment_id for e in named]
+    assert sorted(r.info.run_name for r in client.search_runs([named[0].experiment_id])) == names
