@@ -7,6 +7,7 @@ import argparse
 import os
 from pathlib import Path
 
+from ..errors import ConfigError
 from ._common import echo, progress_on
 
 __all__ = ["add_study"]
@@ -36,6 +37,8 @@ def add_study(sub: argparse._SubParsersAction) -> None:
                    help="report: where to write report.md, summary.csv and reads.csv (default RESULTS/study); compare: "
                         "report.md, means.csv, paired.csv and curves.csv (default RESULTS/compare)")
     p.add_argument("-q", "--quiet", action="store_true", help="run, compare: no progress")
+    p.add_argument("--grid", action="append", default=None, metavar="NAME",
+                   help="run: only this grid (repeatable; default every grid, in the file's order)")
     p.set_defaults(handler=_cmd_study)
 
 
@@ -48,6 +51,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     from ..study.freeze import freeze_status
     from ..study.plan import check_lines
 
+    if args.grid is not None and args.action != "run":
+        raise ConfigError(f"--grid: only `study run` takes it, not `study {args.action}`")
     if args.action == "compare":
         for path in run_comparison(args.file, out=args.out, quiet=not progress_on(args)).values():
             echo(f"wrote {path}")
@@ -65,7 +70,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
              f"{study.results / 'study'}")
         return 0
     if args.action == "run":
-        return run_study(study, quiet=not progress_on(args)).exit_code
+        return run_study(study, quiet=not progress_on(args), grids=args.grid).exit_code
     if args.action == "audit":
         result = audit(study)
         for line in result.lines:

@@ -6,10 +6,13 @@ on (once any cell exists), a file whose grids, rules or reads differ from the fr
 key that changed. Changes go into ``amendments``, appended with a reason; each is frozen in turn (its time and
 hash), and may add a grid, a read or a rule, never change one whose inputs already exist:
 
-- a grid of a new name, or one replacing a grid whose folder holds no cell yet;
+- a grid of a new name, or one replacing a grid whose folder holds no cell yet, or a reused grid re-declared
+  unchanged but ``superseded`` (its cells no longer count, e.g. run on another CPU type) while no recorded read took
+  its cells;
 - a read of a new name, or one replacing a read none of whose cells exist yet (a comparison given as arms: none of
   the study's own cells it reads, a reused grid's cells being there before the study ran any);
-- a rule that was not set (``cpu``, ``budget_cpu_hours``), or any rule while no cell exists.
+- a rule that was not set (``cpu``, ``budget_cpu_hours``), or any rule while the study has run no cell of its own
+  (a reused grid's cells do not count: the study did not run them under its rules).
 
 A migrated study carries its freeze in the file (``freeze: {time, commit, source}``, read once from its plan's
 first commit): that time is the freeze :func:`freeze_times` reports, for the audit to check cells against.
@@ -30,7 +33,7 @@ from ..bench.rundir import RunDir, atomic_write_json
 from ..errors import ConfigError
 from .checks import comparison_arms, read_members
 from .reads import recorded_reads
-from .schema import ComparisonRead, Study, canonical_hash
+from .schema import ComparisonRead, GridSpec, Study, canonical_hash
 
 __all__ = ["FREEZE_DIR", "TIME_FORMAT", "freeze_path", "read_freeze", "freeze", "changes", "freeze_times",
            "freeze_status", "parse_time", "has_cells"]
@@ -96,17 +99,25 @@ def _amendment_inputs_exist(study: Study, index: int) -> list[str]:
                    study.spec.model_copy(update={"amendments": study.spec.amendments[:index]}))
     before._plans = None  # type: ignore[attr-defined]
     problems = []
-    any_cells = has_cells(study)
+    # the rules govern the study's own cells: a reused grid's were run under another study's, and the audit holds
+    # them to the new rules all the same (a reused grid on another CPU type is superseded, below, or fails it)
+    own_cells = has_cells(before, [g.name for g in before.grids() if not g.reused])
     old_rules = before.rules().model_dump()
     for key, value in amendment.rules.items():
-        if any_cells and old_rules.get(key) is not None and old_rules[key] != value:
+        if own_cells and old_rules.get(key) is not None and old_rules[key] != value:
             problems.append(f"rules.{key}: {old_rules[key]!r} -> {value!r}, but cells already exist")
-    old_grids = {g.name for g in before.grids()}
+    old_grids = {g.name: g for g in before.grids()}
+    recorded_records = recorded_reads(study)
     for grid in amendment.grids:
-        if grid.name in old_grids and has_cells(before, [grid.name]):
+        old = old_grids.get(grid.name)
+        if old is None or not has_cells(before, [grid.name]):
+            continue
+        if not _supersedes_reused(old, grid):
             problems.append(f"grids.{grid.name}: its folder already holds cells")
+        elif grid.name in _grids_read(before, recorded_records):
+            problems.append(f"grids.{grid.name}: a recorded read took its cells, so it cannot be superseded")
     old_reads = before.reads()
-    recorded = set(recorded_reads(study))
+    recorded = set(recorded_records)
     for kind in ("means", "ensembles", "comparisons", "thresholds"):
         names = {r.name: r for r in getattr(old_reads, kind)}
         for read in getattr(amendment.reads, kind):
@@ -124,6 +135,29 @@ def _amendment_inputs_exist(study: Study, index: int) -> list[str]:
             elif kind != "thresholds" and has_cells(before, [read.grid or before.grids()[0].name]):
                 problems.append(f"reads.{kind}.{read.name}: its grid already holds cells")
     return problems
+
+
+def _supersedes_reused(old: GridSpec, new: GridSpec) -> bool:
+    """Whether ``new`` re-declares the reused grid ``old`` unchanged but for a reason it no longer counts: the one
+    change allowed to a grid whose folder holds cells, since the study ran none of them."""
+    return (old.reused is not None and old.superseded is None and new.superseded is not None
+            and new.model_copy(update={"superseded": None}) == old)
+
+
+def _grids_read(study: Study, recorded: dict[str, dict[str, Any]]) -> set[str]:
+    """The grids whose cells a recorded read took: named in its inputs (``grid/cell id``) or its declared grid."""
+    declared = {r.name: r for kind in ("means", "ensembles", "comparisons") for r in getattr(study.reads(), kind)}
+    out = set()
+    for name, record in recorded.items():
+        inputs = record.get("inputs") or []
+        inputs = [i for side in inputs.values() for i in side] if isinstance(inputs, dict) else inputs
+        out |= {str(i).split("/", 1)[0] for i in inputs if "/" in str(i)}
+        read = declared.get(name)
+        if read is not None and getattr(read, "grid", None) is not None:
+            out.add(read.grid)
+        elif read is not None:
+            out.add(study.grids()[0].name)
+    return out
 
 
 def _own_grids(study: Study, reads: list[tuple[Study, ComparisonRead]]) -> list[str]:

@@ -30,15 +30,21 @@ class StudyOutcome:
 
 
 def run_study(study: Study, *, quiet: bool = False, out: TextIO | None = None, err: TextIO | None = None,
-              plots: bool = False) -> StudyOutcome:
+              plots: bool = False, grids: list[str] | None = None) -> StudyOutcome:
     """Freeze ``study`` and run its grids through :func:`~tactile_zoo.bench.run_bench`; the exit code is the worst
-    of the grids' (0 every cell ok)."""
+    of the grids' (0 every cell ok). ``grids``: only these, in the file's order (default: every grid)."""
+    names = [g.name for g in study.grids()]
+    unknown = [g for g in grids or [] if g not in names]
+    if unknown:
+        raise ConfigError(f"--grid {', '.join(unknown)}: not a grid of {study.where} (its grids: {', '.join(names)})")
     state = freeze(study)
     logger.info("study %s frozen %s (sha256 %s) in %s", study.name, state["time"], state["sha256"][:12],
                 study.results / "study")
     budget = study.rules().budget_cpu_hours
     outcome = StudyOutcome()
     for name, plan in plans(study).items():
+        if grids is not None and name not in grids:
+            continue
         if plan.spec.superseded:
             logger.info("grid %s is superseded (%s): not run", name, plan.spec.superseded)
             continue
