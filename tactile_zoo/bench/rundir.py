@@ -61,10 +61,13 @@ RUN_LOCK = "run.lock"
 #: documents a study may commit into its folder before the first cell runs (what it declares, how to read it);
 #: bench never writes these names, so a new folder holding only them is not refused as someone else's
 PLAN_DOCUMENTS = frozenset({"README.md", "PLAN.md"})
+#: the records a study keeps in its results folder (its freeze, reads and report, :mod:`tactile_zoo.study`): a grid
+#: whose folder is the results folder itself (``folder: .``) starts its first cell beside them; bench never writes it
+STUDY_RECORDS = "study"
 #: ``--out`` of bench under the output-folder rule: besides the plan documents, the lock and run.json's temporary
 #: file are created before the marker, so a folder holding only them is not someone else's
 BENCH_FOLDER = FolderRule("--out", "bench", RUN_JSON, "a bench folder to resume",
-                          ignored=PLAN_DOCUMENTS | {RUN_LOCK}, ignored_prefixes=(f".{RUN_JSON}.",))
+                          ignored=PLAN_DOCUMENTS | {RUN_LOCK, STUDY_RECORDS}, ignored_prefixes=(f".{RUN_JSON}.",))
 
 
 class CellWriteError(OSError):

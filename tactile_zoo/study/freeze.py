@@ -29,7 +29,7 @@ from typing import Any
 
 from .._files import atomic_write_text
 from ..bench.records import cell_files
-from ..bench.rundir import RunDir, atomic_write_json
+from ..bench.rundir import STUDY_RECORDS, RunDir, atomic_write_json
 from ..errors import ConfigError
 from .checks import comparison_arms, read_members
 from .reads import recorded_reads
@@ -38,7 +38,7 @@ from .schema import ComparisonRead, GridSpec, Study, canonical_hash
 __all__ = ["FREEZE_DIR", "TIME_FORMAT", "freeze_path", "read_freeze", "freeze", "changes", "freeze_times",
            "freeze_status", "parse_time", "has_cells"]
 
-FREEZE_DIR = "study"
+FREEZE_DIR = STUDY_RECORDS
 TIME_FORMAT = "%Y-%m-%dT%H:%M:%S%z"  # as a cell record's ``started``
 
 

@@ -32,7 +32,7 @@ import numpy as np
 from ..bench import records
 from ..bench.intervals import bootstrap_accuracy, records_interval
 from ..bench.paired import records_paired
-from ..bench.rundir import RunDir, atomic_write_json
+from ..bench.rundir import STUDY_RECORDS, RunDir, atomic_write_json
 from ..errors import ResultsError
 from .checks import comparison_arms, plans, read_members
 from .schema import READ_KINDS, AllOf, ComparisonRead, EnsembleRead, MeanRead, Study, Threshold, ValidationRead
@@ -76,7 +76,7 @@ def seed_ensemble(records: list[dict[str, Any]], split: str = "test", combine: s
 
 
 def reads_path(study: Study) -> Path:
-    return study.results / "study" / "reads.json"
+    return study.results / STUDY_RECORDS / "reads.json"
 
 
 def recorded_reads(study: Study) -> dict[str, dict[str, Any]]:
