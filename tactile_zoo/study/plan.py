@@ -185,5 +185,9 @@ def check_lines(study: Study, plans: dict[str, PlannedGrid], history: Iterable[P
     folders = [*history, study.results]
     records = history_records(folders)
     lines.append(f"earlier cells read for the estimate: {len(records)} under {', '.join(map(str, folders))}")
-    lines += estimate([p for p in plans.values() if not p.spec.superseded], records, folds).lines()
+    reused = [name for name, p in plans.items() if p.spec.reused and not p.spec.superseded]
+    if reused:
+        lines.append(f"reused grid(s) {', '.join(reused)}: their cells are read, not run (not in the estimate)")
+    lines += estimate([p for p in plans.values() if not p.spec.superseded and not p.spec.reused], records,
+                      folds).lines()
     return lines

@@ -192,3 +192,17 @@ def test_a_grid_in_the_results_folder_itself_starts_beside_the_freeze(tmp_path: 
     shutil.copytree(tmp_path, other, ignore=shutil.ignore_patterns("run.json", "cells", "claims", "progress"))
     with pytest.raises(ConfigError, match="holds other files"):
         RunDir(other).prepare()
+
+
+def test_check_leaves_reused_grids_out_of_the_estimate(tmp_path: Path) -> None:
+    """A reused grid's cells were run by another study: ``study check`` does not count them in this one's cost."""
+    path = tmp_path / "sim.yaml"
+    path.write_text("study: sim\nquestion: q\nresults: results\ngrids:\n"
+                    "  - {name: own, settings: {models: [cnn_lstm], datasets: sim_evtouch, quick: true, seeds: [0]}}\n"
+                    "  - {name: earlier, reused: r, settings: {models: [dcnn], datasets: sim_evtouch, quick: true, "
+                    "seeds: [0, 1]}}\n")
+    code, out, err = tz("study", "check", str(path), "--history", str(tmp_path))
+    assert code == 0, err
+    assert "reused grid(s) earlier: their cells are read, not run (not in the estimate)" in out
+    rows = [line for line in out.splitlines() if " cell(s): " in line]
+    assert [row.split(":")[0].strip() for row in rows] == ["own"], rows
