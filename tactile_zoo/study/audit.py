@@ -164,7 +164,8 @@ def audit(study: Study, records: tuple[dict[str, list[dict[str, Any]]], list[str
         if not records and not reused and state is not None and study.spec.freeze is None:
             # frozen by `study run` or `study freeze` and not run yet: a plan, not a broken rule (a migrated
             # study points at cells that exist, so there an empty grid is a misspelt folder)
-            result.lines.append(f"grid {name}: not run yet (frozen {state['time']})")
+            when = frozen.strftime("%Y-%m-%dT%H:%M:%S%z") if frozen is not None else state["time"]
+            result.lines.append(f"grid {name}: not run yet (frozen {when})")  # an amended grid: its amendment's
             waiting.add(name)
         elif not plan.folder.is_dir():
             result.fail("cells present", f"grid {name}: its folder {plan.folder} does not exist")

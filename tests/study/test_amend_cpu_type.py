@@ -101,7 +101,9 @@ def test_the_move_is_accepted_before_the_studys_own_first_cell(tmp_path: Path) -
     assert [g.name for g in study.grids() if g.superseded] == ["r3", "r4"]
     result = audit(study)
     assert result.failures == [], result.failures
-    assert "grid old: not run yet" in "\n".join(result.lines)
+    lines = "\n".join(result.lines)  # each grid waits since its own freeze: `old` since the amendment's
+    assert f"grid old: not run yet (frozen {state['amendments'][0]['time']})" in lines, lines
+    assert f"grid new: not run yet (frozen {state['time']})" in lines, lines
 
 
 def test_a_reused_grid_of_another_type_left_in_fails_the_audit(tmp_path: Path) -> None:
