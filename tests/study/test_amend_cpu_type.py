@@ -93,6 +93,8 @@ def _needs_committed_cells() -> None:
 def test_the_move_is_accepted_before_the_studys_own_first_cell(tmp_path: Path) -> None:
     path = _study(tmp_path)
     freeze(load_study(path))
+    record = tmp_path / "results" / "study" / "freeze.json"  # planned a day before the amendment
+    record.write_text(json.dumps({**json.loads(record.read_text()), "time": "2026-01-01T00:00:00+0000"}))
     path.write_text(path.read_text() + _MOVE)
     state = freeze(load_study(path))  # the reused grids hold cells, the study's own none: not "cells exist"
     assert [a["reason"] for a in state["amendments"]] == ["this machine is another CPU type"]
