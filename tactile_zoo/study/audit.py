@@ -35,7 +35,7 @@ from typing import Any
 from ..bench.records import InvalidCellsError, run_records
 from ..bench.rundir import RunDir
 from .checks import plans, read_members
-from .freeze import changes, freeze_times, parse_time, read_freeze
+from .freeze import TIME_FORMAT, changes, freeze_times, parse_time, read_freeze
 from .reads import cell_digest, comparison_inputs, input_path, recorded_reads
 from .schema import Study, canonical_hash
 
@@ -164,7 +164,7 @@ def audit(study: Study, records: tuple[dict[str, list[dict[str, Any]]], list[str
         if not records and not reused and state is not None and study.spec.freeze is None:
             # frozen by `study run` or `study freeze` and not run yet: a plan, not a broken rule (a migrated
             # study points at cells that exist, so there an empty grid is a misspelt folder)
-            when = frozen.strftime("%Y-%m-%dT%H:%M:%S%z") if frozen is not None else state["time"]
+            when = frozen.strftime(TIME_FORMAT) if frozen is not None else state["time"]
             result.lines.append(f"grid {name}: not run yet (frozen {when})")  # an amended grid: its amendment's
             waiting.add(name)
         elif not plan.folder.is_dir():

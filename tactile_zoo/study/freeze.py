@@ -149,9 +149,7 @@ def _grids_read(study: Study, recorded: dict[str, dict[str, Any]]) -> set[str]:
     declared = {r.name: r for kind in ("means", "ensembles", "comparisons") for r in getattr(study.reads(), kind)}
     out = set()
     for name, record in recorded.items():
-        inputs = record.get("inputs") or []
-        inputs = [i for side in inputs.values() for i in side] if isinstance(inputs, dict) else inputs
-        out |= {str(i).split("/", 1)[0] for i in inputs if "/" in str(i)}
+        out |= {str(i).split("/", 1)[0] for i in record.get("inputs") or [] if "/" in str(i)}
         read = declared.get(name)
         if read is not None and getattr(read, "grid", None) is not None:
             out.add(read.grid)
