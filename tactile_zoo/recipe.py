@@ -26,6 +26,11 @@ Keys:
         the step of the whole batch, except that batch norm in training mode normalises over each micro-batch and
         updates its running statistics once per micro-batch. It bounds the memory of a large batch. Off (or at least
         the batch size) the loop is the plain one; left out of the cell hash while off.
+    distill_weight: 0 (off, the default) or a weight in (0, 1]: knowledge distillation from the averaged class
+        probabilities of teacher models (:mod:`tactile_zoo.engine.distill`; the bench setting ``teachers`` names
+        them). The loss becomes ``(1 - w) * CE(scores, y) + w * T**2 * KL(teachers || softmax(scores / T))``.
+        distill_temperature: ``T``, the softmax temperature of both sides (default 1). Both are left out of the cell
+        hash while at their defaults; ``ce`` loss only.
 
 Model selection (the one documented choice the harness makes): with ``monitor="val_accuracy"`` (the default) the
 selected epoch is the one with the highest validation accuracy, ties going to the lower validation loss; with
@@ -96,6 +101,8 @@ class Recipe:
     rate_targets: tuple[float, float] = field(default=(1.0, 0.0))
     ema_decay: float | None = None
     micro_batch_size: int | None = None
+    distill_weight: float = 0.0
+    distill_temperature: float = 1.0
 
     def __post_init__(self) -> None:
         where = "recipe"
@@ -103,6 +110,9 @@ class Recipe:
             object.__setattr__(self, f.name, _coerce(where, f.name, getattr(self, f.name)))
         if self.optimizer == "sgd" and self.nesterov and self.momentum == 0:
             raise ConfigError(f"{where}: nesterov needs a momentum > 0, got momentum={self.momentum!r}")
+        if self.distill_weight > 0 and self.loss != "ce":
+            raise ConfigError(f"{where}: distill_weight needs loss 'ce' (distillation matches the teachers' class "
+                              f"probabilities), got loss={self.loss!r}")
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None, where: str = "recipe") -> Recipe:
@@ -191,7 +201,8 @@ def _build(values: Mapping[str, Any], where: str) -> Recipe:
 RECIPE_KEYS = tuple(f.name for f in fields(Recipe))
 #: keys added after cells were first recorded, and their "off" value: left out of :meth:`Recipe.to_dict` while off,
 #: so that adding a capability never moves an existing cell's hash
-HASH_NEUTRAL_KEYS: dict[str, Any] = {"ema_decay": None, "micro_batch_size": None}
+HASH_NEUTRAL_KEYS: dict[str, Any] = {"ema_decay": None, "micro_batch_size": None, "distill_weight": 0.0,
+                                     "distill_temperature": 1.0}
 DEFAULT_RECIPE = Recipe()
 _DEFAULT_VALUES = DEFAULT_RECIPE.to_dict()  # the first layer of every resolution (a frozen recipe: read once)
 #: the non-training sections a named recipe may carry (see the module docstring)

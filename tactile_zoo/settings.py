@@ -26,9 +26,9 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, Strict, Type
 
 from .errors import ConfigError
 
-__all__ = ["RecipeSchema", "ScheduleSchema", "BenchSettings", "KEYWORDS", "EVALUATIONS", "LOSSES", "OPTIMIZERS",
-           "MONITORS", "SCHEDULES", "check_value", "check_field", "check_keywords", "check_prefixes", "prefix_label",
-           "describe_error"]
+__all__ = ["RecipeSchema", "ScheduleSchema", "TeachersSchema", "BenchSettings", "KEYWORDS", "EVALUATIONS", "LOSSES",
+           "OPTIMIZERS", "MONITORS", "SCHEDULES", "check_value", "check_field", "check_keywords", "check_prefixes",
+           "prefix_label", "describe_error"]
 
 def _not_subnormal(value: Any) -> Any:
     """Refuse a subnormal float (below 2.2e-308 in size, not 0). Training flushes it to zero, and so does every
@@ -106,6 +106,16 @@ class RecipeSchema(_Schema):
     rate_targets: tuple[Rate, Rate] = (1.0, 0.0)
     ema_decay: OpenFraction | None = None
     micro_batch_size: PositiveInt | None = None
+    distill_weight: Rate = 0.0
+    distill_temperature: PositiveNumber = 1.0
+
+
+class TeachersSchema(_Schema):
+    """Distillation's teachers (:mod:`tactile_zoo.engine.distill`): the cells of the student's own configuration,
+    distillation off, with these seeds, in the bench folder ``folder``, which saved their weights."""
+
+    folder: Text
+    seeds: Annotated[list[NonNegativeInt], Field(min_length=1)]
 
 
 #: constructor keywords (``--hparam``, a recipe's ``hparams``) and dataset keywords (``--dataset-arg``): keyword
@@ -149,6 +159,7 @@ class BenchSettings(_Schema):
     model_overrides: dict[Text, dict[Literal["recipe", "hparams"], dict[Text, Any]]] = Field(default_factory=dict)
     dataset_kwargs: dict[Text, dict[Identifier, Any]] = Field(default_factory=dict)
     model_revisions: dict[Text, PositiveInt] = Field(default_factory=dict)  # model ("*": every model) -> revision
+    teachers: TeachersSchema | None = None  # distillation's teachers (a recipe's distill_weight > 0 needs them)
 
 
 _PHRASES = {

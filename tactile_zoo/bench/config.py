@@ -38,6 +38,9 @@ per-dataset overrides the command line can only express as ``MODEL:KEY=VALUE``::
       "*": {}                       # every dataset
     model_revisions: {sgnet: 2}     # build a model at one of its revisions (default: its registered default;
                                     #   "*": every model); part of the cell hash
+    teachers: null                  # distillation (a recipe's distill_weight > 0): {folder: FOLDER, seeds: [0, 1]},
+                                    #   the bench folder holding the cells of the same settings with distillation
+                                    #   off, run with save_weights (tactile_zoo.engine.distill)
 
 Unknown keys anywhere in the file are a :class:`ConfigError` that names them; every value is checked against the
 one settings schema (:class:`tactile_zoo.settings.BenchSettings`, strict: ``quick: "false"`` is refused) as the
@@ -152,6 +155,9 @@ class BenchConfig:
         if self.recipe_name is not None and (not isinstance(self.recipe_name, str) or not self.recipe_name.strip()):
             raise ConfigError(f"--recipe must name a recipe (e.g. source), got {self.recipe_name!r}")
         self.plugin_modules = _names("plugin_modules", self.plugin_modules, allow_empty=True)
+        if self.teachers is not None:  # its plain form: {"folder": str, "seeds": sorted ints}
+            teachers = self.teachers if isinstance(self.teachers, Mapping) else dict(self.teachers)
+            self.teachers = {"folder": os.fspath(teachers["folder"]), "seeds": sorted(teachers["seeds"])}
         return self
 
     @property
@@ -397,7 +403,8 @@ def plan_cells(config: BenchConfig, models: Sequence[str], datasets: Sequence[st
         except ConfigError as exc:  # the model's revisions named, with the setting that asked for another
             raise ConfigError(f"--model-revision or a config file's model_revisions: {exc}") from None
     common = {"recipe_name": config.recipe_name, "epochs": config.epochs, "quick": config.quick,
-              "refit": config.refit, "prefixes": config.prefixes, "evaluation": config.evaluation}
+              "refit": config.refit, "prefixes": config.prefixes, "evaluation": config.evaluation,
+              "teacher_seeds": tuple(config.teachers["seeds"]) if config.teachers else ()}
     configs: dict[tuple[str, str], CellConfig] = {}
     for dataset in datasets:
         for model in models:

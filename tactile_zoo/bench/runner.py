@@ -35,6 +35,7 @@ from .progress import CostModel, ProgressDisplay, RunConsole, remove_progress
 from .records import InvalidCell, move_aside, refuse_newer
 from .rundir import BENCH_FORMAT, CellWriteError, Claim, RunDir, atomic_write_json
 from .schema import RECORD_FORMAT, InvalidRecordError
+from .teachers import check_teachers
 from .worker import CellTask
 
 logger = logging.getLogger(__name__)
@@ -85,7 +86,8 @@ def _task(cell: Cell, config: BenchConfig, executor: Executor, progress_dir: Pat
                     commit=environment()["git_commit"],
                     weights_dir=str(weights_dir.resolve()) if weights_dir is not None else None,
                     tracker=config.tracker,
-                    tracker_dir=str(tracker_dir.resolve()) if config.tracker and tracker_dir is not None else None)
+                    tracker_dir=str(tracker_dir.resolve()) if config.tracker and tracker_dir is not None else None,
+                    teacher_dir=str(Path(config.teachers["folder"]).resolve()) if config.teachers else None)
 
 
 def _run_json(run: RunDir, config: BenchConfig, grid: Grid, status: str, extra: dict[str, Any]) -> None:
@@ -135,11 +137,13 @@ def _run_bench(config: BenchConfig, *, dry_run: bool, quiet: bool, out: TextIO |
     run.check_format()  # before anything is read or written (prepare checks again, for its other callers)
     scan = run.scan()
     refuse_newer(scan, f"--out {out_dir}")
+    existing = scan.records  # prepare() writes no cell: the scan above still holds
+    todo = [c for c in grid.cells if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
+    if config.teachers:  # every teacher of every cell to run, before anything is written or trained
+        check_teachers(config.teachers["folder"], todo)
     run.prepare()
     started = time.time()
     started_text = time.strftime("%Y-%m-%dT%H:%M:%S%z")
-    existing = scan.records  # prepare() writes no cell: the scan above still holds
-    todo = [c for c in grid.cells if config.force or (existing.get(c.cell_id) or {}).get("status") not in FINISHED]
     # a local pool starts no more workers than there are cells to run (and warns above the cores)
     executor = make_executor(config.executor, workers=config.workers, threads=config.threads,
                              scheduler=config.scheduler, plugin_modules=tuple(config.plugin_modules),

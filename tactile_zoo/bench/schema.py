@@ -125,7 +125,7 @@ _OPTIONAL: dict[str, Check] = {
     "n_train": _COUNT, "n_val": _COUNT, "n_test": _COUNT, "params": _COUNT, "threads": _COUNT, "attempts": _COUNT,
     "test_reads": _COUNT, "seconds": _AMOUNT, "infer_ms_per_sample": _AMOUNT, "peak_memory_mb": _AMOUNT,
     "peak_gpu_memory_mb": _AMOUNT, "prefix": _OBJECT, "predictions": _OBJECT, "reference": _OBJECT,
-    "weights": _OBJECT,
+    "weights": _OBJECT, "teachers": _LIST,
 }
 #: the numbers of a curve row (``epoch`` is required), of ``prefix`` and of ``reference``, checked when present
 _CURVE_ROW: dict[str, Check] = {"seconds": _AMOUNT, "val_accuracy": _FRACTION}

@@ -27,9 +27,10 @@ from ..engine.cell import CellResult, train_cell
 from ..engine.config import CellConfig
 from ..engine.malloc import tune_malloc
 from ..engine.runtime import cpu_isa, cpu_model, flush_denormals, resolve_device, set_threads, versions
-from ..errors import ModelCannotConsume
+from ..errors import ConfigError, ModelCannotConsume
 from .progress import ProgressWriter
 from .schema import RECORD_FORMAT, nan_to_null
+from .teachers import Teacher, find_teachers
 
 __all__ = ["CellTask", "run_cell", "setup_worker", "save_weights", "RECORD_FORMAT"]
 
@@ -63,6 +64,8 @@ class CellTask:
     #: ``--tracker``: log the finished cell to this tracker (tensorboard or mlflow) under ``tracker_dir``
     tracker: str | None = field(default=None, compare=False)
     tracker_dir: str | None = field(default=None, compare=False)
+    #: distillation: the bench folder holding the cell's teachers (the ``teachers`` setting's, resolved)
+    teacher_dir: str | None = field(default=None, compare=False)
 
 
 # ----------------------------------------------------------------------------------------------- worker set-up
@@ -187,6 +190,15 @@ def _sorted_metadata(data: bytes) -> bytes:
     return data[:8] + text + b" " * (n - len(text)) + data[8 + n:]
 
 
+def _teachers(task: CellTask) -> list[Teacher]:
+    """The cell's teachers, found and checked in its teachers' folder (none for a cell that distils nothing)."""
+    if not task.config.teacher_seeds:
+        return []
+    if task.teacher_dir is None:
+        raise ConfigError(f"{task.cell_id}: the cell distils from teachers, but no teachers folder was given")
+    return find_teachers(task.teacher_dir, task.config, task.fold)
+
+
 @flush_denormals()
 def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
     """Train and evaluate one cell (:func:`tactile_zoo.engine.cell.train_cell`); returns its record (``status`` ok,
@@ -201,10 +213,13 @@ def run_cell(task: CellTask, progress: bool = False) -> dict[str, Any]:
         config = task.config
         # the writer only reads each finished epoch's curve row: no RNG, no model state, so numbers are unchanged
         callback = ProgressWriter(task.progress_dir, record, config.recipe.max_epochs) if task.progress_dir else None
+        teachers = _teachers(task)
+        if teachers:  # which weights the student learnt from, whatever becomes of the teachers' folder later
+            record["teachers"] = [t.to_record() for t in teachers]
         try:
             result = train_cell(config, fold=task.fold, seed=task.seed, root=task.root, download=task.download,
                                 device=task.device, extra_splits=task.extra_splits, progress=progress,
-                                callback=callback)
+                                callback=callback, teachers=[t.path for t in teachers])
         except ModelCannotConsume as exc:  # the model declares it cannot consume this dataset
             record.update(status="skipped", error=f"model cannot consume this dataset: {exc}")
             return record

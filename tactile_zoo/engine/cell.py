@@ -10,6 +10,7 @@ come from :mod:`.build`.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -17,12 +18,14 @@ from typing import Any
 import torch
 
 from ..data.guard import tuning
+from ..errors import ConfigError
 from ..recipe import Recipe
 from .build import SPLITS, build_model, load_splits
 from .config import MERGED_EVALUATIONS, CellConfig
+from .distill import load_teachers, teacher_probabilities
 from .evaluate import EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
 from .runtime import PeakMemory, flush_denormals, resolve_device
-from .tensors import concat, take
+from .tensors import TensorSplit, concat, take
 from .train import FitResult, train_model
 
 __all__ = ["CellResult", "train_cell"]
@@ -59,7 +62,8 @@ class CellResult:
 @flush_denormals()
 def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = None, download: bool = False,
                device: str | torch.device = "auto", extra_splits: Sequence[str] = (), measure: bool = True,
-               progress: bool = False, callback: Callable[[dict[str, Any]], None] | None = None) -> CellResult:
+               progress: bool = False, callback: Callable[[dict[str, Any]], None] | None = None,
+               teachers: Sequence[str | os.PathLike] = ()) -> CellResult:
     """Load the splits, seed, build, fit (selecting on validation) and evaluate one cell; the test split is read once.
 
     Args:
@@ -71,13 +75,19 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         measure: also evaluate the test split's prefixes and time inference (the harness's per-cell extras).
         progress, callback: report the epochs (:mod:`.progress`: a bar on a terminal, log records otherwise); a
             function called with each epoch's curve row.
+        teachers: distillation: the weight files of the cell's teachers, one per ``config.teacher_seeds`` in order
+            (:mod:`.distill`; the harness finds and checks them).
 
     Raises:
         ModelCannotConsume: the model's constructor refused the dataset.
+        ConfigError: teachers given to a cell without ``teacher_seeds``, or not one per teacher seed.
     """
+    if teachers and not config.teacher_seeds:
+        raise ConfigError(f"{config.model} on {config.dataset}: teacher weights given, but the cell has no teachers")
     if config.evaluation == "tuning":
         with tuning():
-            return _tune_cell(config, fold, seed, root, download, resolve_device(device), progress, callback)
+            return _tune_cell(config, fold, seed, root, download, resolve_device(device), progress, callback,
+                              teachers)
     dev = resolve_device(device)
     splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs,
                          (*SPLITS, *extra_splits))
@@ -88,6 +98,7 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
     rec = config.recipe
     prefix = infer_ms = reference = None
     with PeakMemory(dev) as peak:
+        train, val = _taught(config, teachers, train, val, dev)
         model = build_model(config.model, train.spec, config.hparams, seed, config.model_revision)
         if config.evaluation == "reference":
             result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback)
@@ -116,13 +127,28 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
                       test_reads=result.epochs_run if config.evaluation == "reference" else 1)
 
 
+def _taught(config: CellConfig, teachers: Sequence[str | os.PathLike], train: TensorSplit, val: TensorSplit,
+            dev: torch.device) -> tuple[TensorSplit, TensorSplit]:
+    """``train`` and ``val`` with the teachers' probabilities attached (unchanged for a cell without teachers).
+    Both splits get them: a ``final`` cell and a refit train on train + val. The teachers are built before the
+    student, whose :func:`build_model` seeds afresh, so they change none of its random draws."""
+    if not config.teacher_seeds:
+        return train, val
+    models = load_teachers(config, train.spec, teachers)
+    t, batch = config.recipe.distill_temperature, config.recipe.eval_batch_size
+    return (replace(train, soft=teacher_probabilities(models, train, t, batch, dev)),
+            replace(val, soft=teacher_probabilities(models, val, t, batch, dev)))
+
+
 def _tune_cell(config: CellConfig, fold: int, seed: int, root: Any, download: bool, dev: torch.device,
-               progress: bool, callback: Callable[[dict[str, Any]], None] | None) -> CellResult:
+               progress: bool, callback: Callable[[dict[str, Any]], None] | None,
+               teachers: Sequence[str | os.PathLike] = ()) -> CellResult:
     """The ``tuning`` evaluation: :func:`train_cell` without the test split (called inside the tuning guard)."""
     splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs, ("train", "val"))
     subset = config.subset or {}
     train, val = take(splits["train"], subset.get("train")), take(splits["val"], subset.get("val"))
     with PeakMemory(dev) as peak:
+        train, val = _taught(config, teachers, train, val, dev)
         model = build_model(config.model, train.spec, config.hparams, seed, config.model_revision)
         result = train_model(model, train, recipe=config.recipe, seed=seed, val_dataset=val, device=dev,
                              refit=config.refit, progress=progress, callback=callback)

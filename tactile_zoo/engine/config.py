@@ -92,6 +92,8 @@ class CellConfig:
     model_revision: int = registry.DEFAULT_REVISION
     dataset_revision: int = registry.DEFAULT_REVISION
     evaluation: str = "validation"  # or "reference", "tuning", "final": see EVALUATIONS
+    #: distillation: the seeds of the teachers, cells of this configuration with distillation off (:mod:`.distill`)
+    teacher_seeds: tuple[int, ...] = ()
 
     def hashed(self) -> dict[str, Any]:
         """The part of :meth:`to_dict` a cell hash covers."""
@@ -101,7 +103,8 @@ class CellConfig:
                 "prefixes": list(self.prefixes), "model_revision": self.model_revision,
                 "dataset_revision": self.dataset_revision,
                 # the default is left out, so that the hashes of cells from before the setting existed still hold
-                **({"evaluation": self.evaluation} if self.evaluation != "validation" else {})}
+                **({"evaluation": self.evaluation} if self.evaluation != "validation" else {}),
+                **({"teachers": list(self.teacher_seeds)} if self.teacher_seeds else {})}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.hashed(), "causal": self.causal, "recipe_name": self.recipe_name}
@@ -119,7 +122,8 @@ class CellConfig:
                    causal=bool(values.get("causal")),
                    model_revision=int(values.get("model_revision", registry.DEFAULT_REVISION)),
                    dataset_revision=int(values.get("dataset_revision", registry.DEFAULT_REVISION)),
-                   evaluation=str(values.get("evaluation", "validation")))
+                   evaluation=str(values.get("evaluation", "validation")),
+                   teacher_seeds=tuple(int(s) for s in values.get("teachers") or ()))
 
 
 @dataclass(frozen=True)
@@ -174,7 +178,8 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
                  hparams: Mapping[str, Any] | None = None, epochs: int | None = None,
                  dataset_kwargs: Mapping[str, Any] | None = None, refit: bool = False, quick: bool = False,
                  subset: Mapping[str, int] | None = None, prefixes: Sequence[float] = DEFAULT_PREFIXES,
-                 evaluation: str | None = None, model_revision: int | None = None) -> CellConfig:
+                 evaluation: str | None = None, model_revision: int | None = None,
+                 teacher_seeds: Sequence[int] = ()) -> CellConfig:
     """The configuration of ``model`` on ``dataset``.
 
     Args:
@@ -196,9 +201,11 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
         evaluation: one of :data:`EVALUATIONS`; default: the one the named recipe declares, else ``"validation"``.
         model_revision: which of the model's revisions to build (:func:`tactile_zoo.registry.model_revisions`);
             default: its registered default. Part of the hash, so cells of two revisions never pool.
+        teacher_seeds: distillation's teachers (:mod:`.distill`), for a recipe whose ``distill_weight`` is above 0.
 
     Raises:
-        ConfigError: a bad setting, or a revision the model does not have (naming its revisions).
+        ConfigError: a bad setting, a revision the model does not have (naming its revisions), or distillation
+            without teachers (or teachers without distillation).
     """
     if evaluation is not None and evaluation not in EVALUATIONS:
         raise ConfigError(f"--evaluation must be one of {', '.join(EVALUATIONS)}, got {evaluation!r}")
@@ -217,13 +224,31 @@ def resolve_cell(model: str, dataset: str, *, recipe: Recipe | Mapping[str, Any]
     if evaluation in MERGED_EVALUATIONS and refit:
         raise ConfigError(f"--evaluation {evaluation} already trains on train + val; it does not combine with --refit")
     subset = subset if subset is not None else (QUICK_SUBSET if quick else None)
+    _check_distillation(model, named.recipe, teacher_seeds, evaluation)
     return CellConfig(model=model, dataset=dataset, recipe=named.recipe, recipe_name=named.name,
                       model_source=entry.dist or "builtin", hparams={**named.hparams, **dict(hparams or {})},
                       dataset_kwargs={**named.dataset_kwargs, **dict(dataset_kwargs or {})}, refit=bool(refit),
                       subset=dict(subset) if subset else None, prefixes=tuple(prefixes),
                       causal=bool(entry.meta.get("causal", False)),
                       model_revision=registry.revision_of(entry) if model_revision is None else model_revision,
-                      dataset_revision=registry.revision_of(data_entry), evaluation=evaluation)
+                      dataset_revision=registry.revision_of(data_entry), evaluation=evaluation,
+                      teacher_seeds=tuple(sorted(teacher_seeds)))
+
+
+def _check_distillation(model: str, recipe: Recipe, teacher_seeds: Sequence[int], evaluation: str) -> None:
+    """A distilling recipe needs teachers, teachers need a distilling recipe, and a ``reference`` cell (which reads
+    the test split after every epoch) is never a student."""
+    if recipe.distill_weight > 0 and not teacher_seeds:
+        raise ConfigError(f"model {model!r}: recipe distill_weight {recipe.distill_weight:g} needs teachers (the "
+                          f"setting teachers: {{folder: FOLDER, seeds: [...]}}), and none are given")
+    if teacher_seeds and recipe.distill_weight == 0:
+        raise ConfigError(f"model {model!r}: teachers are given but the recipe's distill_weight is 0, so they would "
+                          f"not be used; set distill_weight (and distill_temperature) or drop teachers")
+    if teacher_seeds and evaluation == "reference":
+        raise ConfigError(f"model {model!r}: distillation runs under evaluation validation, tuning or final, not "
+                          f"reference")
+    if len(set(teacher_seeds)) != len(teacher_seeds):
+        raise ConfigError(f"model {model!r}: teachers.seeds lists a seed twice: {list(teacher_seeds)}")
 
 
 def _canonical(value: Any) -> str:

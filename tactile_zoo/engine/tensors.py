@@ -23,7 +23,8 @@ class TensorSplit:
     """One split held as tensors ``x [S, T, N, C]``, ``g [S, T, G]``, ``y [S]`` with its spec.
 
     ``groups [S]`` (optional) names each sample's independent unit, such as the recording a window was cut from;
-    ``None`` means every sample is its own.
+    ``None`` means every sample is its own. ``soft [S, K]`` (optional) holds distillation's teacher probabilities of
+    each sample (:mod:`.distill`).
     """
 
     x: torch.Tensor
@@ -32,6 +33,7 @@ class TensorSplit:
     spec: DatasetSpec
     name: str = ""
     groups: torch.Tensor | None = None
+    soft: torch.Tensor | None = None
 
     def unit_ids(self) -> list[int]:
         """The independent unit of every sample, in order (what a bootstrap resamples)."""
@@ -101,7 +103,8 @@ def take(dataset: Any, limit: int | None, seed: int = 0) -> TensorSplit:
     chosen = order[torch.sort(rank * (split.spec.num_classes + 1) + labels, stable=True).indices[:limit]]
     chosen = chosen.sort().values  # keep the dataset's own order
     return TensorSplit(split.x[chosen], split.g[chosen], split.y[chosen], split.spec, split.name,
-                       None if split.groups is None else split.groups[chosen])
+                       None if split.groups is None else split.groups[chosen],
+                       None if split.soft is None else split.soft[chosen])
 
 
 def concat(a: Any, b: Any) -> TensorSplit:
@@ -109,6 +112,10 @@ def concat(a: Any, b: Any) -> TensorSplit:
     a, b = as_split(a), as_split(b)
     if a.x.shape[1:] != b.x.shape[1:] or a.g.shape[1:] != b.g.shape[1:]:
         raise DatasetError(f"cannot join splits of shapes {tuple(a.x.shape[1:])} and {tuple(b.x.shape[1:])}")
+    if (a.soft is None) != (b.soft is None):  # half a split without its teachers' probabilities would train wrongly
+        raise DatasetError(f"cannot join {a.name or 'a split'} and {b.name or 'a split'}: only one holds teacher "
+                           f"probabilities")
     groups = None if a.groups is None or b.groups is None else torch.cat([a.groups, b.groups])
+    soft = None if a.soft is None or b.soft is None else torch.cat([a.soft, b.soft])
     return TensorSplit(torch.cat([a.x, b.x]), torch.cat([a.g, b.g]), torch.cat([a.y, b.y]), a.spec,
-                       f"{a.name}+{b.name}", groups)
+                       f"{a.name}+{b.name}", groups, soft)

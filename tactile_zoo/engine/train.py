@@ -34,6 +34,7 @@ import torch.nn.functional as F
 
 from ..errors import ConfigError, TactileZooError
 from ..recipe import Recipe, lr_factor
+from .distill import distillation_loss
 from .evaluate import EvalResult, evaluate, predict_scores
 from .progress import Progress
 from .runtime import count_parameters, flush_denormals, resolve_device, seed_everything
@@ -126,6 +127,8 @@ class _Trainer:
         self.model, self.recipe, self.device = model, recipe, device
         self.x, self.y = train.x.to(device), train.y.to(device)  # whole split on the device once
         self.g = train.g.to(device) if train.g.shape[-1] > 0 else None
+        # distillation: the teachers' probabilities of each training sample, indexed as x and y are
+        self.soft = train.soft.to(device) if recipe.distill_weight > 0 else None
         self.num_classes = train.spec.num_classes
         self.optimizer = build_optimizer(model, recipe)
         self.generator = torch.Generator().manual_seed(seed)
@@ -174,6 +177,8 @@ class _Trainer:
         if scores.shape != (idx.shape[0], self.num_classes):
             raise TrainingError(f"{type(self.model).__name__}.forward returned shape {tuple(scores.shape)}; "
                                 f"expected [batch={idx.shape[0]}, num_classes={self.num_classes}]")
+        if self.soft is not None:
+            return distillation_loss(scores, yb, self.soft[idx], self.recipe)
         return compute_loss(scores, yb, self.recipe)
 
     def _accumulate(self, idx: torch.Tensor, micro: int) -> torch.Tensor:
@@ -258,6 +263,9 @@ def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int 
     if not isinstance(recipe, Recipe):
         raise ConfigError(f"train_model() takes a resolved Recipe, got {type(recipe).__name__}; tactile_zoo.fit "
                           f"resolves names and overrides")
+    if recipe.distill_weight > 0 and (train.soft is None or (refit and val is not None and val.soft is None)):
+        raise ConfigError(f"the recipe's distill_weight is {recipe.distill_weight:g}, but the split(s) it trains on "
+                          f"hold no teacher probabilities (tactile_zoo.engine.distill; a cell's teachers setting)")
     dev = resolve_device(device)
     module, rec = model, recipe
     seed_everything(seed)  # dropout and any other randomness during training

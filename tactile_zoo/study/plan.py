@@ -69,6 +69,10 @@ def bench_config(study: Study, grid: GridSpec) -> BenchConfig:
     root = settings.get("root")
     if isinstance(root, str) and not Path(root).expanduser().is_absolute():
         settings["root"] = str(study.path.parent / root)  # a data home relative to the study file, as `results` is
+    teachers = settings.get("teachers")
+    if teachers and not Path(teachers["folder"]).expanduser().is_absolute():
+        # distillation's teachers: a bench folder under the results folder, as a grid's `folder` is
+        settings["teachers"] = {**teachers, "folder": str(study.results / teachers["folder"])}
     try:
         return merge_config({**settings, "out": str(study.folder(grid))}, {})
     except TactileZooError as exc:

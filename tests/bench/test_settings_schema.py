@@ -69,6 +69,7 @@ RECIPE_BAD: dict[str, st.SearchStrategy[Any]] = {
     "patience": ints(1).filter(lambda v: v is not False), "grad_clip": numbers(0, math.inf, True, False).filter(
         lambda v: v is not False), "ema_decay": numbers(0, 1, True, True).filter(lambda v: v is not False),
     "micro_batch_size": ints(1).filter(lambda v: v is not False),
+    "distill_weight": numbers(0, 1, False, False), "distill_temperature": numbers(0, math.inf, True, False),
     "rate_targets": st.one_of(st.tuples(numbers(0, 1, False, False), st.just(0.0)).map(list),
                               st.lists(st.floats(0, 1), min_size=3, max_size=3), st.floats(0, 1)),
     "schedule": st.one_of(st.integers(), st.just("poly"), st.just({"type": "multistep"})),
@@ -106,6 +107,10 @@ BENCH_BAD: dict[str, st.SearchStrategy[Any]] = {
                                 st.just({"tiny_blobs": {"": 1}})),
     "model_revisions": st.one_of(st.integers(), st.just({"tiny_mlp": 0}), st.just({"tiny_mlp": "2"}),
                                  st.just({"tiny_mlp": 2.0}), st.just({"*": True}), st.just({"tiny_mlp": {"r": 1}})),
+    "teachers": st.one_of(st.integers(), st.just("teachers"), st.just({"folder": "t"}), st.just({"seeds": [0]}),
+                          st.just({"folder": "", "seeds": [0]}), st.just({"folder": 3, "seeds": [0]}),
+                          st.just({"folder": "t", "seeds": []}), st.just({"folder": "t", "seeds": [-1]}),
+                          st.just({"folder": "t", "seeds": [True]}), st.just({"folder": "t", "seeds": [0], "x": 1})),
 }
 SEEN = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
