@@ -37,7 +37,7 @@ from ..bench.rundir import RunDir
 from .checks import plans, read_members
 from .freeze import TIME_FORMAT, changes, freeze_times, parse_time, read_freeze
 from .reads import cell_digest, comparison_inputs, input_path, recorded_reads
-from .schema import Study, canonical_hash
+from .schema import Study, amendment_kept
 
 __all__ = ["AuditResult", "audit", "cpu_type", "cpu_types", "cpu_type_clash", "study_records", "cpu_hours"]
 
@@ -139,7 +139,7 @@ def audit(study: Study, records: tuple[dict[str, list[dict[str, Any]]], list[str
         changed = changes(state["frozen"], study.frozen_parts())
         amended = [f"amendments[{i}]" for i, record in enumerate(state.get("amendments") or [])
                    if i >= len(study.spec.amendments)
-                   or canonical_hash(study.spec.amendments[i].model_dump(mode="json")) != record["sha256"]]
+                   or not amendment_kept(record, study.spec.amendments[i])]
         unfrozen = [f"amendments[{i}] (never frozen)"
                     for i in range(len(state.get("amendments") or []), len(study.spec.amendments))]
         if changed or amended or unfrozen:

@@ -33,7 +33,7 @@ from ..bench.rundir import STUDY_RECORDS, RunDir, atomic_write_json
 from ..errors import ConfigError
 from .checks import comparison_arms, read_members
 from .reads import recorded_reads
-from .schema import ComparisonRead, GridSpec, Study, canonical_hash
+from .schema import ComparisonRead, GridSpec, Study, amendment_kept, canonical_hash
 
 __all__ = ["FREEZE_DIR", "TIME_FORMAT", "freeze_path", "read_freeze", "freeze", "changes", "freeze_times",
            "freeze_status", "parse_time", "has_cells"]
@@ -195,7 +195,7 @@ def freeze(study: Study) -> dict[str, Any]:
         raise ConfigError(f"{study.where}: amendments: {len(frozen_amendments)} were frozen, the file has "
                           f"{len(amendments)}; an amendment is never removed")
     for i, record in enumerate(frozen_amendments):
-        if canonical_hash(amendments[i]) != record["sha256"]:
+        if not amendment_kept(record, study.spec.amendments[i]):
             raise ConfigError(f"{study.where}: amendments[{i}] changed after its freeze ({record['time']}): "
                               f"{'; '.join(changes(record['amendment'], amendments[i])) or 'its content'}")
     for i in range(len(frozen_amendments), len(amendments)):

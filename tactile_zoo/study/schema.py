@@ -68,7 +68,7 @@ from ..settings import BenchSettings, describe_error
 
 __all__ = ["Study", "StudyFile", "GridSpec", "Rules", "Reads", "MeanRead", "EnsembleRead", "ComparisonRead",
            "ValidationRead", "Arm", "ComparisonArm", "Threshold", "AllOf", "Members", "Amendment", "Freeze",
-           "parse_study", "canonical_hash", "READ_KINDS"]
+           "parse_study", "canonical_hash", "amendment_kept", "READ_KINDS"]
 
 #: the kinds of declared read that are computed from cells (thresholds and decisions read them)
 READ_KINDS = ("means", "ensembles", "comparisons", "validation")
@@ -290,6 +290,26 @@ class StudyFile(_Model):
 def canonical_hash(value: Any) -> str:
     """The sha256 of ``value`` as canonical JSON (sorted keys): what a freeze records of a part of the study."""
     return hashlib.sha256(json.dumps(value, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def amendment_kept(record: dict[str, Any], amendment: Amendment) -> bool:
+    """Whether ``amendment`` (as the file has it now) is the one a freeze ``record`` fixed.
+
+    A freeze records the amendment's full form (``model_dump``: every key, defaults included) and its hash. A key
+    added to the schema since (a new bench setting, off by default) changes that form without changing the amendment,
+    so the recorded form, checked against its own hash, is read through today's schema and compared with the file's.
+    """
+    current = amendment.model_dump(mode="json")
+    if canonical_hash(current) == record["sha256"]:
+        return True
+    stored = record.get("amendment")
+    if not isinstance(stored, dict) or canonical_hash(stored) != record["sha256"]:
+        return False
+    try:
+        then = Amendment.model_validate(stored)
+    except ValidationError:  # a key the schema no longer has: a real change, named by the caller
+        return False
+    return canonical_hash(then.model_dump(mode="json")) == canonical_hash(current)
 
 
 class Study:
