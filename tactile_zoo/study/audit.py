@@ -161,7 +161,12 @@ def audit(study: Study, records: tuple[dict[str, list[dict[str, Any]]], list[str
         own += [] if reused else records
         result.lines.append(f"grid {name}: {len(ok)} ok cell(s) of {len(plan.cell_ids())} planned per fold, in "
                             f"{plan.folder}" + (" (reused)" if reused else ""))
-        if not records and not reused and state is not None and study.spec.freeze is None:
+        ran_by = plan.spec.ran_by
+        if ran_by is not None and {r["cell_id"] for r in ok} < set(plan.cell_ids()):
+            # another study runs this grid (checked to have it): until its cells are all in, its reads wait
+            result.lines.append(f"grid {name}: not run yet (frozen in {ran_by}, which runs it)")
+            waiting.add(name)
+        elif not records and not reused and state is not None and study.spec.freeze is None:
             # frozen by `study run` or `study freeze` and not run yet: a plan, not a broken rule (a migrated
             # study points at cells that exist, so there an empty grid is a misspelt folder)
             when = frozen.strftime(TIME_FORMAT) if frozen is not None else state["time"]

@@ -74,6 +74,30 @@ def load_study(path: str | Path) -> Study:
     return study
 
 
+def _check_ran_by(study: Study, plan: PlannedGrid) -> None:
+    """A grid ``ran_by`` another study is reused, and that study has a grid (not superseded) that runs its cells: the
+    same folder and, for each of its pairs, the same configuration and its seeds."""
+    key = f"{study.where}: grids.{plan.spec.name}.ran_by"
+    if not plan.spec.reused:
+        raise ConfigError(f"{key}: only a reused grid (`reused`: why) is run by another study")
+    path = study.path.parent / str(plan.spec.ran_by)
+    if not path.is_file():
+        raise ConfigError(f"{key}: no study file {path}")
+    other = load_study(path)
+    for grid in other.grids():
+        theirs = plans(other)[grid.name]
+        if grid.superseded or theirs.folder.resolve() != plan.folder.resolve():
+            continue
+        missing = [f"{m} on {d}" for (m, d), h in plan.hashes.items() if theirs.hashes.get((m, d)) != h]
+        seeds = sorted(set(plan.config.seeds) - set(theirs.config.seeds))
+        if missing or seeds:
+            raise ConfigError(f"{key}: grid {grid.name} of {path} runs {plan.folder} but not "
+                              + "; ".join([*(f"{x} as configured here" for x in missing),
+                                           *([f"seed(s) {seeds}"] if seeds else [])]))
+        return
+    raise ConfigError(f"{key}: {path} has no grid that runs {plan.folder}")
+
+
 def check_study(study: Study) -> None:
     """Raise :class:`ConfigError` at the first inconsistency (see the module docstring)."""
     where = study.where
@@ -91,6 +115,9 @@ def check_study(study: Study) -> None:
         raise ConfigError(f"{where}: reads.thresholds: the name {name!r} is declared twice")
     all_plans = plans(study)
     _check_shared_folders(study, all_plans)
+    for plan in all_plans.values():
+        if plan.spec.ran_by is not None:
+            _check_ran_by(study, plan)
     rules = study.rules()
     if rules.test_split == "never":
         for plan in all_plans.values():

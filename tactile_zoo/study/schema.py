@@ -15,6 +15,7 @@ A study is a benchmark decided before it runs::
         folder: main                  # its bench folder under ``results`` (default: the name; grids may share one)
         superseded: null              # why this folder's cells no longer count (kept, never read as results)
         reused: null                  # why the study reads cells it did not run (earlier evidence, a baseline arm)
+        ran_by: null                  # a reused grid another study runs: its file; until its cells are in, reads wait
         settings: {models: [cnn_lstm, dcnn], datasets: sim_evtouch, seeds: [0, 1], quick: true, epochs: 1}
     rules:
       cpu: null                       # the one CPU type every cell runs on (default: whichever the first ran on)
@@ -100,6 +101,9 @@ class GridSpec(_Model):
     #: why the study reads cells it did not run (earlier evidence, a baseline arm): the study's freeze and test-split
     #: rules do not apply to them, and their cost is not the study's (:mod:`.audit`)
     reused: Text | None = None
+    #: for a reused grid that another study runs: that study's file (relative to this one). Until its cells are all
+    #: there, the grid and the reads of it wait instead of failing the audit (``check`` finds the grid in that file)
+    ran_by: Text | None = None
     settings: BenchSettings  # the bench's settings schema; :func:`~.plan.bench_config` resolves them as bench does
 
     def given(self) -> dict[str, Any]:
