@@ -131,3 +131,19 @@ def test_teacher_files_must_match_the_cells_teachers(tmp_path: Path) -> None:
     save_file({"weight": torch.zeros(2, 2)}, str(wrong))
     with pytest.raises(ConfigError, match="do not fit tiny_mlp"):
         train_cell(student, measure=False, teachers=[file, wrong])
+
+
+def test_fit_distils_from_probabilities_attached_to_a_split() -> None:
+    from tactile_zoo.engine.api import fit
+
+    splits = load_splits("tiny_blobs")
+    train, val = as_split(splits["train"]), as_split(splits["val"])
+    teachers = [train_cell(resolve_cell("tiny_mlp", "tiny_blobs", recipe={"max_epochs": 3}), seed=s,
+                           measure=False).fit.model for s in (1, 2)]
+    taught = replace(train, soft=teacher_probabilities(teachers, train, 2.0))
+    recipe = {"max_epochs": 3, "distill_weight": 0.5, "distill_temperature": 2.0}
+    a = fit("tiny_mlp", taught, recipe=recipe, val_dataset=val, device="cpu", progress=False)
+    plain = fit("tiny_mlp", train, recipe={"max_epochs": 3}, val_dataset=val, device="cpu", progress=False)
+    assert [r["train_loss"] for r in a.curve] != [r["train_loss"] for r in plain.curve]
+    with pytest.raises(ConfigError, match="hold no teacher probabilities"):
+        fit("tiny_mlp", train, recipe=recipe, val_dataset=val, device="cpu", progress=False)
