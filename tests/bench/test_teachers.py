@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+import tiny_zoo
 
 from tactile_zoo.bench.config import BenchConfig
 from tactile_zoo.bench.records import read_record
@@ -30,6 +31,7 @@ def _records(folder: Path) -> dict[str, dict]:
 @pytest.fixture(scope="module")
 def teachers(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("distil") / "teachers"
+    tiny_zoo.register()  # a module fixture is set up before the per-test registration (conftest.tiny)
     outcome = run_bench(BenchConfig(**GRID, seeds=[0, 1], save_weights=True, out=str(out)), quiet=True, plots=False)
     assert outcome.exit_code == 0 and len(outcome.ran) == 4  # 2 folds x 2 seeds
     return out

@@ -64,6 +64,9 @@ RECIPE_VALUES: dict[str, st.SearchStrategy] = {
     "rate_targets": st.tuples(_floats(0.5, 1.0), _nonneg(_floats(0, 0.4))).map(list),
     "ema_decay": st.none() | _floats(0.5, 0.999),
     "micro_batch_size": st.none() | st.integers(1, 64),
+    # distillation needs teachers (tests/engine/test_distill.py checks its hash): off here, the temperature alone varies
+    "distill_weight": st.just(0.0),
+    "distill_temperature": _floats(0.5, 8.0),
 }
 # valid values only: an invalid one (dropout=2, hidden=0.5) is refused when the grid is built (issue 38, item 3)
 _HIDDEN, _DROPOUT = st.integers(1, 64), _nonneg(_floats(0, 0.9))
