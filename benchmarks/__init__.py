@@ -12,6 +12,7 @@ BENCHMARKS = {
     "sgnet_event": "sgnet_event",
     "sgnet_reference": "sgnet_reference",
     "epoch_all_models": "epoch_all_models",
+    "gpu_epoch": "gpu_epoch",
     "inference": "inference",
     "streaming_latency": "streaming_latency",
     "export_latency": "export_latency",

@@ -8,8 +8,9 @@ runs what the project already has, each step as a child process (the checkout on
 ``parity``
     ``pytest tests/gpu/test_cuda_parity.py``: every registered model on every simulated dataset, CUDA against the
     CPU (forward, streaming, gradients; tolerances in ``tests/gpu/parity.py``). The JUnit XML, with each check's
-    measurements as properties, goes to ``<out>/gpu_check_parity.xml``.
-``inference``, ``epoch_all_models``, ``bench_wall``
+    measurements as properties, goes to ``<out>/gpu_check_parity.xml``. Then ``tests/gpu/test_cuda_graph_training.py``:
+    each model's training step replayed from CUDA graphs against its eager step (:mod:`tactile_zoo.engine.cuda_graph`).
+``gpu_epoch``, ``inference``, ``epoch_all_models``, ``bench_wall``
     ``python -m benchmarks.run --device cuda --only NAME``: the performance suite's own benchmarks, writing
     ``<out>/NAME.csv``. ``bench_wall`` gets ``BENCH_WALL_EPOCHS=3`` (``--bench-epochs``) unless ``--quick``, which
     passes ``--quick`` to every benchmark.
@@ -45,14 +46,16 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 NAME = "gpu_check"
-TITLE = "GPU check: the CUDA parity tests, then inference, epoch_all_models and bench_wall on CUDA"
+TITLE = "GPU check: the CUDA parity and graph tests, then gpu_epoch, inference, epoch_all_models and bench_wall on CUDA"
 #: what must already be installed on the GPU machine (nothing is installed from the network)
 REQUIRED = ("torch", "torch_geometric", "snntorch", "pytest")
 PARITY_TESTS = "tests/gpu/test_cuda_parity.py"
-SUITE = ("inference", "epoch_all_models", "bench_wall")
+#: training from CUDA graphs against eager training, every model (run in the parity step, after the parity tests)
+GRAPH_TESTS = "tests/gpu/test_cuda_graph_training.py"
+SUITE = ("gpu_epoch", "inference", "epoch_all_models", "bench_wall")
 STEPS = ("parity", *SUITE)
 #: the part of --timeout by which each step must end (a step that finishes early leaves its time to the next)
-STEP_END = {"parity": 0.3, "inference": 0.4, "epoch_all_models": 0.65, "bench_wall": 1.0}
+STEP_END = {"parity": 0.3, "gpu_epoch": 0.45, "inference": 0.55, "epoch_all_models": 0.75, "bench_wall": 1.0}
 DEFAULT_TIMEOUT_S = 270.0
 #: bench_wall's epochs unless --quick: the whole grid with full recipes does not fit the budget
 BENCH_EPOCHS = 3
@@ -101,15 +104,17 @@ def run_step(command: list[str], log: Path, timeout: float, env: dict[str, str] 
     return {"status": status, "exit_code": code, "seconds": round(seconds, 1), "note": note}
 
 
-def parity_command(xml: Path, nodes: Sequence[str] = (PARITY_TESTS,)) -> list[str]:
+def parity_command(xml: Path, nodes: Sequence[str] = (PARITY_TESTS, GRAPH_TESTS)) -> list[str]:
     """pytest on the parity tests, measurements kept as JUnit properties (xunit1 is the family that holds them)."""
     return [sys.executable, "-m", "pytest", "-q", "-rfEs", "-p", "no:cacheprovider", "-o", "junit_family=xunit1",
             f"--junitxml={xml}", *nodes]
 
 
 def parity_nodes(models: Sequence[str], datasets: Sequence[str]) -> list[str]:
-    """The parity tests' ids of ``models`` x ``datasets``, in the test file's order (datasets outermost)."""
-    return [f"{PARITY_TESTS}::test_cuda_matches_cpu[{m}-{d}]" for d in datasets for m in models]
+    """The parity tests' ids of ``models`` x ``datasets``, in the test file's order (datasets outermost), then the
+    CUDA-graph tests of ``models``."""
+    return [*(f"{PARITY_TESTS}::test_cuda_matches_cpu[{m}-{d}]" for d in datasets for m in models),
+            *(f"{GRAPH_TESTS}::test_a_graph_replay_matches_the_eager_step[{m}]" for m in models)]
 
 
 def parity_counts(xml: Path) -> dict[str, Any]:
@@ -193,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     models = _names(args.models, model_names(), "model", parser)
     datasets = _names(args.datasets, sims, "dataset", parser)
     # the whole test file unless a subset was asked for (by test id, so that "tacformer" does not pick x_tacformer)
-    nodes = ([PARITY_TESTS] if models is None and datasets is None
+    nodes = ([PARITY_TESTS, GRAPH_TESTS] if models is None and datasets is None
              else parity_nodes(models or model_names(), datasets or sims))
     steps = [s for s in _names(args.only, list(STEPS), "step", parser) or STEPS
              if s not in (_names(args.skip, list(STEPS), "step", parser) or [])]

@@ -37,6 +37,8 @@ BOOLEAN_VARIABLES = {
     "TACTILE_ZOO_NO_HUGEPAGES": "no transparent-huge-page advice for large CPU tensors (tactile_zoo.nn.hugepages)",
     "TACTILE_ZOO_KEEP_DENORMALS": "compute with subnormal floats instead of flushing them to zero",
     "TACTILE_ZOO_DEFAULT_MALLOC": "training processes keep glibc's malloc defaults (tactile_zoo.engine.malloc)",
+    "TACTILE_ZOO_CUDA_GRAPHS": "CUDA training replays each full batch's forward and backward from CUDA graphs "
+                               "(tactile_zoo.engine.cuda_graph)",
 }
 #: Every variable that names one of a fixed set of choices, with its choices (the first is the default).
 CHOICE_VARIABLES = {

@@ -31,7 +31,7 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
         val_dataset: Any = None, device: str | torch.device = "auto", epochs: int | None = None, *,
         test_dataset: Any = None, refit: bool = False, hparams: dict[str, Any] | None = None, root: Any = None,
         fold: int = 0, dataset_kwargs: dict[str, Any] | None = None, progress: bool = True,
-        callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
+        callback: Callable[[dict[str, Any]], None] | None = None, cuda_graphs: bool | None = None) -> FitResult:
     """Train ``model`` on ``dataset`` (the train split) and select the epoch on ``val_dataset``.
 
     Args:
@@ -54,12 +54,16 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
             one INFO record per epoch on the ``tactile_zoo.progress`` logger, shown once logging is configured
             (:mod:`tactile_zoo.engine.progress`); ``False``: nothing.
         callback: called with each epoch's curve row.
+        cuda_graphs: on a CUDA device, replay the training forward and backward of each full batch from CUDA graphs
+            (:mod:`tactile_zoo.engine.cuda_graph`: one launch instead of one per kernel; not bit for bit the eager
+            run, whose dropout masks it does not share). ``None`` (default) reads ``TACTILE_ZOO_CUDA_GRAPHS``; True on
+            another device is an error.
     """
     if isinstance(model, str) and isinstance(dataset, str) and val_dataset is None and test_dataset is None:
         config = resolve_cell(model, dataset, recipe=recipe, hparams=hparams, epochs=epochs,
                               dataset_kwargs=dataset_kwargs, refit=refit)
         return train_cell(config, fold=fold, seed=seed, root=root, device=device, measure=False, progress=progress,
-                          callback=callback).fit
+                          callback=callback, cuda_graphs=cuda_graphs).fit
     if isinstance(dataset, str):
         named = load_splits(dataset, root, fold, False, dataset_kwargs)
         dataset, val_dataset = named["train"], val_dataset if val_dataset is not None else named["val"]
@@ -72,7 +76,7 @@ def fit(model: torch.nn.Module | str, dataset: Any, recipe: Recipe | dict[str, A
                                None if isinstance(recipe, str) else recipe, epochs,
                                owner=f"model {meta.get('name', type(module).__name__)!r}").recipe
     return train_model(module, train, rec, seed, val_dataset, device, test_dataset=test_dataset, refit=refit,
-                       progress=progress, callback=callback)
+                       progress=progress, callback=callback, cuda_graphs=cuda_graphs)
 
 
 def _named_model(model: Any, spec: Any, hparams: dict[str, Any] | None, seed: int

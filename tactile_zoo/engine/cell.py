@@ -63,7 +63,7 @@ class CellResult:
 def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = None, download: bool = False,
                device: str | torch.device = "auto", extra_splits: Sequence[str] = (), measure: bool = True,
                progress: bool = False, callback: Callable[[dict[str, Any]], None] | None = None,
-               teachers: Sequence[str | os.PathLike] = ()) -> CellResult:
+               teachers: Sequence[str | os.PathLike] = (), cuda_graphs: bool | None = None) -> CellResult:
     """Load the splits, seed, build, fit (selecting on validation) and evaluate one cell; the test split is read once.
 
     Args:
@@ -77,6 +77,8 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
             function called with each epoch's curve row.
         teachers: distillation: the weight files of the cell's teachers, one per ``config.teacher_seeds`` in order
             (:mod:`.distill`; the harness finds and checks them).
+        cuda_graphs: replay the training forward from CUDA graphs (:mod:`.cuda_graph`); None reads
+            ``TACTILE_ZOO_CUDA_GRAPHS`` on a CUDA device.
 
     Raises:
         ModelCannotConsume: the model's constructor refused the dataset.
@@ -87,7 +89,7 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
     if config.evaluation == "tuning":
         with tuning():
             return _tune_cell(config, fold, seed, root, download, resolve_device(device), progress, callback,
-                              teachers)
+                              teachers, cuda_graphs)
     dev = resolve_device(device)
     splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs,
                          (*SPLITS, *extra_splits))
@@ -101,13 +103,14 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
         train, val = _taught(config, teachers, train, val, dev)
         model = build_model(config.model, train.spec, config.hparams, seed, config.model_revision)
         if config.evaluation == "reference":
-            result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback)
+            result, reference = _fit_reference(model, train, val, tests["test"], rec, seed, dev, progress, callback,
+                                               cuda_graphs)
         elif config.evaluation == "final":  # the resolved recipe copied without early stopping, not resolved again
             result = train_model(model, concat(train, val), recipe=replace(rec, patience=None), seed=seed, device=dev,
-                                 progress=progress, callback=callback)
+                                 progress=progress, callback=callback, cuda_graphs=cuda_graphs)
         else:
             result = train_model(model, train, recipe=rec, seed=seed, val_dataset=val, device=dev,
-                                 refit=config.refit, progress=progress, callback=callback)
+                                 refit=config.refit, progress=progress, callback=callback, cuda_graphs=cuda_graphs)
         evals = {name: evaluate(result.model, split, loss=rec.loss, batch_size=rec.eval_batch_size, progress=False)
                  for name, split in tests.items()}
         if measure:
@@ -142,7 +145,7 @@ def _taught(config: CellConfig, teachers: Sequence[str | os.PathLike], train: Te
 
 def _tune_cell(config: CellConfig, fold: int, seed: int, root: Any, download: bool, dev: torch.device,
                progress: bool, callback: Callable[[dict[str, Any]], None] | None,
-               teachers: Sequence[str | os.PathLike] = ()) -> CellResult:
+               teachers: Sequence[str | os.PathLike] = (), cuda_graphs: bool | None = None) -> CellResult:
     """The ``tuning`` evaluation: :func:`train_cell` without the test split (called inside the tuning guard)."""
     splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs, ("train", "val"))
     subset = config.subset or {}
@@ -151,15 +154,15 @@ def _tune_cell(config: CellConfig, fold: int, seed: int, root: Any, download: bo
         train, val = _taught(config, teachers, train, val, dev)
         model = build_model(config.model, train.spec, config.hparams, seed, config.model_revision)
         result = train_model(model, train, recipe=config.recipe, seed=seed, val_dataset=val, device=dev,
-                             refit=config.refit, progress=progress, callback=callback)
+                             refit=config.refit, progress=progress, callback=callback, cuda_graphs=cuda_graphs)
     return CellResult(config=config, fold=fold, seed=seed, fit=result, tests={}, spec=train.spec, n_train=len(train),
                       n_val=len(val), n_test=0, device=str(dev), peak_memory_mb=peak.mb, peak_memory_source=peak.source,
                       peak_gpu_memory_mb=peak.gpu_mb, test_reads=0)
 
 
 def _fit_reference(model: torch.nn.Module, train: Any, val: Any, test: Any, recipe: Recipe, seed: int,
-                   device: torch.device, progress: bool, callback: Callable[[dict[str, Any]], None] | None
-                   ) -> tuple[FitResult, dict[str, Any]]:
+                   device: torch.device, progress: bool, callback: Callable[[dict[str, Any]], None] | None,
+                   cuda_graphs: bool | None = None) -> tuple[FitResult, dict[str, Any]]:
     """The ``reference`` evaluation: every training recording, the fixed epoch budget, the test split after each
     epoch, reduced on the spot to the final and the best epoch's accuracy (the per-epoch figures are not kept)."""
     best = {"accuracy": -1.0, "epoch": 0}
@@ -173,7 +176,7 @@ def _fit_reference(model: torch.nn.Module, train: Any, val: Any, test: Any, reci
             callback(row)
 
     result = train_model(model, concat(train, val), recipe=replace(recipe, patience=None), seed=seed, device=device,
-                         progress=progress, callback=after_epoch)
+                         progress=progress, callback=after_epoch, cuda_graphs=cuda_graphs)
     # final_epoch_accuracy is filled in by train_cell from its one evaluation of the test split
     return result, {"best_test_epoch_accuracy": best["accuracy"],
                     "best_test_epoch": best["epoch"], "epochs": result.epochs_run,

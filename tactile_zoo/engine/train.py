@@ -32,8 +32,10 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from .._env import env_flag
 from ..errors import ConfigError, TactileZooError
 from ..recipe import Recipe, lr_factor
+from .cuda_graph import GraphedForward
 from .distill import distillation_loss
 from .evaluate import EvalResult, evaluate, predict_scores
 from .progress import Progress
@@ -122,9 +124,11 @@ def _batches(order: torch.Tensor, batch_size: int) -> Iterator[torch.Tensor]:
 class _Trainer:
     """One training run: optimiser, schedule and shuffling state for a model on one split."""
 
-    def __init__(self, model: torch.nn.Module, recipe: Recipe, train: TensorSplit, seed: int, device: torch.device
-                 ) -> None:
+    def __init__(self, model: torch.nn.Module, recipe: Recipe, train: TensorSplit, seed: int, device: torch.device,
+                 cuda_graphs: bool = False) -> None:
         self.model, self.recipe, self.device = model, recipe, device
+        # the training forward replayed from CUDA graphs (.cuda_graph), recorded at the first batch
+        self.cuda_graphs, self.graphed = cuda_graphs, None
         self.x, self.y = train.x.to(device), train.y.to(device)  # whole split on the device once
         self.g = train.g.to(device) if train.g.shape[-1] > 0 else None
         # distillation: the teachers' probabilities of each training sample, indexed as x and y are
@@ -173,7 +177,9 @@ class _Trainer:
         """The recipe's mean loss over the samples ``idx`` of the split (the model called once, in training mode)."""
         xb, yb = self.x[idx], self.y[idx]  # (B, T, N, C), (B,)
         gb = self.g[idx] if self.g is not None else None  # (B, T, G)
-        scores = self.model(xb, gb)
+        if self.cuda_graphs and self.graphed is None:
+            self.graphed = GraphedForward(self.model, xb, gb)
+        scores = self.model(xb, gb) if self.graphed is None else self.graphed(xb, gb)
         if scores.shape != (idx.shape[0], self.num_classes):
             raise TrainingError(f"{type(self.model).__name__}.forward returned shape {tuple(scores.shape)}; "
                                 f"expected [batch={idx.shape[0]}, num_classes={self.num_classes}]")
@@ -191,6 +197,22 @@ class _Trainer:
             (loss * (part.shape[0] / idx.shape[0])).backward()
             total += loss.detach() * part.shape[0]
         return total
+
+    def close(self) -> None:
+        """Free the CUDA graphs, if any: the model goes on with its own forward."""
+        if self.graphed is not None:
+            self.graphed.release()
+            self.graphed = None
+
+
+def _cuda_graphs(asked: bool | None, device: torch.device) -> bool:
+    """Whether to record the training forward in CUDA graphs: ``asked``, or else ``TACTILE_ZOO_CUDA_GRAPHS`` on a
+    CUDA device (the variable is for a whole session, which may train on the CPU too, so it is ignored there)."""
+    if asked is None:
+        return device.type == "cuda" and env_flag("TACTILE_ZOO_CUDA_GRAPHS")
+    if asked and device.type != "cuda":
+        raise ConfigError(f"cuda_graphs=True needs a CUDA device; this run trains on {device}")
+    return bool(asked)
 
 
 def _val_step(model: torch.nn.Module, val: TensorSplit, recipe: Recipe, device: torch.device
@@ -250,7 +272,8 @@ def recompute_bn_stats(model: torch.nn.Module, split: TensorSplit, batch_size: i
 @flush_denormals()
 def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int = 0, val_dataset: Any = None,
                 device: str | torch.device = "auto", *, test_dataset: Any = None, refit: bool = False,
-                progress: bool = True, callback: Callable[[dict[str, Any]], None] | None = None) -> FitResult:
+                progress: bool = True, callback: Callable[[dict[str, Any]], None] | None = None,
+                cuda_graphs: bool | None = None) -> FitResult:
     """The training loop behind :func:`tactile_zoo.engine.fit` and :func:`tactile_zoo.engine.cell.train_cell`: a
     built ``model`` trained on the ``dataset`` split with the resolved ``recipe``, used as it is (resolving names,
     overrides and epoch counts is :mod:`.config`'s, before this is called). The other arguments are ``fit``'s."""
@@ -267,6 +290,7 @@ def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int 
         raise ConfigError(f"the recipe's distill_weight is {recipe.distill_weight:g}, but the split(s) it trains on "
                           f"hold no teacher probabilities (tactile_zoo.engine.distill; a cell's teachers setting)")
     dev = resolve_device(device)
+    graphs = _cuda_graphs(cuda_graphs, dev)
     module, rec = model, recipe
     seed_everything(seed)  # dropout and any other randomness during training
     module.to(dev)
@@ -274,7 +298,7 @@ def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int 
     initial = _clone_state(module) if refit else None
 
     start = time.perf_counter()
-    trainer = _Trainer(module, rec, train, seed, dev)
+    trainer = _Trainer(module, rec, train, seed, dev, graphs)
     curve: list[dict[str, Any]] = []
     best: tuple[float, float] | None = None
     best_state: dict[str, torch.Tensor] | None = None
@@ -307,6 +331,7 @@ def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int 
                 break
     finally:
         bar.close()
+        trainer.close()
     if best_state is not None:
         module.load_state_dict(best_state)
     elif val is not None:
@@ -327,14 +352,18 @@ def train_model(model: torch.nn.Module, dataset: Any, recipe: Recipe, seed: int 
         module.load_state_dict(initial)
         seed_everything(seed)
         both = concat(train, val)
-        trainer = _Trainer(module, rec, both, seed, dev)
+        trainer = _Trainer(module, rec, both, seed, dev, graphs)
         with Progress(best_epoch, f"{what}: refit on train + val", "epochs", enabled=progress) as bar:
-            for epoch in range(best_epoch):
-                t0 = time.perf_counter()
-                loss = trainer.epoch(epoch)
-                refit_curve.append({"epoch": epoch + 1, "train_loss": loss,
-                                    "lr": trainer.optimizer.param_groups[0]["lr"], "seconds": time.perf_counter() - t0})
-                bar.update(1, f"loss {loss:.3f}")
+            try:
+                for epoch in range(best_epoch):
+                    t0 = time.perf_counter()
+                    loss = trainer.epoch(epoch)
+                    lr = trainer.optimizer.param_groups[0]["lr"]
+                    refit_curve.append({"epoch": epoch + 1, "train_loss": loss, "lr": lr,
+                                        "seconds": time.perf_counter() - t0})
+                    bar.update(1, f"loss {loss:.3f}")
+            finally:
+                trainer.close()
         if trainer.average is not None:
             module.load_state_dict(trainer.evaluated.state_dict())
         if precise:  # the refit model's statistics, over what it was trained on

@@ -131,3 +131,18 @@ def test_sgnet_event_times_both_computations_on_the_same_network(tmp_path: Path)
     assert all(float(r["fast_median_s"]) > 0 for r in rows) and all(float(r["ratio"]) > 0 for r in rows[:3])
     with pytest.raises(ValueError, match="variant"):
         sgnet_event.run(_ctx(tmp_path), variant="sparse")
+
+
+def test_gpu_epoch_times_the_cpu_and_says_the_gpu_cases_are_unmeasured_without_one(tmp_path: Path) -> None:
+    from benchmarks import gpu_epoch
+
+    assert BENCHMARKS["gpu_epoch"] == "gpu_epoch" and gpu_epoch.MODELS == ("sgnet", "convlstm")
+    ctx = _ctx(tmp_path)
+    ctx.root = tmp_path  # no Ev-Objects there: synthetic events of its shape, as in CI
+    rows = _read(gpu_epoch.run(ctx, models=("sgnet",)))
+    assert [r["case"] for r in rows] == ["sgnet/cpu", "sgnet/eager", "sgnet/graphed"]
+    cpu, *gpu = rows
+    assert float(cpu["epoch_median_s"]) > 0 and float(cpu["speedup_vs_cpu"]) == 1.0 and cpu["repeats"] == "1"
+    assert cpu["samples_timed"] == "64" and "2 CPU threads" in cpu["note"] and "scaled to 576" in cpu["note"]
+    assert all(r["epoch_median_s"] == "" and r["note"].startswith("unmeasured: no CUDA device") for r in gpu)
+    assert torch.get_num_threads() == 1  # the 2-thread case gave the process its count back

@@ -81,7 +81,8 @@ def test_allow_cpu_runs_the_parity_tests_cpu_against_cpu(tmp_path: Path, monkeyp
     assert gpu_check.main(["--allow-cpu", "--only", "parity", "--models", "dcnn,tacformer", "--datasets",
                            "sim_biotac_slip", "--out", str(tmp_path)]) == 0
     [row] = _summary(tmp_path)["steps"]
-    assert (row["step"], row["status"], row["tests"], row["failed"], row["skipped"]) == ("parity", "ok", 2, 0, 0)
+    # the two models' CUDA-graph tests skip: graphs are recorded on a GPU only
+    assert (row["step"], row["status"], row["tests"], row["failed"], row["skipped"]) == ("parity", "ok", 4, 0, 2)
     xml = (tmp_path / "gpu_check_parity.xml").read_text()
     assert "test_cuda_matches_cpu[tacformer-sim_biotac_slip]" in xml and "x_tacformer" not in xml
     assert '<property name="stream"' in xml and "&quot;max_abs_diff&quot;: 0.0" in xml
@@ -91,20 +92,25 @@ def test_a_failing_parity_test_fails_the_command(tmp_path: Path, monkeypatch: py
     tests = tmp_path / "test_planted.py"
     tests.write_text("def test_agrees():\n    pass\n\n\ndef test_differs():\n    assert 1 == 2\n")
     monkeypatch.setattr(gpu_check, "PARITY_TESTS", str(tests))
+    graphs = tmp_path / "test_planted_graphs.py"
+    graphs.write_text("def test_replays():\n    pass\n")
+    monkeypatch.setattr(gpu_check, "GRAPH_TESTS", str(graphs))
     out = tmp_path / "out"
     assert gpu_check.main(["--allow-cpu", "--only", "parity", "--out", str(out)]) == 1
     summary = _summary(out)
     assert summary["passed"] is False and summary["failed"] == ["parity"]
     [row] = summary["steps"]
-    assert (row["status"], row["exit_code"], row["tests"], row["failed_tests"]) == ("FAIL", 1, 2, ["test_differs"])
+    assert (row["status"], row["exit_code"], row["tests"], row["failed_tests"]) == ("FAIL", 1, 3, ["test_differs"])
 
 
 def test_parity_nodes_name_each_model_exactly() -> None:
     nodes = gpu_check.parity_nodes(["tacformer", "dcnn"], ["sim_evtouch", "sim_biotac_slip"])
     assert nodes[0] == "tests/gpu/test_cuda_parity.py::test_cuda_matches_cpu[tacformer-sim_evtouch]"
     assert [n.split("[")[1] for n in nodes] == ["tacformer-sim_evtouch]", "dcnn-sim_evtouch]",
-                                                "tacformer-sim_biotac_slip]", "dcnn-sim_biotac_slip]"]
-    assert (REPO / gpu_check.PARITY_TESTS).exists()
+                                                "tacformer-sim_biotac_slip]", "dcnn-sim_biotac_slip]",
+                                                "tacformer]", "dcnn]"]
+    assert nodes[-1] == "tests/gpu/test_cuda_graph_training.py::test_a_graph_replay_matches_the_eager_step[dcnn]"
+    assert (REPO / gpu_check.PARITY_TESTS).exists() and (REPO / gpu_check.GRAPH_TESTS).exists()
 
 
 # ------------------------------------------------------------------------------------------------ the suite steps
@@ -133,20 +139,22 @@ def test_main_runs_every_step_in_order_and_a_failed_one_fails_it(tmp_path: Path,
 
     monkeypatch.setattr(gpu_check, "run_step", fake)
     assert gpu_check.main(["--allow-cpu", "--out", str(tmp_path), "--threads", "2"]) == 1
-    assert [c[c.index("--only") + 1] for c, _ in calls[1:]] == ["inference", "epoch_all_models", "bench_wall"]
-    assert calls[0][0][1:3] == ["-m", "pytest"] and calls[0][0][-1] == gpu_check.PARITY_TESTS  # the whole file
+    assert [c[c.index("--only") + 1] for c, _ in calls[1:]] == ["gpu_epoch", "inference", "epoch_all_models",
+                                                                 "bench_wall"]
+    assert calls[0][0][1:3] == ["-m", "pytest"]  # the whole files
+    assert calls[0][0][-2:] == [gpu_check.PARITY_TESTS, gpu_check.GRAPH_TESTS]
     assert all(c[c.index("--device") + 1] == "cpu" and "--quick" not in c for c, _ in calls[1:])
     env = calls[0][1]
     assert env["TACTILE_ZOO_PARITY_DEVICE"] == "cpu" and env["BENCH_WALL_EPOCHS"] == "3"
     assert env["PYTHONPATH"].split(os.pathsep)[0] == str(REPO)
     summary = _summary(tmp_path)
     assert summary["failed"] == ["epoch_all_models"] and [r["status"] for r in summary["steps"]] == [
-        "ok", "ok", "FAIL", "ok"]
+        "ok", "ok", "ok", "FAIL", "ok"]
     assert (summary["steps"][0]["tests"], summary["steps"][0]["failed"]) == (1, 0)
     assert (tmp_path / "gpu_check_parity.xml").exists()  # the later steps leave the parity results alone
     calls.clear()
     assert gpu_check.main(["--allow-cpu", "--quick", "--skip", "parity", "--out", str(tmp_path / "q")]) == 1
-    assert len(calls) == 3 and all("--quick" in c for c, _ in calls) and "BENCH_WALL_EPOCHS" not in calls[0][1]
+    assert len(calls) == 4 and all("--quick" in c for c, _ in calls) and "BENCH_WALL_EPOCHS" not in calls[0][1]
 
 
 def test_a_spent_budget_skips_every_step_with_a_note(tmp_path: Path) -> None:
