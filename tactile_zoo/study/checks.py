@@ -175,6 +175,15 @@ def check_study(study: Study) -> None:
         for name in publication.reads:
             if name not in known:
                 raise ConfigError(f"{where}: publishes[{i}].reads: {name!r} names no declared read")
+        if publication.models and (publication.where, publication.block, publication.table) != (
+                "README.md", "headline", "recipe"):
+            raise ConfigError(f"{where}: publishes[{i}].models: only the README headline's `recipe` part takes "
+                              f"models (the rows a study's cells stand for)")
+        planned = {m for g in study.grids() if not g.superseded for m in g.given().get("models") or []}
+        for name in publication.models:
+            if name not in planned:
+                raise ConfigError(f"{where}: publishes[{i}].models: {name!r} is not a model of the study's grids "
+                                  f"({', '.join(sorted(planned))})")
 
 
 def comparison_arms(study: Study, read: ComparisonRead, side: str) -> list[ComparisonArm]:

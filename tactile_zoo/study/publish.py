@@ -25,8 +25,9 @@ import os
 import re
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from .. import _files
+from .. import _files, registry
 from ..bench.intervals import records_interval
 from ..bench.records import cell_files, scan_cells
 from ..errors import ResultsError
@@ -116,10 +117,40 @@ def _recipe(study: Study) -> str:
     return names.pop()
 
 
+def _claims(ctx: Context) -> dict[str, tuple[Study, int]]:
+    """model -> (the study whose cells alone stand for its headline rows, that model's registered revision): the
+    headline ``recipe`` publications that name ``models`` (a study that moved those models to a new revision and
+    read that no row dropped). One model claimed by two studies is an error."""
+    out: dict[str, tuple[Study, int]] = {}
+    for study, pub in ctx.parts("README.md", "headline", "recipe"):
+        for model in pub.models:
+            if model in out:
+                raise ResultsError(f"README.md, block 'headline': {name(model)}'s rows are claimed by studies "
+                                   f"{out[model][0].name} and {study.name}; one only")
+            out[model] = (study, int(registry.get_model_entry(model).meta.get("revision", 1)))
+    return out
+
+
+def _row_cells(ctx: Context, loaded: dict[str, list], model: str, dataset: str) -> list[dict[str, Any]]:
+    """One headline row's cells: those of the study that claims the model, at its registered revision (one CPU
+    type), else the pooled cells of its registered default recipe."""
+    claims = _claims(ctx)
+    if model not in claims:
+        return group(loaded.get(registered_default(model), []), model, dataset)
+    study, revision = claims[model]
+    recs = [r for r in ctx.cells(study) if r["model"] == model
+            and int((r.get("config") or {}).get("model_revision") or 1) == revision]
+    one_cpu_type(recs, f"{name(model)} in study {study.name}")
+    return group(recs, model, dataset)
+
+
 def _recipes(ctx: Context) -> dict[str, list]:
-    """recipe -> the cells of every study that publishes it in the headline (pooled over one CPU type only)."""
+    """recipe -> the cells of every study that publishes it in the headline for every model it does not leave to a
+    claiming study (:func:`_claims`), pooled over one CPU type only."""
     by_recipe: dict[str, list[Study]] = {}
-    for study, _ in ctx.parts("README.md", "headline", "recipe"):
+    for study, pub in ctx.parts("README.md", "headline", "recipe"):
+        if pub.models:  # its cells stand for the models it names, apart (_row_cells)
+            continue
         by_recipe.setdefault(_recipe(study), []).append(study)
     out = {}
     for recipe, studies in by_recipe.items():
@@ -153,19 +184,24 @@ def headline_block(ctx: Context) -> str:
     declared = sorted(set(defaults.values()))
     what = (f"its registered default recipe, `{declared[0]}` ({WHAT.get(declared[0], declared[0])})"
             if len(declared) == 1 else "its registered default recipe (the recipe column)")
-    studies = {r: [s.name for s, _ in ctx.parts("README.md", "headline", "recipe") if _recipe(s) == r] for r in loaded}
+    studies = {r: [s.name for s, p in ctx.parts("README.md", "headline", "recipe") if _recipe(s) == r and not p.models]
+               for r in loaded}
+    claimed = {s.name: [name(m) for m in p.models] for s, p in ctx.parts("README.md", "headline", "recipe")
+               if p.models}
     lines = [f"Test accuracy on the released Ev splits: the paper's Table I against one recipe per model, {what}, "
              "whatever its test figures are: no recipe is chosen per row on test. Mean [95 % confidence interval of "
              "the expected accuracy] (runs). The verdict reads that recipe alone; "
              + (_and([f"`{r}` ({WHAT.get(r, r)})" for r in others]) + " stand in their own columns for reference, "
                 "never merged into ours." if others else "no other recipe is shown.")
              + " Studies (benchmarks/studies/): "
-             + "; ".join(f"`{r}` {', '.join(f'`{s}`' for s in names)}" for r, names in studies.items()) + ".", "",
+             + "; ".join(f"`{r}` {', '.join(f'`{s}`' for s in names)}" for r, names in studies.items())
+             + "".join(f"; `{s}` for {_and(models)}, at their registered revisions" for s, models in claimed.items())
+             + ".", "",
              "| " + " | ".join((*COLUMNS, *(f"`{r}`, for reference" for r in others))) + " |",
              "|" + "---|" * (len(COLUMNS) + len(others))]
     verdicts: dict[str, list[str]] = {}
     for dataset, title, model, paper in rows:
-        recs = group(loaded[defaults[model]], model, dataset)
+        recs = _row_cells(ctx, loaded, model, dataset)
         low_high = records_interval(recs) if recs else None
         place = "-" if low_high is None else where(paper, low_high)
         verdicts.setdefault(place, []).append(f"{name(model)} on {title}")
@@ -198,7 +234,7 @@ def headline_problems(text: str, ctx: Context) -> list[str]:
         elif row[RECIPE_COLUMN] != f"`{default}`":
             out.append(f"headline: {name(model)} on {title} reads {row[RECIPE_COLUMN]}, not the registered default "
                        f"`{default}`: no recipe is chosen on test")
-        elif row[FIGURE_COLUMN] != (expected := figure(group(loaded.get(default, []), model, dataset), "test")):
+        elif row[FIGURE_COLUMN] != (expected := figure(_row_cells(ctx, loaded, model, dataset), "test")):
             out.append(f"headline: {name(model)} on {title} shows {row[FIGURE_COLUMN]}, but its `{default}` cells "
                        f"give {expected}")
     return out

@@ -150,3 +150,48 @@ def test_two_cpu_types_or_two_configurations_in_one_row_are_errors() -> None:
         one_cpu_type(cells, "round 4")
     with pytest.raises(ResultsError, match="sgnet on biotac_dos: cells of 2 configurations"):
         group([cells[0], {**cells[1], "config_hash": "other"}], "sgnet", "biotac_dos")
+
+
+def test_a_study_that_claims_a_model_moves_its_headline_rows_to_its_cells(cells_checked_once: None) -> None:
+    """``publishes: [{where: README.md, block: headline, table: recipe, models: [sgnet]}]``: SGnet's rows read that
+    study's cells alone, at SGnet's registered revision (not its grid of the previous revision), and the sentence
+    names the study; the other rows do not move."""
+    from tactile_zoo.registry import get_model_entry
+    from tactile_zoo.study.publish import headline_block
+    from tactile_zoo.study.publish_tables import figure
+    from tactile_zoo.study.schema import Publication
+
+    ctx = load_context(STUDIES)
+    before = headline_block(ctx).splitlines()
+    study = ctx.studies["table1-r5"]
+    claim = Publication(where="README.md", block="headline", table="recipe", models=["sgnet"])
+    study.spec.publishes.append(claim)
+    try:
+        ctx.rendered.clear()
+        after = headline_block(ctx).splitlines()
+    finally:
+        study.spec.publishes.remove(claim)
+        ctx.rendered.clear()
+    revision = get_model_entry("sgnet").meta["revision"]
+    cells = [r for r in ctx.cells(study) if r["model"] == "sgnet" and r["dataset"] == "ev_objects"]
+    kept = [r for r in cells if r["config"]["model_revision"] == revision]
+    assert kept and len(kept) < len(cells), "the study's grid of the previous revision must be left out"
+    row = next(line for line in after if line.startswith("| Ev-Objects | SGnet |"))
+    assert f"| {figure(group(kept, 'sgnet', 'ev_objects'), 'test')} |" in row
+    assert "`table1-r5` for SGnet, at their registered revisions" in after[0]
+    moved = [a for a, b in zip(after[2:], before[2:], strict=True) if a != b]
+    assert moved and all("| SGnet |" in line for line in moved)
+
+
+def test_models_are_claimed_in_the_headline_only_and_from_the_studys_grids(tmp_path: Path) -> None:
+    from tactile_zoo.errors import ConfigError
+
+    text = (STUDIES / "table1-r5.yaml").read_text()
+    for entry, message in [("{where: docs/table1.md, block: table1, table: cost, models: [sgnet]}",
+                            "only the README headline's `recipe` part takes models"),
+                           ("{where: README.md, block: headline, table: recipe, models: [deeptactile]}",
+                            "'deeptactile' is not a model of the study's grids")]:
+        path = tmp_path / "table1-r5.yaml"
+        path.write_text(f"{text}publishes:\n  - {entry}\n")
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            load_study(path)
