@@ -48,8 +48,9 @@ def run_study(study: Study, *, quiet: bool = False, out: TextIO | None = None, e
         if plan.spec.superseded:
             logger.info("grid %s is superseded (%s): not run", name, plan.spec.superseded)
             continue
-        if budget is not None:
-            spent = cpu_hours([r for recs in study_records(study)[0].values() for r in recs])
+        if budget is not None:  # the study's own cells, as the audit counts them: a reused grid's are not its cost
+            spent = cpu_hours([r for grid, recs in study_records(study)[0].items() for r in recs
+                               if not plans(study)[grid].spec.reused])
             if spent > budget:
                 raise ConfigError(f"{study.where}: budget exceeded: {spent:.3f} CPU-hours spent of "
                                   f"rules.budget_cpu_hours {budget:g}; no further cell runs (amend the rule with its "

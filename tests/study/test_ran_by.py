@@ -74,3 +74,22 @@ def test_check_refuses_a_study_that_does_not_run_the_folder(tmp_path: Path) -> N
     path.write_text(path.read_text().replace("../runner-results/main", "../runner-results/other"))
     with pytest.raises(ConfigError, match=r"runner.yaml has no grid that runs .*runner-results/other"):
         check_study(load_study(path))
+
+
+def test_a_reused_grids_cells_are_not_the_studys_cost(tmp_path: Path) -> None:
+    """The budget counts the study's own cells, in ``study run`` as in the audit: the runner's cells (planted at an
+    hour each) are read by the reader, not paid for, so the reader's own grid still runs under its small budget."""
+    from tactile_zoo.bench.records import run_records
+    from tactile_zoo.bench.rundir import RunDir
+    from tactile_zoo.study import run_study
+
+    path = _write(tmp_path)
+    path.write_text(path.read_text().replace("reads:\n", "rules: {budget_cpu_hours: 0.5}\nreads:\n", 1))
+    assert run_study(load_study(tmp_path / "runner.yaml"), quiet=True).exit_code == 0
+    folder = tmp_path / "runner-results" / "main"
+    for record in run_records(folder):
+        RunDir(folder).write_cell({**record, "seconds": 3600.0})
+    outcome = run_study(load_study(path), quiet=True)
+    assert outcome.exit_code == 0 and outcome.counts["own"]["ok"] == 1
+    result = audit(load_study(path))
+    assert result.rules["budget"] and any("(reused cells not counted)" in line for line in result.lines)
