@@ -48,6 +48,9 @@ def run_study(study: Study, *, quiet: bool = False, out: TextIO | None = None, e
         if plan.spec.superseded:
             logger.info("grid %s is superseded (%s): not run", name, plan.spec.superseded)
             continue
+        if plan.spec.reused:  # another study's folder: read here, never run or rewritten from here
+            logger.info("grid %s is reused (%s): read, not run", name, plan.spec.reused)
+            continue
         if budget is not None:  # the study's own cells, as the audit counts them: a reused grid's are not its cost
             spent = cpu_hours([r for grid, recs in study_records(study)[0].items() for r in recs
                                if not plans(study)[grid].spec.reused])

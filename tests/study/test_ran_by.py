@@ -76,9 +76,10 @@ def test_check_refuses_a_study_that_does_not_run_the_folder(tmp_path: Path) -> N
         check_study(load_study(path))
 
 
-def test_a_reused_grids_cells_are_not_the_studys_cost(tmp_path: Path) -> None:
+def test_a_reused_grid_is_neither_run_nor_paid_for(tmp_path: Path) -> None:
     """The budget counts the study's own cells, in ``study run`` as in the audit: the runner's cells (planted at an
-    hour each) are read by the reader, not paid for, so the reader's own grid still runs under its small budget."""
+    hour each) are read by the reader, not paid for, so the reader's own grid still runs under its small budget; and
+    ``study run`` leaves the runner's folder alone."""
     from tactile_zoo.bench.records import run_records
     from tactile_zoo.bench.rundir import RunDir
     from tactile_zoo.study import run_study
@@ -89,7 +90,11 @@ def test_a_reused_grids_cells_are_not_the_studys_cost(tmp_path: Path) -> None:
     folder = tmp_path / "runner-results" / "main"
     for record in run_records(folder):
         RunDir(folder).write_cell({**record, "seconds": 3600.0})
+    before = {f.name: f.read_bytes() for f in folder.iterdir() if f.is_file()}
     outcome = run_study(load_study(path), quiet=True)
     assert outcome.exit_code == 0 and outcome.counts["own"]["ok"] == 1
+    # the reused grid is read, not run: the runner's folder is not rewritten from the reader (run.json, leaderboard)
+    assert list(outcome.counts) == ["own"]
+    assert {f.name: f.read_bytes() for f in folder.iterdir() if f.is_file()} == before
     result = audit(load_study(path))
     assert result.rules["budget"] and any("(reused cells not counted)" in line for line in result.lines)
