@@ -153,34 +153,36 @@ def test_two_cpu_types_or_two_configurations_in_one_row_are_errors() -> None:
 
 
 def test_a_study_that_claims_a_model_moves_its_headline_rows_to_its_cells(cells_checked_once: None) -> None:
-    """``publishes: [{where: README.md, block: headline, table: recipe, models: [sgnet]}]``: SGnet's rows read that
-    study's cells alone, at SGnet's registered revision (not its grid of the previous revision), and the sentence
-    names the study; the other rows do not move."""
+    """``table1-r5`` publishes ``{where: README.md, block: headline, table: recipe, models: [sgnet, ...]}``: SGnet's
+    rows read that study's cells alone, at SGnet's registered revision (not its grid of the previous revision), and
+    the sentence names the study; without the claim, only the claimed models' rows move back."""
     from tactile_zoo.registry import get_model_entry
     from tactile_zoo.study.publish import headline_block
     from tactile_zoo.study.publish_tables import figure
-    from tactile_zoo.study.schema import Publication
 
     ctx = load_context(STUDIES)
-    before = headline_block(ctx).splitlines()
     study = ctx.studies["table1-r5"]
-    claim = Publication(where="README.md", block="headline", table="recipe", models=["sgnet"])
-    study.spec.publishes.append(claim)
+    claim = next(p for p in study.spec.publishes if p.models)
+    assert claim.models == ["sgnet", "tacformer", "x_tacformer"]
+    ctx.rendered.clear()
+    after = headline_block(ctx).splitlines()
+    study.spec.publishes.remove(claim)
     try:
         ctx.rendered.clear()
-        after = headline_block(ctx).splitlines()
+        before = headline_block(ctx).splitlines()
     finally:
-        study.spec.publishes.remove(claim)
+        study.spec.publishes.append(claim)
         ctx.rendered.clear()
     revision = get_model_entry("sgnet").meta["revision"]
     cells = [r for r in ctx.cells(study) if r["model"] == "sgnet" and r["dataset"] == "ev_objects"]
     kept = [r for r in cells if r["config"]["model_revision"] == revision]
-    assert kept and len(kept) < len(cells), "the study's grid of the previous revision must be left out"
+    assert len(kept) == 10 and len(cells) == 15, "the study's grid of the previous revision must be left out"
     row = next(line for line in after if line.startswith("| Ev-Objects | SGnet |"))
     assert f"| {figure(group(kept, 'sgnet', 'ev_objects'), 'test')} |" in row
-    assert "`table1-r5` for SGnet, at their registered revisions" in after[0]
+    assert "`table1-r5` for SGnet, Tacformer and X-Tacformer, at their registered revisions" in after[0]
+    assert "table1-r5" not in before[0]
     moved = [a for a, b in zip(after[2:], before[2:], strict=True) if a != b]
-    assert moved and all("| SGnet |" in line for line in moved)
+    assert moved and all(any(f"| {m} |" in line for m in ("SGnet", "Tacformer", "X-Tacformer")) for line in moved)
 
 
 def test_models_are_claimed_in_the_headline_only_and_from_the_studys_grids(tmp_path: Path) -> None:
