@@ -42,7 +42,8 @@ def run_study(study: Study, *, quiet: bool = False, out: TextIO | None = None, e
                 study.results / "study")
     budget = study.rules().budget_cpu_hours
     outcome = StudyOutcome()
-    for name, plan in plans(study).items():
+    all_plans = plans(study)
+    for name, plan in all_plans.items():
         if grids is not None and name not in grids:
             continue
         if plan.spec.superseded:
@@ -53,7 +54,7 @@ def run_study(study: Study, *, quiet: bool = False, out: TextIO | None = None, e
             continue
         if budget is not None:  # the study's own cells, as the audit counts them: a reused grid's are not its cost
             spent = cpu_hours([r for grid, recs in study_records(study)[0].items() for r in recs
-                               if not plans(study)[grid].spec.reused])
+                               if not all_plans[grid].spec.reused])
             if spent > budget:
                 raise ConfigError(f"{study.where}: budget exceeded: {spent:.3f} CPU-hours spent of "
                                   f"rules.budget_cpu_hours {budget:g}; no further cell runs (amend the rule with its "
