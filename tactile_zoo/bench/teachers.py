@@ -62,7 +62,7 @@ def _problem(folder: Path, teacher_id: str) -> Teacher | str:
         return f"{teacher_id}: its record holds no weights (run the teachers with save_weights: true)"
     file = folder / str(weights["file"])
     if not file.is_file():
-        return f"{teacher_id}: its weights {file} are missing"
+        return f"{teacher_id}: its weights {file} are missing (`tactile-zoo rebuild-weights {folder}` remakes them)"
     if file_sha256(file) != weights["sha256"]:
         return f"{teacher_id}: its weights {file} are not the ones its record states (sha256 differs)"
     return Teacher(teacher_id, file, str(weights["sha256"]))

@@ -30,7 +30,7 @@ from .. import registry
 from .._env import check_environment
 from .._version import __version__
 from ..errors import TactileZooError
-from .bench import add_bench, add_report
+from .bench import add_bench, add_rebuild_weights, add_report
 from .catalog import add_info, add_list, add_plugins
 from .download import add_download
 from .export import add_export
@@ -44,7 +44,7 @@ __all__ = ["main", "entry", "build_parser", "SUBCOMMANDS"]
 #: Every subcommand's argument declaration, in help order.
 SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [
     add_list, add_info, add_plugins, add_download, add_bench, add_train, add_evaluate, add_report, add_stream,
-    add_weights, add_predict, add_export, add_study,
+    add_weights, add_predict, add_export, add_study, add_rebuild_weights,
 ]
 
 

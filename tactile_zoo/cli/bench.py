@@ -8,7 +8,7 @@ from typing import Any
 
 from ._common import add_recipe_flags, add_tracker_flags, echo
 
-__all__ = ["add_bench", "add_report"]
+__all__ = ["add_bench", "add_report", "add_rebuild_weights"]
 
 logger = logging.getLogger(__name__)
 
@@ -127,3 +127,46 @@ def _cmd_report(args: argparse.Namespace) -> int:
     for line in running:
         echo(line)
     return 0
+
+
+def add_rebuild_weights(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("rebuild-weights", help="remake a bench folder's saved weights from its cell records, without "
+                                               "reading a test split",
+                       description="Weights are not committed; their cell records are. Train each selected cell that "
+                                   "saved weights again from its record (its revision, seed and thread count; the "
+                                   "test split is neither loaded nor evaluated) and keep the file only when its "
+                                   "sha256 is the recorded one. Files already there with that sha256 are kept. "
+                                   "Reproduces on the CPU type that ran the cells; exit 1 when a file differs.")
+    p.add_argument("dir", help="a bench output folder whose cells were run with --save-weights")
+    p.add_argument("--cell", action="append", default=[], metavar="ID",
+                   help="only cells whose id matches (shell wildcards, e.g. 'dcnn__ev_objects__f0__s[5-9]__*'; "
+                        "repeatable; default every cell that saved weights)")
+    p.add_argument("--root", default=None, help="data home (default $TACTILE_ZOO_DATA, else ~/.cache/tactile_zoo/data)")
+    p.add_argument("--workers", type=int, default=1, help="cells trained side by side, one process each (default 1)")
+    p.add_argument("--plugin-module", dest="plugin_modules", action="append", default=[], metavar="MODULE",
+                   help="import these modules in each worker (models registered outside entry points)")
+    p.add_argument("--dry-run", action="store_true", help="list the selected cells and exit")
+    p.set_defaults(handler=_cmd_rebuild_weights)
+
+
+def _cmd_rebuild_weights(args: argparse.Namespace) -> int:
+    from ..bench.rebuild import rebuild_weights, weight_cells
+    from ..engine.runtime import cpu_isa, cpu_model
+    from ..study.audit import cpu_type
+
+    records = weight_cells(args.dir, args.cell)
+    here = f"{cpu_model()} ({cpu_isa().get('capability', '?')})"
+    for record in records:
+        if cpu_type(record) != here:
+            logger.warning("%s ran on %s, this machine is %s: its weights will probably not reproduce",
+                           record["cell_id"], cpu_type(record), here)
+    if args.dry_run:
+        for record in records:
+            echo(f"{record['cell_id']}: {record['weights']['file']} ({record.get('seconds', 0):.0f} s when it ran)")
+        return 0
+    outcomes = rebuild_weights(args.dir, args.cell, root=args.root, workers=args.workers,
+                               plugin_modules=args.plugin_modules, on_result=lambda o: echo(o.line()))
+    differ = [o for o in outcomes if o.status == "differs"]
+    echo(f"{len(outcomes)} cell(s): {sum(o.status == 'present' for o in outcomes)} already there, "
+         f"{sum(o.status == 'rebuilt' for o in outcomes)} rebuilt, {len(differ)} differ")
+    return 1 if differ else 0

@@ -20,7 +20,7 @@ import torch
 from ..data.guard import tuning
 from ..errors import ConfigError
 from ..recipe import Recipe
-from .build import SPLITS, build_model, load_splits
+from .build import build_model, load_splits
 from .config import MERGED_EVALUATIONS, CellConfig
 from .distill import load_teachers, teacher_probabilities
 from .evaluate import EvalResult, evaluate, predict_scores, prefix_evaluation, time_inference
@@ -63,7 +63,8 @@ class CellResult:
 def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = None, download: bool = False,
                device: str | torch.device = "auto", extra_splits: Sequence[str] = (), measure: bool = True,
                progress: bool = False, callback: Callable[[dict[str, Any]], None] | None = None,
-               teachers: Sequence[str | os.PathLike] = (), cuda_graphs: bool | None = None) -> CellResult:
+               teachers: Sequence[str | os.PathLike] = (), cuda_graphs: bool | None = None,
+               read_test: bool = True) -> CellResult:
     """Load the splits, seed, build, fit (selecting on validation) and evaluate one cell; the test split is read once.
 
     Args:
@@ -79,24 +80,32 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
             (:mod:`.distill`; the harness finds and checks them).
         cuda_graphs: replay the training forward from CUDA graphs (:mod:`.cuda_graph`); None reads
             ``TACTILE_ZOO_CUDA_GRAPHS`` on a CUDA device.
+        read_test: False trains the same model and neither loads nor evaluates a test split (``tests`` is empty,
+            ``test_reads`` 0): how :mod:`tactile_zoo.bench.rebuild` remakes a finished cell's weights without a
+            second read of its test split. Loading and evaluating come after every random draw of the fit, so the
+            weights are the same either way.
 
     Raises:
         ModelCannotConsume: the model's constructor refused the dataset.
-        ConfigError: teachers given to a cell without ``teacher_seeds``, or not one per teacher seed.
+        ConfigError: teachers given to a cell without ``teacher_seeds``, or not one per teacher seed; ``read_test``
+            False for a ``reference`` cell, whose training reads the test split after every epoch.
     """
     if teachers and not config.teacher_seeds:
         raise ConfigError(f"{config.model} on {config.dataset}: teacher weights given, but the cell has no teachers")
+    if not read_test and config.evaluation == "reference":
+        raise ConfigError(f"{config.model} on {config.dataset}: a reference cell reads the test split after every "
+                          "epoch of its training, so it cannot be trained without reading it (read_test=False)")
     if config.evaluation == "tuning":
         with tuning():
             return _tune_cell(config, fold, seed, root, download, resolve_device(device), progress, callback,
                               teachers, cuda_graphs)
     dev = resolve_device(device)
-    splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs,
-                         (*SPLITS, *extra_splits))
+    test_names = ("test", *extra_splits) if read_test else ()
+    splits = load_splits(config.dataset, root, fold, download, config.dataset_kwargs, ("train", "val", *test_names))
     subset = config.subset or {}
     train = take(splits["train"], subset.get("train"))
     val = take(splits["val"], subset.get("val"))
-    tests = {name: take(splits[name], subset.get("test")) for name in ("test", *extra_splits)}
+    tests = {name: take(splits[name], subset.get("test")) for name in test_names}
     rec = config.recipe
     prefix = infer_ms = reference = None
     with PeakMemory(dev) as peak:
@@ -113,21 +122,21 @@ def train_cell(config: CellConfig, *, fold: int = 0, seed: int = 0, root: Any = 
                                  refit=config.refit, progress=progress, callback=callback, cuda_graphs=cuda_graphs)
         evals = {name: evaluate(result.model, split, loss=rec.loss, batch_size=rec.eval_batch_size, progress=False)
                  for name, split in tests.items()}
-        if measure:
+        if measure and read_test:
             prefix = prefix_evaluation(result.model, tests["test"], config.prefixes or (1.0,), causal=config.causal,
                                        loss=rec.loss, batch_size=rec.eval_batch_size)
             infer_ms = time_inference(result.model, tests["test"])
-    result.test = evals["test"]
+    result.test = evals.get("test")
     if reference is not None:
         reference["final_epoch_accuracy"] = evals["test"].metrics["accuracy"]
     merged = config.evaluation in MERGED_EVALUATIONS  # trained on train + val, selected nothing
     return CellResult(config=config, fold=fold, seed=seed, fit=result, tests=evals, spec=train.spec,
                       n_train=len(train) + (len(val) if merged else 0), n_val=0 if merged else len(val),
-                      n_test=len(tests["test"]), device=str(dev), prefix=prefix,
+                      n_test=len(tests["test"]) if read_test else 0, device=str(dev), prefix=prefix,
                       infer_ms_per_sample=infer_ms, peak_memory_mb=peak.mb, peak_memory_source=peak.source,
                       peak_gpu_memory_mb=peak.gpu_mb, reference=reference,
                       test_groups={name: split.unit_ids() for name, split in tests.items()},
-                      test_reads=result.epochs_run if config.evaluation == "reference" else 1)
+                      test_reads=result.epochs_run if config.evaluation == "reference" else int(read_test))
 
 
 def _taught(config: CellConfig, teachers: Sequence[str | os.PathLike], train: TensorSplit, val: TensorSplit,
