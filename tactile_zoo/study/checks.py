@@ -14,6 +14,8 @@ from .schema import READ_KINDS, ComparisonArm, ComparisonRead, EnsembleRead, Mem
 
 __all__ = ["load_study", "check_study", "read_members", "comparison_arms", "plans", "describe"]
 
+#: the (page, block, table) parts whose publications may name ``models``: their rows read the claiming study's cells
+CLAIMABLE = {("README.md", "headline", "recipe"), ("docs/published-results.md", "ours", "full")}
 #: the statistics a threshold may read from each kind of read
 _STATISTICS = {"means": ("accuracy", "low", "high"), "ensembles": ("accuracy", "low", "high"),
                "comparisons": ("difference", "low", "high", "p_value"), "validation": ("mean", "median"),
@@ -175,10 +177,10 @@ def check_study(study: Study) -> None:
         for name in publication.reads:
             if name not in known:
                 raise ConfigError(f"{where}: publishes[{i}].reads: {name!r} names no declared read")
-        if publication.models and (publication.where, publication.block, publication.table) != (
-                "README.md", "headline", "recipe"):
-            raise ConfigError(f"{where}: publishes[{i}].models: only the README headline's `recipe` part takes "
-                              f"models (the rows a study's cells stand for)")
+        if publication.models and (publication.where, publication.block, publication.table) not in CLAIMABLE:
+            raise ConfigError(f"{where}: publishes[{i}].models: only the README headline's `recipe` part and "
+                              f"docs/published-results.md's `ours` `full` part take models (the rows a study's "
+                              f"cells stand for)")
         planned = {m for g in study.grids() if not g.superseded for m in g.given().get("models") or []}
         for name in publication.models:
             if name not in planned:

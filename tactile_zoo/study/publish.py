@@ -27,7 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .. import _files, registry
+from .. import _files
 from ..bench.intervals import records_interval
 from ..bench.records import cell_files, scan_cells
 from ..errors import ResultsError
@@ -118,17 +118,8 @@ def _recipe(study: Study) -> str:
 
 
 def _claims(ctx: Context) -> dict[str, tuple[Study, int]]:
-    """model -> (the study whose cells alone stand for its headline rows, that model's registered revision): the
-    headline ``recipe`` publications that name ``models`` (a study that moved those models to a new revision and
-    read that no row dropped). One model claimed by two studies is an error."""
-    out: dict[str, tuple[Study, int]] = {}
-    for study, pub in ctx.parts("README.md", "headline", "recipe"):
-        for model in pub.models:
-            if model in out:
-                raise ResultsError(f"README.md, block 'headline': {name(model)}'s rows are claimed by studies "
-                                   f"{out[model][0].name} and {study.name}; one only")
-            out[model] = (study, int(registry.get_model_entry(model).meta.get("revision", 1)))
-    return out
+    """The headline's claimed models (:meth:`Context.claims` of its ``recipe`` part)."""
+    return ctx.claims("README.md", "headline", "recipe")
 
 
 def _row_cells(ctx: Context, loaded: dict[str, list], model: str, dataset: str) -> list[dict[str, Any]]:
@@ -137,11 +128,7 @@ def _row_cells(ctx: Context, loaded: dict[str, list], model: str, dataset: str) 
     claims = _claims(ctx)
     if model not in claims:
         return group(loaded.get(registered_default(model), []), model, dataset)
-    study, revision = claims[model]
-    recs = [r for r in ctx.cells(study) if r["model"] == model
-            and int((r.get("config") or {}).get("model_revision") or 1) == revision]
-    one_cpu_type(recs, f"{name(model)} in study {study.name}")
-    return group(recs, model, dataset)
+    return group(ctx.claimed_cells(model, *claims[model]), model, dataset)
 
 
 def _recipes(ctx: Context) -> dict[str, list]:

@@ -256,15 +256,19 @@ def decomposition_block(ctx: Context) -> str:
 def ours_block(ctx: Context) -> str:
     """docs/published-results.md's block: our own figures beside the X-Tacformer paper's, under each protocol."""
     page, block = "docs/published-results.md", "ours"
-    full_part, kfold_part = ctx.part(page, block, "full"), ctx.part(page, block, "kfold")
-    if full_part is None:
-        raise ResultsError(f"{page}: no study publishes the `full` part of block {block!r}")
+    bases = [part for part in ctx.parts(page, block, "full") if not part[1].models]
+    if len(bases) != 1:
+        raise ResultsError(f"{page}: {len(bases)} studies publish the `full` part of block {block!r} for every "
+                           f"model ({', '.join(s.name for s, _ in bases) or 'none'}); one only")
+    full_part, kfold_part = bases[0], ctx.part(page, block, "kfold")
+    claims = ctx.claims(page, block, "full")  # models whose rows a later study's cells stand for
     reference, ref_study = _reference(ctx, page, block)
     full = ctx.cells(full_part[0])
     kfold = ctx.cells(kfold_part[0]) if kfold_part else []
     kfold_models = kfold_part[0].grids()[0].given()["models"] if kfold_part else []
     lines = [f"| model | dataset | X-Tacformer paper | ours, best test epoch (**optimistic**; seeds; study "
-             f"`{ref_study}`) | ours, `full` (honest: declared epochs, test read once; study `{full_part[0].name}`) | "
+             f"`{ref_study}`) | ours, `full` (honest: declared epochs, test read once; study `{full_part[0].name}`"
+             f"{', or the one its row names' if claims else ''}) | "
              f"ours, k-fold, textures (recordings of one object in train and test; folds; study "
              f"`{kfold_part[0].name if kfold_part else '-'}`) |", "|---|---|---|---|---|---|"]
     for model in ctx.models():
@@ -275,8 +279,14 @@ def ours_block(ctx: Context) -> str:
             folds = group(kfold, model, dataset)
             kfold_text = figure(folds, "test_textures") if folds else (
                 "not run yet" if dataset == "biotac_dos" and model in kfold_models else "-")
+            if model in claims:
+                study, revision = claims[model]
+                honest = (f"{figure(group(ctx.claimed_cells(model, study, revision), model, dataset), SPLITS[dataset])}"
+                          f" study `{study.name}`, revision {revision}")
+            else:
+                honest = figure(group(full, model, dataset), SPLITS[dataset])
             lines.append(f"| {name(model)} | {TITLES[dataset]} | {ctx.paper_text(model, dataset)} | {best} | "
-                         f"{figure(group(full, model, dataset), SPLITS[dataset])} | {kfold_text} |")
+                         f"{honest} | {kfold_text} |")
     return "\n".join(lines)
 
 

@@ -113,6 +113,26 @@ class Context:
             self._cells[key] = out
         return self._cells[key]
 
+    def claims(self, page: str, block: str, table: str) -> dict[str, tuple[Study, int]]:
+        """model -> (the study whose cells alone stand for its rows in ``table``'s part of the block, the model's
+        registered revision): the publications there that name ``models`` (a study that moved those models to a new
+        revision and read that no row dropped). One model claimed by two studies is an error."""
+        out: dict[str, tuple[Study, int]] = {}
+        for study, pub in self.parts(page, block, table):
+            for model in pub.models:
+                if model in out:
+                    raise ResultsError(f"{page}, block {block!r}: {name(model)}'s rows are claimed by studies "
+                                       f"{out[model][0].name} and {study.name}; one only")
+                out[model] = (study, int(registry.get_model_entry(model).meta.get("revision", 1)))
+        return out
+
+    def claimed_cells(self, model: str, study: Study, revision: int) -> list[dict[str, Any]]:
+        """``model``'s cells of the claiming ``study`` at ``revision`` (one CPU type, or an error)."""
+        recs = [r for r in self.cells(study) if r["model"] == model
+                and int((r.get("config") or {}).get("model_revision") or 1) == revision]
+        one_cpu_type(recs, f"{name(model)} in study {study.name}")
+        return recs
+
     def left_out(self, study: Study) -> int:
         """How many cell files of the study's grids the tables leave out (not ok, another recipe, older code)."""
         return sum(len(self.records(study.folder(g))) for g in self.grids(study)) - len(self.cells(study))

@@ -250,8 +250,9 @@ class Publication(_Model):
     grid: Name | None = None
     target: Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)] | None = None
     reads: list[Name] = Field(default_factory=list)
-    # the README headline's `recipe` part: the models whose rows read this study's cells alone, at each model's
-    # registered revision (a study that moved them to a new revision); the other studies' cells stand for the rest
+    # the README headline's `recipe` part and published-results' `ours` `full` part (checks.CLAIMABLE): the models
+    # whose rows read this study's cells alone, at each model's registered revision (a study that moved them to a
+    # new revision); the other studies' cells stand for the rest
     models: list[Name] = Field(default_factory=list)
 
 

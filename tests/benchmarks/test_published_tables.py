@@ -185,12 +185,41 @@ def test_a_study_that_claims_a_model_moves_its_headline_rows_to_its_cells(cells_
     assert moved and all(any(f"| {m} |" in line for m in ("SGnet", "Tacformer", "X-Tacformer")) for line in moved)
 
 
+def test_a_claim_moves_the_published_results_rows_and_names_the_study(cells_checked_once: None) -> None:
+    """``table1-r5`` also claims D-CNN, SGnet and both transformers in docs/published-results.md's honest column:
+    those rows read its ten cells at the registered revision and name it; the others stay on the base study's."""
+    from tactile_zoo.study.publish_rounds import ours_block
+    from tactile_zoo.study.publish_tables import figure
+
+    ctx = load_context(STUDIES)
+    study = ctx.studies["table1-r5"]
+    claim = next(p for p in study.spec.publishes if p.where == "docs/published-results.md")
+    assert claim.models == ["dcnn", "sgnet", "tacformer", "x_tacformer"]
+    after = ours_block(ctx).splitlines()
+    study.spec.publishes.remove(claim)
+    try:
+        before = ours_block(ctx).splitlines()
+    finally:
+        study.spec.publishes.append(claim)
+    kept = [r for r in ctx.cells(study) if r["model"] == "dcnn" and r["dataset"] == "ev_containers"
+            and r["config"]["model_revision"] == 2]
+    assert len(kept) == 10
+    row = next(line for line in after if line.startswith("| D-CNN | Ev-Containers |"))
+    assert f"| {figure(group(kept, 'dcnn', 'ev_containers'), 'test')} study `table1-r5`, revision 2 |" in row
+    old = next(line for line in before if line.startswith("| D-CNN | Ev-Containers |"))
+    assert "table1-r5" not in old and "(5) |" in old
+    assert "or the one its row names" in after[0] and "or the one its row names" not in before[0]
+    moved = [a for a, b in zip(after[2:], before[2:], strict=True) if a != b]
+    assert len(moved) == 12 and not any(m in line for line in moved for m in ("| ConvLSTM |", "| CNN-LSTM |"))
+
+
 def test_models_are_claimed_in_the_headline_only_and_from_the_studys_grids(tmp_path: Path) -> None:
     from tactile_zoo.errors import ConfigError
 
     text = (STUDIES / "table1-r5.yaml").read_text()
     for entry, message in [("{where: docs/table1.md, block: table1, table: cost, models: [sgnet]}",
-                            "only the README headline's `recipe` part takes models"),
+                            "only the README headline's `recipe` part and docs/published-results.md's `ours` `full` "
+                            "part take models"),
                            ("{where: README.md, block: headline, table: recipe, models: [deeptactile]}",
                             "'deeptactile' is not a model of the study's grids")]:
         path = tmp_path / "table1-r5.yaml"
