@@ -177,10 +177,15 @@ def check_study(study: Study) -> None:
         for name in publication.reads:
             if name not in known:
                 raise ConfigError(f"{where}: publishes[{i}].reads: {name!r} names no declared read")
-        if publication.models and (publication.where, publication.block, publication.table) not in CLAIMABLE:
-            raise ConfigError(f"{where}: publishes[{i}].models: only the README headline's `recipe` part and "
-                              f"docs/published-results.md's `ours` `full` part take models (the rows a study's "
-                              f"cells stand for)")
+        card = (publication.where, publication.block) == ("docs/models.md", "cards")
+        if card and (not publication.models or not publication.table):
+            raise ConfigError(f"{where}: publishes[{i}]: a model card row names its `table` (the row's label) and "
+                              f"the `models` whose cards it joins")
+        if publication.models and not card and \
+                (publication.where, publication.block, publication.table) not in CLAIMABLE:
+            raise ConfigError(f"{where}: publishes[{i}].models: only the README headline's `recipe` part, "
+                              f"docs/published-results.md's `ours` `full` part and docs/models.md's `cards` take "
+                              f"models (the rows a study's cells stand for)")
         planned = {m for g in study.grids() if not g.superseded for m in g.given().get("models") or []}
         for name in publication.models:
             if name not in planned:

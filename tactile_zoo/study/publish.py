@@ -32,6 +32,8 @@ from ..bench.intervals import records_interval
 from ..bench.records import cell_files, scan_cells
 from ..errors import ResultsError
 from .checks import load_study
+from .publish_cards import PAGE as CARDS_PAGE
+from .publish_cards import card_block, card_models
 from .publish_rounds import (
     Round3,
     decomposition_block,
@@ -277,12 +279,17 @@ def replace_block(text: str, block: str, body: str, where_: str) -> str:
 
 
 def render_pages(ctx: Context) -> dict[Path, str]:
-    """Each page with every generated block regenerated from the studies."""
+    """Each page with every generated block regenerated from the studies (and every model card's figures)."""
     out: dict[Path, str] = {}
     for page, block in BLOCKS:
         path = ctx.repo / page
         text = out.get(path) or path.read_text(encoding="utf-8")
         out[path] = replace_block(text, block, render_block(ctx, page, block), str(path))
+    path = ctx.repo / CARDS_PAGE
+    text = out.get(path) or path.read_text(encoding="utf-8")
+    for model in card_models():
+        text = replace_block(text, f"card {model}", card_block(ctx, model), str(path))
+    out[path] = text
     return out
 
 

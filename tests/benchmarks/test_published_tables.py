@@ -218,11 +218,43 @@ def test_models_are_claimed_in_the_headline_only_and_from_the_studys_grids(tmp_p
 
     text = (STUDIES / "table1-r5.yaml").read_text()
     for entry, message in [("{where: docs/table1.md, block: table1, table: cost, models: [sgnet]}",
-                            "only the README headline's `recipe` part and docs/published-results.md's `ours` `full` "
-                            "part take models"),
+                            "only the README headline's `recipe` part, docs/published-results.md's `ours` `full` "
+                            "part and docs/models.md's `cards` take models"),
                            ("{where: README.md, block: headline, table: recipe, models: [deeptactile]}",
                             "'deeptactile' is not a model of the study's grids")]:
         path = tmp_path / "table1-r5.yaml"
         path.write_text(f"{text}publishes:\n  - {entry}\n")
         with pytest.raises(ConfigError, match=re.escape(message)):
+            load_study(path)
+
+
+def test_model_cards_show_each_publishing_studys_cells_at_the_registered_revision(cells_checked_once: None) -> None:
+    """docs/models.md's card blocks: SGnet's row is table1-r5's ten cells at revision 3 (not its grids of the previous
+    revision), ConvLSTM's pools rounds 3 and 4 under one label, and a model without a publishing study says so."""
+    from tactile_zoo.study.publish_cards import card_block, card_models
+    from tactile_zoo.study.publish_tables import figure
+
+    ctx = load_context(STUDIES)
+    assert {"sgnet", "convlstm", "multibarrel", "deeptactile"} <= set(card_models())
+    sgnet = card_block(ctx, "sgnet").splitlines()
+    kept = [r for r in ctx.cells(ctx.studies["table1-r5"]) if r["model"] == "sgnet" and r["dataset"] == "ev_objects"
+            and r["config"]["model_revision"] == 3]
+    assert len(kept) == 10
+    assert sgnet[0].startswith("Measured at revision 3")
+    assert sgnet[-1].startswith(f"| `full` | {figure(group(kept, 'sgnet', 'ev_objects'), 'test')} |")
+    assert sgnet[-1].endswith("| `table1-r5` |")
+    convlstm = card_block(ctx, "convlstm").splitlines()[-1]
+    assert convlstm.endswith("| `table1-full-r3`, `table1-full-r4` |") and convlstm.count("(10)") == 3
+    assert card_block(ctx, "multibarrel").startswith("No study has published a measured figure of multi-barrel SNN")
+
+
+def test_a_card_row_names_its_label_and_models(tmp_path: Path) -> None:
+    from tactile_zoo.errors import ConfigError
+
+    text = (STUDIES / "table1-r5.yaml").read_text()
+    for entry in ("{where: docs/models.md, block: cards, table: full}", "{where: docs/models.md, block: cards, "
+                                                                          "models: [sgnet]}"):
+        path = tmp_path / "table1-r5.yaml"
+        path.write_text(f"{text}publishes:\n  - {entry}\n")
+        with pytest.raises(ConfigError, match=re.escape("a model card row names its `table` (the row's label)")):
             load_study(path)
