@@ -32,6 +32,7 @@ from ..bench.intervals import records_interval
 from ..bench.records import cell_files, scan_cells
 from ..errors import ResultsError
 from .checks import load_study
+from .publish_cards import BLOCK as CARDS_BLOCK
 from .publish_cards import PAGE as CARDS_PAGE
 from .publish_cards import card_block, card_models
 from .publish_rounds import (
@@ -47,8 +48,8 @@ from .publish_rounds import (
 from .publish_tables import Context, figure, group, name, one_cpu_type, table1_block, where
 from .schema import Study, parse_study
 
-__all__ = ["BLOCKS", "load_context", "study_files", "study_folder", "render_block", "render_pages", "check_pages",
-           "replace_block", "headline_block", "headline_problems", "index_block", "study_blocks"]
+__all__ = ["BLOCKS", "PAGES", "FED", "load_context", "study_files", "study_folder", "render_block", "render_pages",
+           "check_pages", "replace_block", "headline_block", "headline_problems", "index_block", "study_blocks"]
 
 #: how each recipe trains and reads its test split, for the headline's sentence
 WHAT = {"source": "the source's settings, the epoch selected on validation",
@@ -262,6 +263,12 @@ BLOCKS: dict[tuple[str, str], Callable[[Context], str]] = {
 }
 
 
+#: every page holding generated blocks: those of :data:`BLOCKS`, and the model cards' (:mod:`.publish_cards`)
+PAGES: tuple[str, ...] = (*dict.fromkeys(page for page, _ in BLOCKS), CARDS_PAGE)
+#: the blocks a study's ``publishes`` may feed: :data:`BLOCKS`' and the model cards' rows
+FED: frozenset[tuple[str, str]] = frozenset({*BLOCKS, (CARDS_PAGE, CARDS_BLOCK)})
+
+
 def render_block(ctx: Context, page: str, block: str) -> str:
     """The body of ``block`` of ``page``, generated from ``ctx``'s studies (once per context)."""
     if (page, block) not in BLOCKS:
@@ -307,15 +314,21 @@ def check_pages(ctx: Context) -> list[str]:
 
 def study_blocks(study: Study) -> list[tuple[str, str, str]]:
     """``(page, block, text)`` of every generated block ``study`` feeds, rendered with the studies beside it (what
-    ``study report`` shows under "Published"); a block that cannot be rendered says why."""
+    ``study report`` shows under "Published"), a model card's for each model it publishes there; a block that cannot
+    be rendered says why."""
     parts = [(p.where, p.block) for p in study.spec.publishes if p.table and (p.where, p.block) in BLOCKS]
-    if not parts:
+    cards = [m for p in study.spec.publishes if (p.where, p.block) == (CARDS_PAGE, CARDS_BLOCK) for m in p.models]
+    if not parts and not cards:
         return []
     ctx = load_context(study.path.parent)
     out = []
-    for page, block in dict.fromkeys(parts):
+    jobs = [(page, str(block), lambda page=page, block=block: render_block(ctx, page, str(block)))
+            for page, block in dict.fromkeys(parts)]
+    jobs += [(CARDS_PAGE, f"card {model}", lambda model=model: card_block(ctx, model))
+             for model in dict.fromkeys(cards)]
+    for page, block, render in jobs:
         try:
-            out.append((page, str(block), render_block(ctx, page, str(block))))
+            out.append((page, block, render()))
         except ResultsError as exc:
-            out.append((page, str(block), f"not rendered: {exc}"))
+            out.append((page, block, f"not rendered: {exc}"))
     return out

@@ -15,7 +15,7 @@ import pytest
 from tactile_zoo.bench.paired import records_paired
 from tactile_zoo.errors import ResultsError
 from tactile_zoo.study import load_study, write_report
-from tactile_zoo.study.publish import BLOCKS, check_pages, headline_problems, load_context, render_pages
+from tactile_zoo.study.publish import FED, PAGES, check_pages, headline_problems, load_context, render_pages
 from tactile_zoo.study.publish_rounds import Comparison, compare, default_recipes, gap_reading
 from tactile_zoo.study.publish_tables import group, one_cpu_type
 from tools.published_tables import main
@@ -64,7 +64,7 @@ def test_study_report_reproduces_every_published_number(tmp_path: Path, cells_ch
 
 def test_every_generated_block_is_fed_by_a_study() -> None:
     fed = {(p.where, p.block) for path in STUDIES.glob("*.yaml") for p in load_study(path).spec.publishes if p.table}
-    assert set(REPRODUCED) <= fed and fed <= set(BLOCKS)
+    assert set(REPRODUCED) <= fed and fed <= FED
 
 
 def test_a_stale_page_fails_the_check_naming_it(tmp_path: Path, cells_checked_once: None) -> None:
@@ -73,7 +73,7 @@ def test_a_stale_page_fails_the_check_naming_it(tmp_path: Path, cells_checked_on
     # render them there first, whatever ran before in this worker (that the checkout's pages pass is the first
     # test's); then check copies of the pages
     render_pages(ctx)
-    for page, _ in BLOCKS:
+    for page in PAGES:
         (tmp_path / page).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(REPO / page, tmp_path / page)
     ctx.repo, original = tmp_path, ctx.repo
@@ -258,3 +258,11 @@ def test_a_card_row_names_its_label_and_models(tmp_path: Path) -> None:
         path.write_text(f"{text}publishes:\n  - {entry}\n")
         with pytest.raises(ConfigError, match=re.escape("a model card row names its `table` (the row's label)")):
             load_study(path)
+
+
+def test_a_study_report_shows_the_cards_it_feeds(cells_checked_once: None) -> None:
+    from tactile_zoo.study.publish import study_blocks
+
+    blocks = {(page, block): text for page, block, text in study_blocks(load_study(STUDIES / "table1-full-r4.yaml"))}
+    assert blocks[("docs/models.md", "card convlstm")].startswith("Measured at revision")
+    assert ("docs/models.md", "card sgnet") not in blocks and ("docs/table1.md", "table1 round 4") in blocks
