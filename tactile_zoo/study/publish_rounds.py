@@ -287,7 +287,27 @@ def ours_block(ctx: Context) -> str:
                 honest = figure(group(full, model, dataset), SPLITS[dataset])
             lines.append(f"| {name(model)} | {TITLES[dataset]} | {ctx.paper_text(model, dataset)} | {best} | "
                          f"{honest} | {kfold_text} |")
+        lines += _variant_rows(ctx, page, block, model)
     return "\n".join(lines)
+
+
+def _variant_rows(ctx: Context, page: str, block: str, model: str) -> list[str]:
+    """The rows of ``model`` trained another honest way (a publication of the block whose ``table`` is neither
+    ``full`` nor ``kfold``, e.g. ``distilled``): its cells at the model's registered revision, the study named, one
+    row per dataset it has cells on, in the honest column."""
+    out = []
+    for study, pub in ctx.parts(page, block):
+        if pub.table in ("full", "kfold") or model not in pub.models:
+            continue
+        revision = int(registry.get_model_entry(model).meta.get("revision", 1))
+        recs = [r for r in ctx.cells(study, pub) if r["model"] == model
+                and int((r.get("config") or {}).get("model_revision") or 1) == revision]
+        one_cpu_type(recs, f"{name(model)} ({pub.table}) in study {study.name}")
+        for dataset in DATASETS:
+            if rows := group(recs, model, dataset):
+                out.append(f"| {name(model)}, `{pub.table}` | {TITLES[dataset]} | {ctx.paper_text(model, dataset)} | "
+                           f"- | {figure(rows, SPLITS[dataset])} study `{study.name}`, revision {revision} | - |")
+    return out
 
 
 def _seeds(recs: list[dict[str, Any]], seeds: list[int]) -> list[dict[str, Any]]:

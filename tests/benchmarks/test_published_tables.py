@@ -266,3 +266,31 @@ def test_a_study_report_shows_the_cards_it_feeds(cells_checked_once: None) -> No
     blocks = {(page, block): text for page, block, text in study_blocks(load_study(STUDIES / "table1-full-r4.yaml"))}
     assert blocks[("docs/models.md", "card convlstm")].startswith("Measured at revision")
     assert ("docs/models.md", "card sgnet") not in blocks and ("docs/table1.md", "table1 round 4") in blocks
+
+
+def test_another_label_adds_rows_of_its_own_under_the_model(cells_checked_once: None) -> None:
+    """A publication of the `ours` block under another label (here table1-r5's grid `rest`, as if it were a variant)
+    adds one row per dataset beneath the model's own rows, naming its study; the model's rows do not move."""
+    from tactile_zoo.study.publish_rounds import ours_block
+    from tactile_zoo.study.publish_tables import figure
+    from tactile_zoo.study.schema import Publication
+
+    ctx = load_context(STUDIES)
+    study = ctx.studies["table1-r5"]
+    before = ours_block(ctx).splitlines()
+    extra = Publication(where="docs/published-results.md", block="ours", table="variant", grid="rest",
+                        models=["x_tacformer"])
+    study.spec.publishes.append(extra)
+    try:
+        after = ours_block(ctx).splitlines()
+    finally:
+        study.spec.publishes.remove(extra)
+    added = [line for line in after if line not in before]
+    assert [line.split(" | ")[1] for line in added] == ["Ev-Objects", "Ev-Containers", "BioTac-DoS (textures)"]
+    rest = [r for r in ctx.cells(study, extra) if r["model"] == "x_tacformer" and r["dataset"] == "ev_objects"
+            and r["config"]["model_revision"] == 3]
+    assert len(rest) == 7  # seeds 3-9
+    assert added[0] == (f"| X-Tacformer, `variant` | Ev-Objects | 0.9167 | - | {figure(rest, 'test')} study "
+                        f"`table1-r5`, revision 3 | - |")
+    last = max(i for i, line in enumerate(before) if line.startswith("| X-Tacformer |"))
+    assert after[last + 1:last + 4] == added and after[:last + 1] == before[:last + 1]
