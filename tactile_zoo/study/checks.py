@@ -188,7 +188,7 @@ def check_study(study: Study) -> None:
             raise ConfigError(f"{where}: publishes[{i}].models: only the README headline's `recipe` part, "
                               f"docs/published-results.md's `ours` `full` part and docs/models.md's `cards` take "
                               f"models (the rows a study's cells stand for)")
-        planned = {m for g in study.grids() if not g.superseded for m in g.given().get("models") or []}
+        planned = {m for plan in all_plans.values() if not plan.spec.superseded for m in plan.models}
         for name in publication.models:
             if name not in planned:
                 raise ConfigError(f"{where}: publishes[{i}].models: {name!r} is not a model of the study's grids "
