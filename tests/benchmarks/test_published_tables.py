@@ -292,5 +292,5 @@ def test_another_label_adds_rows_of_its_own_under_the_model(cells_checked_once: 
     assert len(rest) == 7  # seeds 3-9
     assert added[0] == (f"| X-Tacformer, `variant` | Ev-Objects | 0.9167 | - | {figure(rest, 'test')} study "
                         f"`table1-r5`, revision 3 | - |")
-    last = max(i for i, line in enumerate(before) if line.startswith("| X-Tacformer |"))
+    last = max(i for i, line in enumerate(before) if line.startswith("| X-Tacformer"))  # its own and others' rows
     assert after[last + 1:last + 4] == added and after[:last + 1] == before[:last + 1]

@@ -167,7 +167,7 @@ def test_batch_statistics_pool_the_batch_in_training_and_evaluation_is_per_sampl
 
 def test_the_recipes_are_the_source_as_released_and_the_zoo_protocol_on_it() -> None:
     meta = get_model_entry("deeptactile").meta
-    assert meta["default_recipe"] == "zoo" and set(meta["recipes"]) == {"source", "zoo"}
+    assert meta["default_recipe"] == "zoo" and set(meta["recipes"]) == {"source", "zoo", "full"}
     source = resolve_model_recipe(meta, "source", "ev_objects")
     r = source.recipe
     assert (r.loss, r.optimizer, r.amsgrad, r.lr, r.weight_decay, r.schedule) == ("mse_rate", "adam", False, 1e-3,
