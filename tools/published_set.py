@@ -1,8 +1,10 @@
 """The published set (``tactile_zoo/published/table1-v1.json.gz``): Table I's committed `full` and `zoo` cells, with
-each test sample's prediction, for ``tactile-zoo study compare`` (:mod:`tactile_zoo.study.published`).
+each test sample's prediction, for ``tactile-zoo study compare`` (:mod:`tactile_zoo.study.published`). The set is
+package data built from the committed cells, not committed itself: ``make install`` runs this, and ``setup.py`` refuses
+to build a wheel without it.
 
     python -m tools.published_set            # write the set from the committed cells
-    python -m tools.published_set --check    # exit 1 unless the committed set is what the cells give
+    python -m tools.published_set --check    # exit 1 unless the set on disk is what the cells give
     python -m tools.published_set --out F --name N --version V --from DIR [--from DIR ...] [--tuning DIR ...]
                                              # a set of other folders (a test's small set, a later version)
 
@@ -50,7 +52,7 @@ def build(folders: list[Path], name: str, version: int, tuning: list[Path], reci
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.published_set", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--check", action="store_true", help="exit 1 unless the committed set is what the cells give")
+    parser.add_argument("--check", action="store_true", help="exit 1 unless the set on disk is what the cells give")
     parser.add_argument("--out", type=Path, default=None, help=f"the set file (default {OUT.relative_to(ROOT)})")
     parser.add_argument("--name", default=None, help=f"the set's name (default {NAME})")
     parser.add_argument("--version", type=int, default=None, help=f"its version (default {VERSION})")

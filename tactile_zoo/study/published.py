@@ -265,7 +265,9 @@ def load_set(ref: str | Path, *, base: Path | None = None, key: str = "against.s
     packaged = packaged_sets()
     if text == PUBLISHED:
         if not packaged:
-            raise ConfigError(f"{key}: {PUBLISHED!r}: no published set is packaged with this tactile-zoo")
+            # a checkout builds its sets from the committed cells: they are results, committed once, as cells
+            raise ConfigError(f"{key}: {PUBLISHED!r}: no published set is packaged with this tactile-zoo (in a git "
+                              "checkout, `make install` or `python -m tools.published_set` builds it)")
         text = packaged[-1]
     if text in packaged:
         raw = _packaged().joinpath(set_file_name(text)).read_bytes()
