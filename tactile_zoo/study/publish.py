@@ -131,7 +131,8 @@ def _row_cells(ctx: Context, loaded: dict[str, list], model: str, dataset: str) 
     claims = _claims(ctx)
     if model not in claims:
         return group(loaded.get(registered_default(model), []), model, dataset)
-    return group(ctx.claimed_cells(model, *claims[model]), model, dataset)
+    study = claims[model][0]
+    return group(ctx.model_cells(model, [(study, None)], f"{name(model)} in study {study.name}"), model, dataset)
 
 
 def _recipes(ctx: Context) -> dict[str, list]:

@@ -11,11 +11,9 @@ Each card holds the block ``<!-- card MODEL: begin (...) -->``; a model with no 
 
 from __future__ import annotations
 
-from typing import Any
-
 from .. import registry
 from ..errors import ResultsError
-from .publish_tables import SPLITS, TITLES, Context, figure, group, name, one_cpu_type
+from .publish_tables import SPLITS, TITLES, Context, figure, group, name, registered_revision
 from .schema import Publication, Study
 
 __all__ = ["PAGE", "BLOCK", "card_models", "card_block"]
@@ -38,16 +36,9 @@ def _rows(ctx: Context, model: str) -> dict[str, list[tuple[Study, Publication]]
     return out
 
 
-def _cells(ctx: Context, parts: list[tuple[Study, Publication]], model: str, revision: int) -> list[dict[str, Any]]:
-    recs = [r for study, pub in parts for r in ctx.cells(study, pub) if r["model"] == model
-            and int((r.get("config") or {}).get("model_revision") or 1) == revision]
-    one_cpu_type(recs, f"{name(model)}'s card, studies {', '.join(s.name for s, _ in parts)}")
-    return recs
-
-
 def card_block(ctx: Context, model: str) -> str:
     """The body of ``model``'s card block: one row per publishing study (in study order), one column per dataset."""
-    revision = int(registry.get_model_entry(model).meta.get("revision", 1))
+    revision = registered_revision(model)
     rows = _rows(ctx, model)
     if not rows:
         return (f"No study has published a measured figure of {name(model)} at revision {revision} yet "
@@ -56,7 +47,7 @@ def card_block(ctx: Context, model: str) -> str:
              f"(runs); the test split read once per cell; BioTac-DoS on its unseen textures):", "",
              "| cells | " + " | ".join(TITLES.values()) + " | study |", "|---|" + "---|" * (len(TITLES) + 1)]
     for label, parts in rows.items():
-        recs = _cells(ctx, parts, model, revision)
+        recs = ctx.model_cells(model, parts, f"{name(model)}'s card, studies {', '.join(s.name for s, _ in parts)}")
         if not recs:
             raise ResultsError(f"{parts[0][0].where}: publishes {name(model)} on its card ({label}), but has no cell "
                                f"of it at its registered revision {revision}")

@@ -20,7 +20,17 @@ from typing import Any
 from .. import registry
 from ..bench.paired import holm, records_paired
 from ..errors import ResultsError
-from .publish_tables import SPLITS, TITLES, Context, ensemble_table, figure, group, name, one_cpu_type
+from .publish_tables import (
+    SPLITS,
+    TITLES,
+    Context,
+    ensemble_table,
+    figure,
+    group,
+    name,
+    one_cpu_type,
+    registered_revision,
+)
 from .schema import Study
 
 __all__ = ["round3_block", "round4_block", "decomposition_block", "ours_block", "registered_default",
@@ -281,7 +291,8 @@ def ours_block(ctx: Context) -> str:
                 "not run yet" if dataset == "biotac_dos" and model in kfold_models else "-")
             if model in claims:
                 study, revision = claims[model]
-                honest = (f"{figure(group(ctx.claimed_cells(model, study, revision), model, dataset), SPLITS[dataset])}"
+                claimed = ctx.model_cells(model, [(study, None)], f"{name(model)} in study {study.name}")
+                honest = (f"{figure(group(claimed, model, dataset), SPLITS[dataset])}"
                           f" study `{study.name}`, revision {revision}")
             else:
                 honest = figure(group(full, model, dataset), SPLITS[dataset])
@@ -299,10 +310,8 @@ def _variant_rows(ctx: Context, page: str, block: str, model: str) -> list[str]:
     for study, pub in ctx.parts(page, block):
         if pub.table in ("full", "kfold") or model not in pub.models:
             continue
-        revision = int(registry.get_model_entry(model).meta.get("revision", 1))
-        recs = [r for r in ctx.cells(study, pub) if r["model"] == model
-                and int((r.get("config") or {}).get("model_revision") or 1) == revision]
-        one_cpu_type(recs, f"{name(model)} ({pub.table}) in study {study.name}")
+        revision = registered_revision(model)
+        recs = ctx.model_cells(model, [(study, pub)], f"{name(model)} ({pub.table}) in study {study.name}")
         for dataset in DATASETS:
             if rows := group(recs, model, dataset):
                 out.append(f"| {name(model)}, `{pub.table}` | {TITLES[dataset]} | {ctx.paper_text(model, dataset)} | "

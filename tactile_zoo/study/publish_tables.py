@@ -48,6 +48,11 @@ READING = ("Figures: mean ± sample std over runs. The 95 % interval is a confid
            "reproduce, and two models whose intervals overlap widely are not told apart.")
 
 
+def registered_revision(model: str) -> int:
+    """The revision ``create_model(model)`` builds: the one a published row of ``model`` reads."""
+    return int(registry.get_model_entry(model).meta.get("revision", 1))
+
+
 def one_cpu_type(records: Sequence[dict[str, Any]], what: str) -> str:
     """The one CPU type of ``records`` (pooled seeds must share it: the same seed can train differently on
     another); two types are a :class:`ResultsError` naming them."""
@@ -123,14 +128,19 @@ class Context:
                 if model in out:
                     raise ResultsError(f"{page}, block {block!r}: {name(model)}'s rows are claimed by studies "
                                        f"{out[model][0].name} and {study.name}; one only")
-                out[model] = (study, int(registry.get_model_entry(model).meta.get("revision", 1)))
+                out[model] = (study, registered_revision(model))
         return out
 
-    def claimed_cells(self, model: str, study: Study, revision: int) -> list[dict[str, Any]]:
-        """``model``'s cells of the claiming ``study`` at ``revision`` (one CPU type, or an error)."""
-        recs = [r for r in self.cells(study) if r["model"] == model
+    def model_cells(self, model: str, parts: Sequence[tuple[Study, Publication | None]], what: str
+                    ) -> list[dict[str, Any]]:
+        """``model``'s cells at its registered revision in the studies of ``parts`` (each of its publication's grid
+        where it names one), pooled: one CPU type, or an error naming ``what``. The one filter behind every row a
+        study claims, adds or puts on a card, so that a row never mixes revisions (a cell of the previous revision
+        is the previous model's figure)."""
+        revision = registered_revision(model)
+        recs = [r for study, pub in parts for r in self.cells(study, pub) if r["model"] == model
                 and int((r.get("config") or {}).get("model_revision") or 1) == revision]
-        one_cpu_type(recs, f"{name(model)} in study {study.name}")
+        one_cpu_type(recs, what)
         return recs
 
     def left_out(self, study: Study) -> int:
