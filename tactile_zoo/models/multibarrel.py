@@ -72,7 +72,10 @@ OUTPUT_KINDS = ("logits", "softmax")
     **recipe_file("tactile_zoo", "multibarrel"),
     causal=False,
     streaming=False,
-    revision=1,
+    # revision 2: the ALIF step as one compiled kernel forward and one backward on CPU (the same spikes as revision
+    # 1, gradients within 1e-5 of its own: tests/models/test_revision_paths.py); 1.20x a training step at batch 60
+    revision=2,
+    revisions={1: {"alif_backend": "torch"}, 2: {"alif_backend": "compiled"}},
 )
 class MultiBarrel(ClassifierMixin, nn.Module):
     """Multi-barrel SNN, shared-parameter variant (Zhu et al., NeurIPS 2025); pipeline in the module docstring.
@@ -100,6 +103,8 @@ class MultiBarrel(ClassifierMixin, nn.Module):
             feeds to cross-entropy).
         bn_train_steps: ``None`` (BatchNorm as usual) or a count of training forward passes after which every
             BatchNorm layer stays in eval mode, training included (source: 1; see the card).
+        alif_backend: how each population's ALIF step runs (:class:`~tactile_zoo.nn.alif.AdaptiveLIF`'s
+            ``backend``): ``"compiled"`` (revision 2, the default) or ``"torch"`` (revision 1); the same spikes.
 
     Shapes:
         ``x (B, T, N, C)``, ``g`` ignored -> logits (or probabilities) ``(B, K)``.
@@ -110,7 +115,7 @@ class MultiBarrel(ClassifierMixin, nn.Module):
                  gate_hidden: int = 256, readout_channels: int = 512, readout_kernel: int = 11, hidden: int = 256,
                  tau_m_init: float = 4.34378016, tau_adp_init: float = 9.90546331, init_b: float = 0.46028508,
                  threshold: float = 0.1, beta: float = 1.8, noise_std: float = 1.0, eval_noise: bool = False,
-                 output: str = "logits", bn_train_steps: int | None = None) -> None:
+                 output: str = "logits", bn_train_steps: int | None = None, alif_backend: str = "compiled") -> None:
         super().__init__()
         n = spec.num_nodes
         if output not in OUTPUT_KINDS:
@@ -138,8 +143,8 @@ class MultiBarrel(ClassifierMixin, nn.Module):
         self.thalamic = nn.ModuleList(_Link(channels, population) for _ in range(pops))
         self.sources = tuple(tuple(j for j in range(pops) if CONNECTIONS[j][i]) for i in range(pops))
         self.links = nn.ModuleList(nn.ModuleList(_Link(population, population) for _ in src) for src in self.sources)
-        self.neurons = nn.ModuleList(AdaptiveLIF(population, tau_m_init, tau_adp_init, threshold, beta)
-                                     for _ in range(pops))
+        self.neurons = nn.ModuleList(AdaptiveLIF(population, tau_m_init, tau_adp_init, threshold, beta,
+                                                 backend=alif_backend) for _ in range(pops))
         positions = torch.tensor(spec.sensor.positions, dtype=torch.float32)
         self.router = NeighbourTopKRouter(channels, nearest_neighbours(positions, min(neighbours, n - 1)), pops,
                                           population, route_ratio, gate_hidden)

@@ -15,7 +15,9 @@ trees and fails on a second resolver).
   :class:`Attention`, ``fused`` or ``explicit``;
 - ``compute`` of SGnet: :class:`Compute`, ``dense`` or ``event`` (:func:`resolve_compute`);
 - ``stats`` of :class:`~tactile_zoo.nn.batch_norm.BatchNorm1d` and ``BatchNorm2d`` (D-CNN: ``bn_stats``):
-  :class:`BatchNormStats`, ``native``, ``two_pass`` or ``float64``.
+  :class:`BatchNormStats`, ``native``, ``two_pass`` or ``float64``;
+- ``backend`` of :class:`~tactile_zoo.nn.alif.AdaptiveLIF` (the multi-barrel SNN: ``alif_backend``):
+  :class:`ALIFBackend`, ``torch`` or ``compiled``.
 
 The first choice of each is the oldest path; which one a model builds by default is its registered revision's
 (registry metadata ``revisions``: SGnet's ``compute="event"`` and the transformers' ``attention="explicit"`` since
@@ -55,7 +57,7 @@ if TYPE_CHECKING:
 
 __all__ = ["LIFBackend", "LIFKernel", "ConvLSTMBackend", "GraphBackend", "WeightGrad", "TemporalBackend", "Attention",
            "Compute", "BatchNormStats", "resolve", "resolve_compute", "LIF_KERNEL_ENV", "lif_kernel_choice",
-           "lif_kernels", "lif_kernels_for", "event_kernels", "convlstm_kernels"]
+           "lif_kernels", "lif_kernels_for", "event_kernels", "convlstm_kernels", "ALIFBackend", "alif_kernels_for"]
 
 
 class LIFBackend(StrEnum):
@@ -127,6 +129,15 @@ class BatchNormStats(StrEnum):
     NATIVE = "native"
     TWO_PASS = "two_pass"
     FLOAT64 = "float64"
+
+
+class ALIFBackend(StrEnum):
+    """:meth:`~tactile_zoo.nn.alif.AdaptiveLIF.step`: a chain of torch operations (revision 1 of the multi-barrel
+    SNN), or one compiled kernel forward and one backward on CPU float32 tensors (the same spikes, membranes and
+    traces; gradients up to float32 rounding), the torch chain elsewhere."""
+
+    TORCH = "torch"
+    COMPILED = "compiled"
 
 
 _Choice = TypeVar("_Choice", bound=StrEnum)
@@ -241,3 +252,26 @@ def convlstm_kernels() -> ModuleType:
     from ._kernels import convlstm
 
     return convlstm
+
+
+@functools.cache
+def _alif_kernels() -> ModuleType | None:
+    try:
+        from ._kernels import alif
+    except ImportError:
+        return None
+    return alif
+
+
+def alif_kernels_for(*tensors: Tensor) -> ModuleType | None:
+    """The compiled ALIF step (:mod:`tactile_zoo.nn._kernels.alif`) if it runs on ``tensors``, else ``None`` (the
+    torch path, which computes the same forward): plain float32 CPU tensors outside tracers, with numba installed.
+    Its operations are IEEE single-precision multiplies, adds and subtractions, each rounded once, so unlike the LIF
+    kernel's FMAs they do not depend on ATen's CPU capability."""
+    for t in tensors:
+        if type(t) is not torch.Tensor or t.device.type != "cpu" or t.dtype != torch.float32:
+            return None
+    # a tracer (torch.export, torch.compile, a TorchScript trace) records the torch chain: it could not replay numba
+    if torch.compiler.is_compiling() or torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
+        return None
+    return _alif_kernels()

@@ -41,7 +41,7 @@ def test_the_cell_costs_its_epochs_times_the_last_measured_epoch(tmp_path: Path,
     ctx = common.Context(threads=1, out=tmp_path, root=tmp_path / "data", log=lambda _msg: None)
     with multibarrel_cost.run(ctx).open() as fh:
         rows = list(csv.DictReader(fh))
-    assert asked == [{"root": str(tmp_path / "data"), "epochs": 2}]
+    assert asked == [{"root": str(tmp_path / "data"), "epochs": 2, "revision": 2}]  # the registered revision
     assert [(r["case"], r["epoch"], r["cpu_s"]) for r in rows] == [("epoch", "1", "90.0"), ("epoch", "2", "72.0"),
                                                                   ("cell", "2", "72.0")]
     assert float(rows[-1]["cpu_hours"]) == 4.0 and rows[-1]["peak_rss_mb"] == "11800.0"  # 72 s x 200 epochs
@@ -53,3 +53,33 @@ def test_without_ev_objects_it_skips_naming_what_it_needs(tmp_path: Path) -> Non
     with pytest.raises(common.BenchmarkSkipped, match="needs Ev-Objects"):
         multibarrel_cost.run(ctx)
     assert not list(tmp_path.iterdir())
+
+
+def test_revisions_run_side_by_side_in_alternating_rounds_and_each_cell_is_a_median(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "data" / "ev_objects" / "raw").mkdir(parents=True)
+    (tmp_path / "data" / "ev_objects" / "raw" / "Ev-Objects.zip").touch()
+    last = {1: iter([80.0, 90.0, 70.0]), 2: iter([60.0, 50.0, 66.0])}  # each revision's last epoch, round by round
+    asked: list[int] = []
+    real = subprocess.run
+
+    def child(argv: list[str], **kwargs: Any) -> subprocess.CompletedProcess:
+        if "benchmarks.multibarrel_cost" not in argv:
+            return real(argv, **kwargs)
+        revision = json.loads(argv[-1])["revision"]
+        asked.append(revision)
+        answer = {"epochs": [{"epoch": 1, "wall_s": 1.0, "cpu_s": 100.0},
+                             {"epoch": 2, "wall_s": 1.0, "cpu_s": next(last[revision])}],
+                  "max_epochs": 200, "batch_size": 600, "micro_batch_size": 120, "n_train": 468, "n_val": 108,
+                  "peak_rss_mb": 10000.0 + 1000 * revision}
+        return subprocess.CompletedProcess(argv, 0, json.dumps(answer) + "\n", "")
+
+    monkeypatch.setattr(multibarrel_cost.subprocess, "run", child)
+    ctx = common.Context(threads=1, out=tmp_path, root=tmp_path / "data", log=lambda _msg: None)
+    with multibarrel_cost.run(ctx, revisions=[1, 2], rounds=3).open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert asked == [1, 2, 2, 1, 1, 2]
+    cells = {r["revision"]: r for r in rows if r["case"] == "cell"}
+    assert float(cells["1"]["cpu_s"]) == 80.0 and float(cells["2"]["cpu_s"]) == 60.0  # medians, not the last round
+    assert float(cells["2"]["cpu_hours"]) == pytest.approx(60.0 * 200 / 3600, abs=1e-3) and cells["2"]["peak_rss_mb"] == "12000.0"
+    assert [r["round"] for r in rows if r["case"] == "epoch" and r["revision"] == "1"] == ["0", "0", "1", "1", "2", "2"]

@@ -234,6 +234,42 @@ def test_the_new_revision_gives_the_previous_ones_spikes_and_its_gradients_withi
             assert float((grads_new[key] - ref).abs().max() / ref.abs().max()) <= 1e-5, key
 
 
+def test_the_multibarrel_snns_revision_2_gives_revision_1s_spikes_and_its_gradients_within_1e_5() -> None:
+    """Revision 2 runs each ALIF step as one compiled kernel forward and one backward (tactile_zoo.nn._kernels.alif):
+    the columns' spikes and the logits are revision 1's exactly, in training mode (noise on) and at test time."""
+    pytest.importorskip("numba")
+    entry = registry.get_model_entry("multibarrel")
+    assert registry.revision_of(entry) == 2 and registry.model_revisions(entry) == {
+        1: {"alif_backend": "torch"}, 2: {"alif_backend": "compiled"}}
+    spec = _spec(classes=3, steps=60)
+    small = {k: v for k, v in entry.meta["test_hparams"].items()}
+    torch.manual_seed(0)
+    old = tz.create_model("multibarrel", spec, revision=1, **small)
+    new = tz.create_model("multibarrel", spec, **small)
+    assert {n.backend for n in old.neurons} == {"torch"} and {n.backend for n in new.neurons} == {"compiled"}
+    new.load_state_dict(old.state_dict())
+    x, _ = _events(spec, batch=4)
+    for mode in ("train", "eval"):
+        got = []
+        for model in (old, new):
+            getattr(model, mode)()
+            model.zero_grad(set_to_none=True)
+            torch.manual_seed(11)  # the same membrane noise and random start
+            spikes = model.columns(model.compress(x))
+            out = model.forward_head(model._features(spikes))
+            (out * torch.randn(out.shape, generator=torch.Generator().manual_seed(12))).sum().backward()
+            got.append((spikes.detach(), out.detach(), {n: p.grad for n, p in model.named_parameters()
+                                                        if p.grad is not None}))
+        (spikes_old, out_old, grads_old), (spikes_new, out_new, grads_new) = got
+        assert 0 < float(spikes_old.sum()) < spikes_old.numel()
+        assert torch.equal(spikes_old, spikes_new), f"{mode}: {int((spikes_old != spikes_new).sum())} spikes differ"
+        assert torch.equal(out_old, out_new)
+        assert grads_old.keys() == grads_new.keys() and any(k.startswith("neurons.") for k in grads_old)
+        for key, ref in grads_old.items():
+            if ref.abs().max() > 0:
+                assert float((grads_new[key] - ref).abs().max() / ref.abs().max()) <= 1e-5, (mode, key)
+
+
 @pytest.mark.parametrize("revision", [1, 2])
 def test_convlstms_revisions_are_within_the_tolerances_of_a_float64_copy(revision: int) -> None:
     if revision == 2:
