@@ -6,7 +6,9 @@ recordings. Every epoch does the same work, so a cell costs about ``max_epochs``
 carries the allocator's warm-up, so the estimate takes the last measured epoch (``cpu_hours`` in the ``cell`` row),
 and the CSV keeps every epoch.
 
-One fresh child process on 1 torch thread (as the bench cells run) builds the model with seed 0 and runs
+One fresh child process on 1 torch thread, with the bench workers' malloc settings (as the bench cells run:
+``tactile_zoo.engine.malloc.tune_malloc``; before 2026-12-07 20:55 UTC the child ran with glibc's defaults, which cost
+this model about 1.4x in page faults) builds the model with seed 0 and runs
 ``tz.fit(..., recipe="zoo", epochs=N)`` on the real train and validation splits: ``cpu_s`` are the child's CPU
 seconds between two epochs' ends (training and validation), ``wall_s`` the epoch's wall seconds as ``fit`` records
 them, and ``peak_rss_mb`` the child's resident-set high-water mark over its life. Targets (issue 53): a cell at most
@@ -53,7 +55,10 @@ def _child(root: str, epochs: int, revision: int) -> dict[str, Any]:
     torch.set_num_threads(1)
     import tactile_zoo as tz
     from tactile_zoo import registry
+    from tactile_zoo.engine.malloc import tune_malloc
     from tactile_zoo.registry.lookup import load_dataset
+
+    tune_malloc()  # as every bench worker starts (tactile_zoo.bench.worker): the cell's allocator, not glibc's defaults
 
     train = load_dataset("ev_objects", root=root, split="train")
     val = load_dataset("ev_objects", root=root, split="val")

@@ -72,9 +72,10 @@ OUTPUT_KINDS = ("logits", "softmax")
     **recipe_file("tactile_zoo", "multibarrel"),
     causal=False,
     streaming=False,
-    # revision 2: the ALIF step as one compiled kernel forward and one backward on CPU (the same spikes as revision
-    # 1, gradients within 1e-5 of its own: tests/models/test_revision_paths.py); 1.20x a training step at batch 60
-    revision=2,
+    # revision 2 (selectable, not the default): the ALIF step as one compiled kernel forward and one backward on CPU,
+    # the same spikes as revision 1 and gradients within 1e-5 of its own (tests/models/test_revision_paths.py); with
+    # the bench's malloc settings a training step at the recipe's micro-batch was slower (docs/performance.md)
+    revision=1,
     revisions={1: {"alif_backend": "torch"}, 2: {"alif_backend": "compiled"}},
 )
 class MultiBarrel(ClassifierMixin, nn.Module):
@@ -104,7 +105,7 @@ class MultiBarrel(ClassifierMixin, nn.Module):
         bn_train_steps: ``None`` (BatchNorm as usual) or a count of training forward passes after which every
             BatchNorm layer stays in eval mode, training included (source: 1; see the card).
         alif_backend: how each population's ALIF step runs (:class:`~tactile_zoo.nn.alif.AdaptiveLIF`'s
-            ``backend``): ``"compiled"`` (revision 2, the default) or ``"torch"`` (revision 1); the same spikes.
+            ``backend``): ``"torch"`` (revision 1, the default) or ``"compiled"`` (revision 2); the same spikes.
 
     Shapes:
         ``x (B, T, N, C)``, ``g`` ignored -> logits (or probabilities) ``(B, K)``.
@@ -115,7 +116,7 @@ class MultiBarrel(ClassifierMixin, nn.Module):
                  gate_hidden: int = 256, readout_channels: int = 512, readout_kernel: int = 11, hidden: int = 256,
                  tau_m_init: float = 4.34378016, tau_adp_init: float = 9.90546331, init_b: float = 0.46028508,
                  threshold: float = 0.1, beta: float = 1.8, noise_std: float = 1.0, eval_noise: bool = False,
-                 output: str = "logits", bn_train_steps: int | None = None, alif_backend: str = "compiled") -> None:
+                 output: str = "logits", bn_train_steps: int | None = None, alif_backend: str = "torch") -> None:
         super().__init__()
         n = spec.num_nodes
         if output not in OUTPUT_KINDS:

@@ -236,16 +236,17 @@ def test_the_new_revision_gives_the_previous_ones_spikes_and_its_gradients_withi
 
 def test_the_multibarrel_snns_revision_2_gives_revision_1s_spikes_and_its_gradients_within_1e_5() -> None:
     """Revision 2 runs each ALIF step as one compiled kernel forward and one backward (tactile_zoo.nn._kernels.alif):
-    the columns' spikes and the logits are revision 1's exactly, in training mode (noise on) and at test time."""
+    the columns' spikes and the logits are revision 1's exactly, in training mode (noise on) and at test time. It is
+    selectable, not the default: under the bench's malloc settings its training step was the slower one."""
     pytest.importorskip("numba")
     entry = registry.get_model_entry("multibarrel")
-    assert registry.revision_of(entry) == 2 and registry.model_revisions(entry) == {
+    assert registry.revision_of(entry) == 1 and registry.model_revisions(entry) == {
         1: {"alif_backend": "torch"}, 2: {"alif_backend": "compiled"}}
     spec = _spec(classes=3, steps=60)
     small = {k: v for k, v in entry.meta["test_hparams"].items()}
     torch.manual_seed(0)
-    old = tz.create_model("multibarrel", spec, revision=1, **small)
-    new = tz.create_model("multibarrel", spec, **small)
+    old = tz.create_model("multibarrel", spec, **small)
+    new = tz.create_model("multibarrel", spec, revision=2, **small)
     assert {n.backend for n in old.neurons} == {"torch"} and {n.backend for n in new.neurons} == {"compiled"}
     new.load_state_dict(old.state_dict())
     x, _ = _events(spec, batch=4)
