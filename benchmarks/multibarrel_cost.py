@@ -80,7 +80,7 @@ def _load() -> str:
     return f"{os.getloadavg()[0]:.2f}" if hasattr(os, "getloadavg") else ""
 
 
-def registered_revision() -> int:
+def _registered_revision() -> int:
     from tactile_zoo import registry
 
     return registry.revision_of(registry.get_model_entry("multibarrel"))
@@ -92,7 +92,7 @@ def run(ctx: Context, epochs: int | None = None, revisions: list[int] | None = N
         raise BenchmarkSkipped("needs Ev-Objects (--root DATA holding ev_objects/raw/Ev-Objects.zip): the columns' "
                                "cost depends on the recordings' spikes")
     epochs = epochs if epochs is not None else (1 if ctx.quick else 2)
-    revisions = revisions or [registered_revision()]
+    revisions = revisions or [_registered_revision()]
     env = {**os.environ, "OMP_NUM_THREADS": "1",
            "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
     rows: list[dict[str, Any]] = []

@@ -73,8 +73,8 @@ OUTPUT_KINDS = ("logits", "softmax")
     causal=False,
     streaming=False,
     # revision 2 (selectable, not the default): the ALIF step as one compiled kernel forward and one backward on CPU,
-    # the same spikes as revision 1 and gradients within 1e-5 of its own (tests/models/test_revision_paths.py); with
-    # the bench's malloc settings a training step at the recipe's micro-batch was slower (docs/performance.md)
+    # the same spikes as revision 1 and gradients within 1e-5 of its own (tests/models/test_revision_paths.py); in a
+    # bench cell no faster (4.63 against 4.66 CPU-hours an Ev-Objects cell), 2.2 GB lighter (docs/performance.md)
     revision=1,
     revisions={1: {"alif_backend": "torch"}, 2: {"alif_backend": "compiled"}},
 )

@@ -36,6 +36,11 @@ from .backend import ALIFBackend, alif_kernels_for, resolve
 __all__ = ["AdaptiveLIF", "gaussian_spike"]
 
 
+def _gaussian_density(u: Tensor, width: float) -> Tensor:
+    """The normal density of width ``width`` at ``u``: the surrogate's derivative before its scale."""
+    return torch.exp(-(u ** 2) / (2 * width ** 2)) / math.sqrt(2 * math.pi) / width
+
+
 class _GaussianSpike(torch.autograd.Function):
     """``H(u)`` forward (``u > 0``), a scaled Gaussian density backward."""
 
@@ -48,8 +53,7 @@ class _GaussianSpike(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad: Tensor) -> tuple[Tensor, None, None]:  # type: ignore[override]
         (u,) = ctx.saved_tensors
-        density = torch.exp(-(u ** 2) / (2 * ctx.width ** 2)) / math.sqrt(2 * math.pi) / ctx.width
-        return grad * density * ctx.scale, None, None
+        return grad * _gaussian_density(u, ctx.width) * ctx.scale, None, None
 
 
 def gaussian_spike(u: Tensor, width: float = 0.5, scale: float = 0.5) -> Tensor:
@@ -60,8 +64,6 @@ def gaussian_spike(u: Tensor, width: float = 0.5, scale: float = 0.5) -> Tensor:
     return u.gt(0).to(u.dtype)
 
 
-def _gaussian_density(u: Tensor, width: float, scale: float) -> Tensor:
-    return torch.exp(-(u ** 2) / (2 * width ** 2)) / math.sqrt(2 * math.pi) / width * scale
 
 
 class _CompiledStep(torch.autograd.Function):
@@ -97,7 +99,7 @@ class _CompiledStep(torch.autograd.Function):
         shape, shapes, threshold, beta, width, scale, kernels = ctx.meta
         rows, size = u.shape
         grads = [g.contiguous().view(rows, size) for g in (g_mem, g_spikes, g_trace)]
-        surrogate = _gaussian_density(u, width, scale)  # torch's vectorised exp: several times a scalar one
+        surrogate = _gaussian_density(u, width) * scale  # torch's vectorised exp: several times a scalar one
         out = torch.empty((4, rows, size), dtype=u.dtype)  # current, mem, spikes, trace
         sums = torch.zeros((2, size), dtype=torch.float64)  # alpha, rho
         kernels.alif_backward(*(g.numpy() for g in grads), surrogate.numpy(), spikes.numpy(), trace.numpy(),

@@ -120,7 +120,7 @@ def _recipe(study: Study) -> str:
     return names.pop()
 
 
-def _claims(ctx: Context) -> dict[str, tuple[Study, int]]:
+def _claims(ctx: Context) -> dict[str, Study]:
     """The headline's claimed models (:meth:`Context.claims` of its ``recipe`` part)."""
     return ctx.claims("README.md", "headline", "recipe")
 
@@ -131,8 +131,7 @@ def _row_cells(ctx: Context, loaded: dict[str, list], model: str, dataset: str) 
     claims = _claims(ctx)
     if model not in claims:
         return group(loaded.get(registered_default(model), []), model, dataset)
-    study = claims[model][0]
-    return group(ctx.model_cells(model, [(study, None)], f"{name(model)} in study {study.name}"), model, dataset)
+    return group(ctx.claimed_cells(model, claims[model]), model, dataset)
 
 
 def _recipes(ctx: Context) -> dict[str, list]:

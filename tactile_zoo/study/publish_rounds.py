@@ -282,6 +282,7 @@ def ours_block(ctx: Context) -> str:
              f"ours, k-fold, textures (recordings of one object in train and test; folds; study "
              f"`{kfold_part[0].name if kfold_part else '-'}`) |", "|---|---|---|---|---|---|"]
     for model in ctx.models():
+        claimed = ctx.claimed_cells(model, claims[model]) if model in claims else []
         for dataset in DATASETS:
             ref = group(reference, model, dataset)
             best = f"{_mean(ref, 'best_test_epoch_accuracy'):.4f} ({len(ref)})" if ref else (
@@ -290,10 +291,8 @@ def ours_block(ctx: Context) -> str:
             kfold_text = figure(folds, "test_textures") if folds else (
                 "not run yet" if dataset == "biotac_dos" and model in kfold_models else "-")
             if model in claims:
-                study, revision = claims[model]
-                claimed = ctx.model_cells(model, [(study, None)], f"{name(model)} in study {study.name}")
                 honest = (f"{figure(group(claimed, model, dataset), SPLITS[dataset])}"
-                          f" study `{study.name}`, revision {revision}")
+                          f" study `{claims[model].name}`, revision {registered_revision(model)}")
             else:
                 honest = figure(group(full, model, dataset), SPLITS[dataset])
             lines.append(f"| {name(model)} | {TITLES[dataset]} | {ctx.paper_text(model, dataset)} | {best} | "

@@ -50,7 +50,7 @@ READING = ("Figures: mean ± sample std over runs. The 95 % interval is a confid
 
 def registered_revision(model: str) -> int:
     """The revision ``create_model(model)`` builds: the one a published row of ``model`` reads."""
-    return int(registry.get_model_entry(model).meta.get("revision", 1))
+    return registry.revision_of(registry.get_model_entry(model))
 
 
 def one_cpu_type(records: Sequence[dict[str, Any]], what: str) -> str:
@@ -118,18 +118,23 @@ class Context:
             self._cells[key] = out
         return self._cells[key]
 
-    def claims(self, page: str, block: str, table: str) -> dict[str, tuple[Study, int]]:
-        """model -> (the study whose cells alone stand for its rows in ``table``'s part of the block, the model's
-        registered revision): the publications there that name ``models`` (a study that moved those models to a new
-        revision and read that no row dropped). One model claimed by two studies is an error."""
-        out: dict[str, tuple[Study, int]] = {}
+    def claims(self, page: str, block: str, table: str) -> dict[str, Study]:
+        """model -> the study whose cells alone stand for its rows in ``table``'s part of the block (at the model's
+        registered revision, :meth:`claimed_cells`): the publications there that name ``models`` (a study that moved
+        those models to a new revision and read that no row dropped). One model claimed by two studies is an
+        error."""
+        out: dict[str, Study] = {}
         for study, pub in self.parts(page, block, table):
             for model in pub.models:
                 if model in out:
                     raise ResultsError(f"{page}, block {block!r}: {name(model)}'s rows are claimed by studies "
-                                       f"{out[model][0].name} and {study.name}; one only")
-                out[model] = (study, registered_revision(model))
+                                       f"{out[model].name} and {study.name}; one only")
+                out[model] = study
         return out
+
+    def claimed_cells(self, model: str, study: Study) -> list[dict[str, Any]]:
+        """``model``'s cells in the study that claims its rows (:meth:`claims`), by :meth:`model_cells`."""
+        return self.model_cells(model, [(study, None)], f"{name(model)} in study {study.name}")
 
     def model_cells(self, model: str, parts: Sequence[tuple[Study, Publication | None]], what: str
                     ) -> list[dict[str, Any]]:

@@ -243,7 +243,7 @@ def test_the_multibarrel_snns_revision_2_gives_revision_1s_spikes_and_its_gradie
     assert registry.revision_of(entry) == 1 and registry.model_revisions(entry) == {
         1: {"alif_backend": "torch"}, 2: {"alif_backend": "compiled"}}
     spec = _spec(classes=3, steps=60)
-    small = {k: v for k, v in entry.meta["test_hparams"].items()}
+    small = dict(entry.meta["test_hparams"])
     torch.manual_seed(0)
     old = tz.create_model("multibarrel", spec, **small)
     new = tz.create_model("multibarrel", spec, revision=2, **small)
