@@ -25,7 +25,8 @@ from ..nn import backend as switch
 from ..nn.backend import Compute, GraphBackend, LIFBackend, WeightGrad
 from ..nn.classifier import ClassifierMixin
 from ..nn.event_graph_conv import event_graph_conv
-from ..nn.event_linear import event_linear
+from ..nn.event_graph_lif import event_graph_lif
+from ..nn.event_linear import EventList, event_linear
 from ..nn.graph import FrameGraphConv
 from ..nn.lif import MultiStepLIF
 from ..registry import recipe_file, register_model
@@ -145,22 +146,28 @@ class SGNet(ClassifierMixin, nn.Module):
         """The spike trains the classifier layer reads, time-major ``(T, B, width)``."""
         g = check_inputs("sgnet", self.spec, x, g)
         steps, batch = x.shape[1], x.shape[0]
-        h = self._conv(x.transpose(0, 1))  # (T, B, N, F): time-major before the convolution, where C is small
-        s = self.lifs[0](h.reshape(steps, batch, -1))  # (T, B, N * F)
+        x = x.transpose(0, 1)  # (T, B, N, C): time-major before the convolution, where C is small
+        events = None  # the first LIF's spike list, where the fused first layer gives it
+        if self.compute is Compute.EVENT:  # convolution -> LIF -> spike list in one loop, without the current
+            s, events = event_graph_lif(self.gc, self.lifs[0], x)  # (T, B, N * F)
+        else:
+            s = self.lifs[0](self.gc(x).reshape(steps, batch, -1))  # (T, B, N * F)
         if g is not None:
             s = torch.cat([s, g.transpose(0, 1).to(s.dtype)], dim=-1)  # (T, B, N * F + G)
+            events = None
         for i, (fc, lif) in enumerate(zip(self.fcs[:-1], self.lifs[1:-1])):
-            s = lif(self._first(s) if i == 0 else fc(s))  # (T, B, width)
+            s = lif(self._first(s, events) if i == 0 else fc(s))  # (T, B, width)
         return s
 
     def _conv(self, x: Tensor) -> Tensor:
         """The graph convolution, over the input events with ``compute="event"``."""
         return event_graph_conv(self.gc, x) if self.compute is Compute.EVENT else self.gc(x)
 
-    def _first(self, s: Tensor) -> Tensor:
-        """The first linear layer, over the first LIF's spikes with ``compute="event"``."""
+    def _first(self, s: Tensor, events: EventList | None = None) -> Tensor:
+        """The first linear layer, over the first LIF's spikes (their ``events`` where known) with
+        ``compute="event"``."""
         fc = self.fcs[0]
-        return event_linear(s, fc.weight, fc.bias) if self.compute is Compute.EVENT else fc(s)
+        return event_linear(s, fc.weight, fc.bias, events) if self.compute is Compute.EVENT else fc(s)
 
     def _rates(self, s: Tensor) -> Tensor:
         """The spiking classifier: the last layer and its LIF on ``s (T, B, width)``, then the output spike rates."""

@@ -57,7 +57,8 @@ if TYPE_CHECKING:
 
 __all__ = ["LIFBackend", "LIFKernel", "ConvLSTMBackend", "GraphBackend", "WeightGrad", "TemporalBackend", "Attention",
            "Compute", "BatchNormStats", "resolve", "resolve_compute", "LIF_KERNEL_ENV", "lif_kernel_choice",
-           "lif_kernels", "lif_kernels_for", "event_kernels", "convlstm_kernels", "ALIFBackend", "alif_kernels_for"]
+           "lif_kernels", "lif_kernels_for", "event_kernels", "graph_lif_kernels", "convlstm_kernels", "ALIFBackend",
+           "alif_kernels_for"]
 
 
 class LIFBackend(StrEnum):
@@ -240,6 +241,16 @@ def event_kernels() -> ModuleType | None:
     except ImportError:
         return None
     return events
+
+
+def graph_lif_kernels() -> ModuleType | None:
+    """SGnet's fused graph convolution -> LIF kernels (:mod:`tactile_zoo.nn._kernels.graph_lif`), or ``None`` where
+    numba is missing (the caller then runs the two layers apart, with the same numbers)."""
+    try:
+        from ._kernels import graph_lif
+    except ImportError:
+        return None
+    return graph_lif
 
 
 def convlstm_kernels() -> ModuleType:

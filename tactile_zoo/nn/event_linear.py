@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from . import backend
+from . import backend, storage_pool
 
 __all__ = ["EventList", "event_linear", "events_from_rows", "events_of", "uses_events"]
 
@@ -141,7 +141,8 @@ class _EventLinear(torch.autograd.Function):
         grad = grad.contiguous()
         grad_x = grad_table = grad_bias = None
         if ctx.needs_input_grad[0]:
-            grad_x = grad @ table.t()  # (R, C): dense, every input's gradient
+            # (R, C): dense, every input's gradient; into a pooled storage, which a rewrite does not page-fault on
+            grad_x = torch.mm(grad, table.t(), out=storage_pool.reusable((grad.shape[0], table.shape[0]), grad))
         if ctx.needs_input_grad[1]:  # (C, F_out): the output gradients of each column's active rows, summed
             grad_table = F.embedding_bag(ev.rows_by_col, grad, ev.col_offsets, mode="sum",
                                          per_sample_weights=ev.values_by_col)

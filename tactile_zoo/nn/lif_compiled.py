@@ -15,7 +15,7 @@ from torch import Tensor
 from . import hugepages, lif_fused, storage_pool
 from .surrogate import Surrogate
 
-__all__ = ["CompiledLIF", "compiled_forward"]
+__all__ = ["CompiledLIF", "compiled_forward", "launch", "surrogate_args", "f32"]
 
 
 def _kernel_threads(kernels: ModuleType) -> None:
@@ -32,15 +32,18 @@ def _kernel_threads(kernels: ModuleType) -> None:
 _LAUNCH_LOCK = threading.Lock()
 
 
-def _launch(kernels: ModuleType, name: str, *args: object) -> None:
+def launch(kernels: ModuleType, name: str, *args: object, serial: bool | None = None) -> None:
     """Call compiled kernel ``name`` (``lif_forward`` or ``lif_backward``; ``args[0]`` is the ``(T, N)`` input) on
     torch's thread count: its serial build on one thread, for one block of neurons or for small sequences (a parallel
     launch costs more than it saves there), else the parallel build -- under the lock until numba's threading layer
-    is known (it is chosen at the first launch) and for good if that layer is "workqueue"."""
+    is known (it is chosen at the first launch) and for good if that layer is "workqueue". Another kernel module's
+    caller passes ``serial`` (whether its work is too small to split) instead of the LIF's sizes."""
     import numba
 
-    steps, n = args[0].shape
-    if torch.get_num_threads() == 1 or n <= kernels.CHUNK or steps * n < kernels.SERIAL_BELOW:
+    if serial is None:
+        steps, n = args[0].shape
+        serial = n <= kernels.CHUNK or steps * n < kernels.SERIAL_BELOW
+    if torch.get_num_threads() == 1 or serial:
         getattr(kernels, f"{name}_serial")(*args)
         return
     _kernel_threads(kernels)
@@ -75,15 +78,25 @@ def compiled_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, 
     spikes = storage_pool.reusable(x.shape, x) if reuse else hugepages.empty(x.shape, x)
     last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
     ckpt = torch.empty(kernels.checkpoint_rows(steps), mem0.numel(), dtype=torch.float32) if checkpoints else None
-    _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
+    launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
             spikes.view(steps, -1).numpy(), last.view(-1).numpy(),
-            np.zeros((1, 1), np.float32) if ckpt is None else ckpt.numpy(), checkpoints, *_f32(beta, threshold),
-            _f32(lif_fused.next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, int(mem0.numel())),
-            *_f32(input_scale), input_scale != 1.0)
+            np.zeros((1, 1), np.float32) if ckpt is None else ckpt.numpy(), checkpoints, *f32(beta, threshold),
+            f32(lif_fused.next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, int(mem0.numel())),
+            *f32(input_scale), input_scale != 1.0)
     return spikes, last, ckpt
 
 
-def _f32(*values: float) -> tuple:
+def surrogate_args(kernels: ModuleType, surrogate: Surrogate) -> tuple:
+    """The surrogate as the backward kernels take it: its kind, the ``rect`` window ``(lo, hi)`` and ``atan``'s two
+    constants, as float32."""
+    p = surrogate.param
+    if surrogate.kind == "rect":
+        return (kernels.RECT, *f32(-p / 2, p / 2), *f32(0.0, 0.0))
+    return (kernels.ATAN, *f32(0.0, 0.0), *f32(math.pi / 2 * p, p / 2))
+
+
+
+def f32(*values: float) -> tuple:
     """Python floats rounded to float32 as ATen rounds a scalar operand of a float32 kernel."""
     import numpy as np
 
@@ -128,15 +141,11 @@ class CompiledLIF(torch.autograd.Function):
         no_rows, no_row = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)  # stand-ins for absent gradients
         gs = no_rows if grad_spikes is None else grad_spikes.contiguous().view(steps, -1).numpy()
         gm = no_row if grad_mem is None else grad_mem.contiguous().reshape(-1).numpy()
-        p = surrogate.param
-        if surrogate.kind == "rect":
-            kind, lo, hi, c1, c2 = kernels.RECT, *_f32(-p / 2, p / 2), *_f32(0.0, 0.0)
-        else:
-            kind, lo, hi, c1, c2 = kernels.ATAN, *_f32(0.0, 0.0), *_f32(math.pi / 2 * p, p / 2)
-        _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), ckpt.numpy(), gs,
+        kind, lo, hi, c1, c2 = surrogate_args(kernels, surrogate)
+        launch(kernels, "lif_backward", x.view(steps, -1).numpy(), ckpt.numpy(), gs,
                 grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
-                grad_mem0.view(-1).numpy(), *_f32(beta, th, lif_fused.next_up(th, torch.float32)), subtract,
-                detach_reset, kind, lo, hi, c1, c2, block, kernels.CHUNK, *_f32(input_scale), input_scale != 1.0)
+                grad_mem0.view(-1).numpy(), *f32(beta, th, lif_fused.next_up(th, torch.float32)), subtract,
+                detach_reset, kind, lo, hi, c1, c2, block, kernels.CHUNK, *f32(input_scale), input_scale != 1.0)
         return grad_x, (grad_mem0 if ctx.needs_input_grad[1] else None), None, None, None, None, None, None, None
 
 

@@ -8,6 +8,7 @@ import torch
 import torch.nn.functional as F
 
 import tactile_zoo as tz
+import tactile_zoo.nn.event_graph_lif as egl
 import tactile_zoo.nn.event_linear as el
 from tactile_zoo.data.spec import DatasetSpec
 from tactile_zoo.errors import ConfigError
@@ -82,25 +83,32 @@ def test_streaming_equals_forward() -> None:
 
 
 def test_event_products_run_only_where_promised(monkeypatch: pytest.MonkeyPatch) -> None:
-    """compute="event" on CPU: two event products per forward (graph convolution, first linear layer); the dense
-    model: none; under a TorchScript trace and off CPU (meta here) the event model runs the dense products."""
-    calls = []
-    apply = el._EventLinear.apply
+    """compute="event" on CPU: the graph convolution fused with the first LIF (its spike list handed on), then one
+    event product (the first linear layer); with the layers apart (a hook on the first LIF), two event products; the
+    dense model: none; under a TorchScript trace and off CPU (meta here) the event model runs the dense products."""
+    calls, fused, scans = [], [], []
+    apply, forward, scan = el._EventLinear.apply, egl._forward, el.events_of
     monkeypatch.setattr(el._EventLinear, "apply", lambda *a: calls.append(a[1].shape) or apply(*a))
+    monkeypatch.setattr(el, "events_of", lambda x: scans.append(x.shape) or scan(x))
+    monkeypatch.setattr(egl, "_forward", lambda *a, **k: fused.append(1) or forward(*a, **k))
     spec = _spec()
     dense, event = _pair(spec, seed=3)
     x, _ = _inputs(spec, 2, 6, seed=4)
+    n = spec.num_nodes
     with torch.no_grad():
         dense(x)
-        assert calls == []
+        assert calls == [] and fused == []
         event(x)
-    n = spec.num_nodes
-    assert calls == [(n * 2, n * 64), (n * 64, 128)]
+        assert fused == [1] and calls == [(n * 64, 128)] and scans == []  # the fused loop's spike list: no scan
+        hook = event.lifs[0].register_forward_hook(lambda *_: None)
+        event(x)
+        hook.remove()
+    assert fused == [1] and calls[1:] == [(n * 2, n * 64), (n * 64, 128)] and scans == [(12, n * 2), (12, n * 64)]
     # a TorchScript trace (what the exporter writes) records the dense products
     traced = torch.jit.trace(event, (x,), check_trace=False)
-    assert len(calls) == 2 and torch.equal(traced(x), dense(x))
+    assert len(calls) == 3 and fused == [1] and torch.equal(traced(x), dense(x))
     meta = event.to("meta")
-    assert meta(x.to("meta")).shape == (2, spec.num_classes) and len(calls) == 2
+    assert meta(x.to("meta")).shape == (2, spec.num_classes) and len(calls) == 3 and fused == [1]
 
 
 def test_default_is_event_and_the_option_is_checked() -> None:
