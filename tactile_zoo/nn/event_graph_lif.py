@@ -107,7 +107,8 @@ def _forward(matrix: Tensor, bias: Tensor, events: EventList, cfg: tuple, save: 
     offsets = torch.cat([events.row_offsets, events.row_offsets.new_tensor([len(events.cols)])])  # (T * B + 1,)
     spikes = storage_pool.reusable((steps, batch, width), table)
     ckpt = torch.empty(kernels.checkpoint_rows(steps), batch, width) if save else torch.empty(1, 1, 1)
-    by_batch = torch.empty(batch, steps * width + 1, dtype=torch.int64)  # room for every spike and a spare slot
+    # room for every spike and a spare slot, on a pooled storage: only the part written is read, and no page faults
+    by_batch = storage_pool.reusable((batch, steps * width + 1), events.cols)
     counts = torch.empty(steps, batch, dtype=torch.int64)
     mem0, last = torch.zeros(batch, width), torch.empty(batch, width)
     launch(graph, "graph_lif_forward", table.numpy(), bias.contiguous().numpy(), events.cols.numpy(), offsets.numpy(),

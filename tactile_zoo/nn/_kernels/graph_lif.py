@@ -42,6 +42,16 @@ def _current_row(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray, e0: i
         cur[j] = cur[j] + bias[j]
 
 
+@jit
+def _list_spikes(row: np.ndarray, out: np.ndarray, k: int) -> int:
+    """Append the columns where ``row`` is nonzero to ``out`` from ``k`` on; returns the new end. No branch: every
+    column is written, and the end moves past it where the row spiked (``out`` needs one spare slot)."""
+    for j in range(row.shape[0]):
+        out[k] = j
+        k += row[j] != 0
+    return k
+
+
 def graph_lif_forward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray, in_offsets: np.ndarray,
                       mem0: np.ndarray, spikes: np.ndarray, last: np.ndarray, ckpt: np.ndarray, save: bool,
                       cols_by_batch: np.ndarray, counts: np.ndarray, beta: np.float32, thr: np.float32,
@@ -68,9 +78,7 @@ def graph_lif_forward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray, 
             row = spikes[s, b]
             _step_row(mem, cur, nxt, row, beta, thr, th_up, False, one, False)
             k0 = k
-            for j in range(width):  # from L1, without a branch: every column is written, kept where it spiked
-                out[k] = j
-                k += row[j] != 0
+            k = _list_spikes(row, out, k)
             counts[s, b] = k - k0
             mem, nxt = nxt, mem
         last[b] = mem
