@@ -37,6 +37,7 @@ from ..nn import hugepages
 from ..nn.backend import BatchNormStats, resolve
 from ..nn.batch_norm import BatchNorm1d, BatchNorm2d
 from ..nn.classifier import ClassifierMixin
+from ..nn.hooks import has_hooks
 from ..registry import recipe_file, register_model
 from ._inputs import check_inputs
 
@@ -60,13 +61,19 @@ class _FirstBatchStats:
     num_batches_tracked: Tensor | None
 
     def forward(self, x: Tensor) -> Tensor:
+        return self._first_batch_whole(super().forward, x)  # type: ignore[misc]
+
+    def relu_pool(self, x: Tensor) -> Tensor | None:
+        return self._first_batch_whole(super().relu_pool, x)  # type: ignore[misc]
+
+    def _first_batch_whole(self, call: Any, x: Tensor) -> Any:
         if self.training and self.num_batches_tracked is not None and int(self.num_batches_tracked) == 0:
             momentum, self.momentum = self.momentum, 1.0
             try:
-                return super().forward(x)  # type: ignore[misc]
+                return call(x)
             finally:
                 self.momentum = momentum
-        return super().forward(x)  # type: ignore[misc]
+        return call(x)
 
 
 class _BatchNorm2d(_FirstBatchStats, BatchNorm2d):
@@ -133,15 +140,24 @@ class _SamePool(nn.MaxPool2d):
 
 
 class _ConvBlock(nn.Sequential):
-    """Conv ("same") -> ReLU -> BN -> 2x2 max pool ("same"): the unit the D-CNN stacks three times."""
+    """Conv ("same") -> ReLU -> BN -> 2x2 max pool ("same"): the unit the D-CNN stacks three times. With ``fused``,
+    a training batch runs ReLU -> BN -> pool as one compiled kernel (:mod:`tactile_zoo.nn.relu_bn_pool`) where it
+    applies and no hook waits on those three modules; else, and in evaluation, the layers one after another."""
 
     def __init__(self, cin: int, cout: int, kernel: tuple[int, int], bn_momentum: float,
-                 bn_stats: BatchNormStats = BatchNormStats.NATIVE) -> None:
+                 bn_stats: BatchNormStats = BatchNormStats.NATIVE, fused: bool = False) -> None:
         (kh, kw) = kernel
         # Keras/TF "same": total padding k - 1, the odd cell of an even kernel after (right/bottom)
         pad = (((kw - 1) // 2), kw - 1 - (kw - 1) // 2, (kh - 1) // 2, kh - 1 - (kh - 1) // 2)
         super().__init__(nn.ZeroPad2d(pad), nn.Conv2d(cin, cout, kernel), nn.ReLU(inplace=True),
                          _BatchNorm2d(cout, eps=BN_EPS, momentum=bn_momentum, stats=bn_stats), _SamePool())
+        self.fused = fused
+
+    def forward(self, x: Tensor) -> Tensor:
+        pad, conv, relu, bn, pool = self
+        x = conv(pad(x))  # (B, C, H, W), channels-last
+        out = bn.relu_pool(x) if self.fused and not has_hooks(relu, bn, pool) else None
+        return pool(bn(relu(x))) if out is None else out  # (B, C, ceil(H / 2), ceil(W / 2))
 
 
 @register_model(
@@ -167,9 +183,13 @@ class _ConvBlock(nn.Sequential):
     causal=False,
     streaming=False,
     # revision 2 (the default since issue 53): batch statistics accurate to a float64 copy on the CPU, and the running
-    # statistics recomputed over the training split after training; 1 builds the committed cells (docs/revisions.md)
+    # statistics recomputed over the training split after training; 1 builds the committed cells (docs/revisions.md).
+    # 3 (selectable): ReLU -> batch norm -> pool fused in training, its statistics summed in float64; 1.7x revision
+    # 2's epoch (docs/performance.md). It becomes the default once Table I has its cells: pages publish the default's
     revision=2,
-    revisions={1: {"bn_stats": "native", "precise_bn": False}, 2: {"bn_stats": "two_pass", "precise_bn": True}},
+    revisions={1: {"bn_stats": "native", "precise_bn": False, "fused_blocks": False},
+               2: {"bn_stats": "two_pass", "precise_bn": True, "fused_blocks": False},
+               3: {"bn_stats": "two_pass", "precise_bn": True, "fused_blocks": True}},
 )
 class DCNN(ClassifierMixin, nn.Module):
     """D-CNN of Maus et al.: three conv blocks and two dense layers over the time x feature image.
@@ -193,6 +213,10 @@ class DCNN(ClassifierMixin, nn.Module):
             split with the final weights (:func:`tactile_zoo.engine.train.recompute_bn_stats`), so evaluation does
             not read moving averages that lag the weights (seed 6 of the ``full`` recipe on Ev-Objects; on by default,
             revision 2; revision 1, every committed cell's, is ``bn_stats="native"``, ``precise_bn=False``).
+        fused_blocks: a training batch runs each conv block's ReLU -> batch norm -> max pool as one compiled kernel
+            with its statistics summed in float64 (:mod:`tactile_zoo.nn.relu_bn_pool`; CPU, float32), instead of
+            the three layers with ``bn_stats``: revision 3, selectable (``create_model("dcnn", spec, revision=3)``),
+            not yet the default. The same function, rounded differently (within 1e-7 of a float64 copy, relative).
 
     Shapes:
         ``x (B, T, N, C)`` with ``T <= num_steps``, ``g (B, T, G)`` or None -> logits ``(B, num_classes)``.
@@ -201,7 +225,7 @@ class DCNN(ClassifierMixin, nn.Module):
     def __init__(self, spec: DatasetSpec, filters: tuple[int, int, int] = (31, 128, 57),
                  kernels: tuple[tuple[int, int], ...] = ((1, 2), (2, 3), (3, 1)),
                  dense: tuple[int, int] = (103, 138), bn_momentum: float = 0.1, bn_stats: str = "two_pass",
-                 precise_bn: bool = True) -> None:
+                 precise_bn: bool = True, fused_blocks: bool = False) -> None:
         super().__init__()
         if len(filters) != 3 or len(kernels) != 3 or len(dense) != 2:
             raise ConfigError(f"dcnn: need 3 filters, 3 kernels and 2 dense widths, got {filters}, {kernels}, {dense}")
@@ -209,6 +233,8 @@ class DCNN(ClassifierMixin, nn.Module):
             raise ConfigError(f"dcnn: bn_momentum must lie in (0, 1], got {bn_momentum}")
         if not isinstance(precise_bn, bool):
             raise ConfigError(f"dcnn: precise_bn must be true or false, got {precise_bn!r}")
+        if not isinstance(fused_blocks, bool):
+            raise ConfigError(f"dcnn: fused_blocks must be true or false, got {fused_blocks!r}")
         stats = resolve(BatchNormStats, bn_stats, "bn_stats", "dcnn")
         #: read by the engine after training (tactile_zoo.engine.train): recompute the running statistics
         self.precise_bn = precise_bn
@@ -217,8 +243,8 @@ class DCNN(ClassifierMixin, nn.Module):
         self.num_steps = spec.num_steps
         self.num_features = spec.num_nodes * spec.num_channels + spec.num_globals
         chans = (1, *filters)
-        self.features = nn.Sequential(*(_ConvBlock(chans[i], chans[i + 1], tuple(kernels[i]), bn_momentum, stats)
-                                        for i in range(3)))
+        self.features = nn.Sequential(*(_ConvBlock(chans[i], chans[i + 1], tuple(kernels[i]), bn_momentum, stats,
+                                                   fused_blocks) for i in range(3)))
         flat = filters[-1] * _pooled(self.num_steps, 3) * _pooled(self.num_features, 3)
         self.classifier = nn.Sequential(
             nn.Flatten(),

@@ -57,8 +57,8 @@ if TYPE_CHECKING:
 
 __all__ = ["LIFBackend", "LIFKernel", "ConvLSTMBackend", "GraphBackend", "WeightGrad", "TemporalBackend", "Attention",
            "Compute", "BatchNormStats", "resolve", "resolve_compute", "LIF_KERNEL_ENV", "lif_kernel_choice",
-           "lif_kernels", "lif_kernels_for", "event_kernels", "graph_lif_kernels", "convlstm_kernels", "ALIFBackend",
-           "alif_kernels_for"]
+           "lif_kernels", "lif_kernels_for", "event_kernels", "graph_lif_kernels", "bn_pool_kernels",
+           "convlstm_kernels", "ALIFBackend", "alif_kernels_for"]
 
 
 class LIFBackend(StrEnum):
@@ -251,6 +251,16 @@ def graph_lif_kernels() -> ModuleType | None:
     except ImportError:
         return None
     return graph_lif
+
+
+def bn_pool_kernels() -> ModuleType | None:
+    """D-CNN's fused ReLU -> batch norm -> max pool kernels (:mod:`tactile_zoo.nn._kernels.bn_pool`), or ``None``
+    where numba is missing (the caller then runs the layers apart)."""
+    try:
+        from ._kernels import bn_pool
+    except ImportError:
+        return None
+    return bn_pool
 
 
 def convlstm_kernels() -> ModuleType:

@@ -32,6 +32,7 @@ from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
 from .backend import BatchNormStats, resolve
+from .relu_bn_pool import fusable, relu_bn_pool
 
 __all__ = ["BatchNorm1d", "BatchNorm2d", "batch_norm_rows"]
 
@@ -122,17 +123,34 @@ class _StatsChoice:
         weight = bn.weight if bn.weight is not None else x.new_ones(c)
         bias = bn.bias if bn.bias is not None else x.new_zeros(c)
         out, mean, var = batch_norm_rows(rows, weight, bias, bn.eps, self.stats)
-        bn.num_batches_tracked.add_(1)
-        momentum = 1.0 / float(bn.num_batches_tracked) if bn.momentum is None else bn.momentum
-        m = rows.shape[0]
-        with torch.no_grad():
-            bn.running_mean.lerp_(mean.to(bn.running_mean.dtype), momentum)
-            bn.running_var.lerp_((var * (m / (m - 1))).to(bn.running_var.dtype), momentum)
+        self._track(mean, var, rows.shape[0])
         if x.dim() == 2:
             return out
         y = out.view(x.shape[0], *x.shape[2:], c).movedim(-1, 1)  # (B, C, ...) with channels-last strides
         # the input's layout, as nn.BatchNorm keeps it (a copy for an NCHW or (B, C, L) input)
         return y if x.dim() == 4 and x.is_contiguous(memory_format=torch.channels_last) else y.contiguous()
+
+
+    def _track(self, mean: Tensor, var: Tensor, m: int) -> None:
+        """The running statistics' update from a training batch's ``mean`` and biased ``var`` over ``m`` values per
+        channel, as ``nn.BatchNorm`` makes it (``momentum``; ``None``: a cumulative average; the variance unbiased)."""
+        bn: Any = self
+        bn.num_batches_tracked.add_(1)
+        momentum = 1.0 / float(bn.num_batches_tracked) if bn.momentum is None else bn.momentum
+        with torch.no_grad():
+            bn.running_mean.lerp_(mean.to(bn.running_mean.dtype), momentum)
+            bn.running_var.lerp_((var * (m / (m - 1))).to(bn.running_var.dtype), momentum)
+
+    def relu_pool(self, x: Tensor) -> Tensor | None:
+        """``max_pool2d(self(relu(x)), 2, ceil_mode=True)`` for a training batch, fused where
+        :func:`~tactile_zoo.nn.relu_bn_pool.fusable` says it can be (statistics in float64; the running statistics
+        updated as :meth:`forward` updates them), else ``None``: the caller then runs the layers apart."""
+        bn: Any = self
+        if not bn.training or bn.running_mean is None or not fusable(x, bn.weight) or x[:, 0].numel() < 2:
+            return None
+        out, mean, var = relu_bn_pool(x, bn.weight, bn.bias, bn.eps)
+        self._track(mean, var, x.shape[0] * x.shape[2] * x.shape[3])
+        return out
 
 
 class BatchNorm1d(_StatsChoice, nn.BatchNorm1d):

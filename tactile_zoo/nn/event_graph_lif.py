@@ -28,7 +28,7 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from torch import Tensor, nn
+from torch import Tensor
 
 from . import backend as switch
 from . import lif_fused, storage_pool
@@ -36,17 +36,11 @@ from .backend import GraphBackend, LIFBackend
 from .event_graph_conv import effective_matrix, event_graph_conv
 from .event_linear import EventList, events_from_rows, events_of, uses_events
 from .graph import FrameGraphConv
+from .hooks import has_hooks
 from .lif import MultiStepLIF
 from .lif_compiled import f32, launch, surrogate_args
 
 __all__ = ["event_graph_lif"]
-
-
-def _hooked(module: nn.Module) -> bool:
-    """Whether calling ``module`` runs hooks (its own or global ones), which the fused loop would skip."""
-    glob = nn.modules.module
-    return bool(module._forward_hooks or module._forward_pre_hooks or glob._global_forward_hooks
-                or glob._global_forward_pre_hooks)
 
 
 def _fusable(conv: FrameGraphConv, lif: MultiStepLIF, x: Tensor) -> ModuleType | None:
@@ -56,7 +50,7 @@ def _fusable(conv: FrameGraphConv, lif: MultiStepLIF, x: Tensor) -> ModuleType |
     (the exporter's) and a hook recording its spikes see the layers apart, which give the same numbers."""
     if conv.backend is not GraphBackend.DENSE or x.dim() != 4 or x.shape[-2:] != (conv.num_nodes, conv.in_channels):
         return None
-    if type(lif) is not MultiStepLIF or _hooked(lif) or lif.backend is not LIFBackend.FUSED or lif.reset != "zero" \
+    if type(lif) is not MultiStepLIF or has_hooks(lif) or lif.backend is not LIFBackend.FUSED or lif.reset != "zero" \
             or lif.input_scale != 1.0:
         return None
     if not uses_events(x, conv.hop_weights()[0]) or x.dtype != torch.float32 or switch.graph_lif_kernels() is None:

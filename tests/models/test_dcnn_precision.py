@@ -29,11 +29,11 @@ def _step(model: torch.nn.Module, x: torch.Tensor, y: torch.Tensor) -> tuple[tor
     return scores.detach().double(), {n: p.grad.double() for n, p in model.named_parameters()}
 
 
-def _errors(stats: str) -> tuple[float, float, torch.nn.Module, torch.nn.Module]:
+def _errors(**hparams: object) -> tuple[float, float, torch.nn.Module, torch.nn.Module]:
     """Largest score and gradient differences of one training step from a float64 NCHW copy, each relative to the
     copy's largest; and the two models after the step."""
     torch.manual_seed(0)
-    model = tz.create_model("dcnn", SPEC, bn_stats=stats).train()
+    model = tz.create_model("dcnn", SPEC, **hparams).train()
     ref = copy.deepcopy(model).double()
     ref.features.to(memory_format=torch.contiguous_format)
     x, y = torch.rand(4, 32, SENSOR.num_nodes, 2) * 0.1 + 1.0, torch.arange(4) % 5
@@ -43,9 +43,11 @@ def _errors(stats: str) -> tuple[float, float, torch.nn.Module, torch.nn.Module]
                                                                for n in g), model, ref
 
 
-@pytest.mark.parametrize("stats", ["two_pass", "float64"])
-def test_training_step_is_float64_accurate(stats: str) -> None:
-    score_err, grad_err, model, ref = _errors(stats)
+@pytest.mark.parametrize("hparams", [{"bn_stats": "two_pass", "fused_blocks": False},
+                                     {"bn_stats": "float64", "fused_blocks": False},
+                                     {"fused_blocks": True}])  # revision 3: the blocks' ReLU -> BN -> pool fused
+def test_training_step_is_float64_accurate(hparams: dict) -> None:
+    score_err, grad_err, model, ref = _errors(**hparams)
     assert score_err < 1e-4 and grad_err < 1e-3, (score_err, grad_err)
     # the running statistics follow the batch's as nn.BatchNorm's do (the first batch taken whole, variance unbiased)
     for (name, ours), theirs in zip(model.named_buffers(), ref.buffers()):
@@ -59,11 +61,12 @@ def test_training_step_is_float64_accurate(stats: str) -> None:
 
 
 def test_the_old_path_is_revision_1_and_misses() -> None:
-    """``native`` is revision 1 (committed cells rebuild bit for bit) and is what the default, revision 2, fixes."""
+    """``native`` is revision 1 (committed cells rebuild bit for bit) and is what revisions 2 and 3 fix."""
     model = tz.create_model("dcnn", SPEC, revision=1)
     assert all(bn.stats == "native" for bn in model.modules() if hasattr(bn, "stats"))
+    assert not any(block.fused for block in model.features)
     assert all(bn.stats == "two_pass" for bn in tz.create_model("dcnn", SPEC).modules() if hasattr(bn, "stats"))
-    score_err, grad_err, _, _ = _errors("native")
+    score_err, grad_err, _, _ = _errors(bn_stats="native", fused_blocks=False)
     assert score_err > 1e-4 or grad_err > 1e-3, (score_err, grad_err)
 
 

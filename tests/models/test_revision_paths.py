@@ -96,20 +96,26 @@ def test_convlstms_compiled_recurrence_is_selectable_and_not_the_default() -> No
 def test_dcnns_accurate_batch_statistics_are_the_default_and_revision_1_stays_buildable() -> None:
     """Revision 2 computes batch norm's training statistics in two float32 passes (tests/models/test_dcnn_precision.py
     holds it to a float64 copy) and has its running statistics recomputed after training (precise_bn:
-    tests/engine/test_precise_bn.py); it is the default since round 5, and revision 1 builds every committed cell."""
+    tests/engine/test_precise_bn.py); it is the default since round 5, and revision 1 builds the older committed cells.
+    Revision 3, selectable, fuses each conv block's ReLU -> batch norm -> pool (statistics in float64:
+    tests/nn/test_relu_bn_pool.py)."""
     from tactile_zoo.nn.backend import BatchNormStats
 
     entry = registry.get_model_entry("dcnn")
     assert registry.revision_of(entry) == 2 and registry.model_revisions(entry) == {
-        1: {"bn_stats": "native", "precise_bn": False}, 2: {"bn_stats": "two_pass", "precise_bn": True}}
+        1: {"bn_stats": "native", "precise_bn": False, "fused_blocks": False},
+        2: {"bn_stats": "two_pass", "precise_bn": True, "fused_blocks": False},
+        3: {"bn_stats": "two_pass", "precise_bn": True, "fused_blocks": True}}
     spec = _spec()
 
     def stats(model: torch.nn.Module) -> set[BatchNormStats]:
         return {m.stats for m in model.modules() if hasattr(m, "stats") and isinstance(m, torch.nn.Module)}
 
-    assert stats(tz.create_model("dcnn", spec)) == {BatchNormStats.TWO_PASS}
-    assert stats(tz.create_model("dcnn", spec, revision=1)) == {BatchNormStats.NATIVE}
-    assert tz.create_model("dcnn", spec).precise_bn and not tz.create_model("dcnn", spec, revision=1).precise_bn
+    default, third, first = (tz.create_model("dcnn", spec, revision=r) for r in (None, 3, 1))
+    assert stats(default) == stats(third) == {BatchNormStats.TWO_PASS} and stats(first) == {BatchNormStats.NATIVE}
+    assert [b.fused for b in third.features] == [True] * 3
+    assert not any(b.fused for m in (first, default) for b in m.features)
+    assert default.precise_bn and third.precise_bn and not first.precise_bn
 
 
 def test_an_unknown_revision_is_one_error_naming_the_model_and_its_revisions(capsys: pytest.CaptureFixture) -> None:
