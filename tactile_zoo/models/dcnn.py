@@ -184,8 +184,7 @@ class _ConvBlock(nn.Sequential):
     streaming=False,
     # revision 2 (the default since issue 53): batch statistics accurate to a float64 copy on the CPU, and the running
     # statistics recomputed over the training split after training; 1 builds the committed cells (docs/revisions.md).
-    # 3 (selectable): ReLU -> batch norm -> pool fused in training, its statistics summed in float64; 1.7x revision
-    # 2's epoch (docs/performance.md). It becomes the default once Table I has its cells: pages publish the default's
+    # 3 (selectable until Table I has cells of it): ReLU -> batch norm -> pool fused, statistics summed in float64
     revision=2,
     revisions={1: {"bn_stats": "native", "precise_bn": False, "fused_blocks": False},
                2: {"bn_stats": "two_pass", "precise_bn": True, "fused_blocks": False},

@@ -20,7 +20,7 @@ import numpy as np
 from numba import prange
 
 from .jit import CSR_MODE, fma, get_csr, jit, serial_copy, set_csr
-from .lif import _ZERO, _ZERO_DETACHED, EVERY, _advance_row, _carry_row, _step_row, _surrogate_row
+from .lif import EVERY, ZERO, ZERO_DETACHED, advance_row, carry_row, step_row, surrogate_row
 
 __all__ = ["graph_lif_forward", "graph_lif_backward", "graph_lif_forward_serial", "graph_lif_backward_serial",
            "merge_events"]
@@ -76,7 +76,7 @@ def graph_lif_forward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray, 
             r = s * batch + b
             _current_row(table, bias, in_cols, in_offsets[r], in_offsets[r + 1], cur)
             row = spikes[s, b]
-            _step_row(mem, cur, nxt, row, beta, thr, th_up, False, one, False)
+            step_row(mem, cur, nxt, row, beta, thr, th_up, False, one, False)
             k0 = k
             k = _list_spikes(row, out, k)
             counts[s, b] = k - k0
@@ -115,7 +115,7 @@ def graph_lif_backward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray,
     steps, batch, width = grad_spikes.shape
     csr = get_csr() & CSR_MODE
     one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
-    mode = _ZERO_DETACHED if detach_reset else _ZERO
+    mode = ZERO_DETACHED if detach_reset else ZERO
     scale = beta  # dU[t]/dU[t-1] carries as fma(beta * g, decay, .) for the zero reset
     for b in prange(batch):
         own = get_csr()
@@ -133,14 +133,14 @@ def graph_lif_backward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray,
                 for k in range(s + 1 - s0):
                     r = (s0 + k) * batch + b
                     _current_row(table, bias, in_cols, in_offsets[r], in_offsets[r + 1], cur)
-                    _advance_row(hist[k], cur, hist[k + 1], beta, thr, th_up, False, one, False)
+                    advance_row(hist[k], cur, hist[k + 1], beta, thr, th_up, False, one, False)
                 if s == steps - 1:
-                    _surrogate_row(hist[s + 1 - s0], thr, kind, lo, hi, c1, c2, sg)  # S'(U[T-1])
+                    surrogate_row(hist[s + 1 - s0], thr, kind, lo, hi, c1, c2, sg)  # S'(U[T-1])
             g = grad_cur[s, b]
             u_prev = hist[s - s0]  # U[s-1]
             gs = grad_spikes[s, b]
             if s + 1 < steps and (s + 1) % block != 0:  # the usual step: one pass
-                _carry_row(gs, sg, decay, g_next, g, u_prev, beta, scale, thr, th_up, mode, kind, lo, hi, c1, c2)
+                carry_row(gs, sg, decay, g_next, g, u_prev, beta, scale, thr, th_up, mode, kind, lo, hi, c1, c2)
                 g_next = g
                 continue
             for j in range(width):
@@ -148,7 +148,7 @@ def graph_lif_backward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray,
             if s + 1 < steps:  # U[s] ends a block: add the carry mul(mul(g, decay), scale) of the next
                 for j in range(width):
                     g[j] = g[j] + (g_next[j] * decay[j]) * scale
-            _surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
+            surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
             if detach_reset:
                 for j in range(width):
                     m = u_prev[j]

@@ -38,7 +38,8 @@ from numba import prange
 from .jit import CSR_MODE, fma, get_csr, jit, serial_copy, set_csr
 
 __all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "RECT", "ATAN", "CHUNK",
-           "FORWARD_CHUNK", "EVERY", "SERIAL_BELOW", "checkpoint_rows"]
+           "FORWARD_CHUNK", "EVERY", "SERIAL_BELOW", "checkpoint_rows", "PLAIN", "SUB", "ZERO_DETACHED", "ZERO",
+           "surrogate_row", "carry_row", "advance_row", "step_row"]
 
 #: Surrogate kinds the kernels evaluate themselves (others stay on the torch path).
 RECT, ATAN = 0, 1
@@ -52,14 +53,14 @@ FORWARD_CHUNK = 1 << 17
 EVERY = 16
 #: Sequences with fewer elements (steps x neurons) than this run the serial builds even with several threads.
 SERIAL_BELOW = 1 << 16
-_PLAIN, _SUB, _ZERO_DETACHED, _ZERO = 0, 1, 2, 3  # how dU[t]/dU[t-1] is formed (lif_backward's reset modes)
+PLAIN, SUB, ZERO_DETACHED, ZERO = 0, 1, 2, 3  # how dU[t]/dU[t-1] is formed (lif_backward's reset modes)
 
 
-# Row helpers: each is one loop over a chunk's neurons with no branch left inside it (the mode tests sit outside),
-# so that LLVM vectorises it; the conditional expressions become selects.
+# Row helpers (the fused kernels of .graph_lif call them too): each is one loop over a chunk's neurons with no branch
+# left inside it (the mode tests sit outside), so that LLVM vectorises it; the conditional expressions become selects.
 
 @jit
-def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, hi: np.float32, c1: np.float32,
+def surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, hi: np.float32, c1: np.float32,
                    c2: np.float32, out: np.ndarray) -> None:
     """``out = S'(mem - thr)`` as :meth:`tactile_zoo.nn.surrogate.Surrogate.grad` computes it in float32: the
     ``rect`` mask ``lo < u < hi`` (``hardtanh_backward``), or ``atan``'s ``mul``, ``pow_(2)``, ``add_(1)``,
@@ -77,16 +78,16 @@ def _surrogate_row(mem: np.ndarray, thr: np.float32, kind: int, lo: np.float32, 
 
 
 @jit
-def _carry_row(gs: np.ndarray, sg: np.ndarray, decay: np.ndarray, g_next: np.ndarray, g: np.ndarray,
+def carry_row(gs: np.ndarray, sg: np.ndarray, decay: np.ndarray, g_next: np.ndarray, g: np.ndarray,
                u_prev: np.ndarray, beta: np.float32, scale: np.float32, thr: np.float32, th_up: np.float32,
                mode: int, kind: int, lo: np.float32, hi: np.float32, c1: np.float32, c2: np.float32) -> None:
     """An ordinary step of the backward (grad_spikes given, no block boundary) in one pass over the row instead of
     four: ``g = gs * S'(U[s])`` plus the carry of ``g_next`` as in :func:`lif_backward`, then ``sg = S'(U[s-1])``
     and ``decay = dU[s]/dU[s-1]`` from ``u_prev = U[s-1]`` -- per element the same operations in the same order.
-    ``mode``: :data:`_PLAIN` (detached subtractive reset), :data:`_SUB`, :data:`_ZERO_DETACHED`, :data:`_ZERO`."""
+    ``mode``: :data:`PLAIN` (detached subtractive reset), :data:`SUB`, :data:`ZERO_DETACHED`, :data:`ZERO`."""
     one, zero, ninf, nthr = np.float32(1.0), np.float32(0.0), np.float32(-np.inf), -thr
     for j in range(g.shape[0]):
-        if mode == _PLAIN:
+        if mode == PLAIN:
             g[j] = fma(g_next[j], beta, gs[j] * sg[j])
         else:
             g[j] = fma(scale * g_next[j], decay[j], gs[j] * sg[j])
@@ -99,16 +100,16 @@ def _carry_row(gs: np.ndarray, sg: np.ndarray, decay: np.ndarray, g_next: np.nda
             t = t * t
             v = (one / (t + one)) * c2
         sg[j] = v
-        if mode == _SUB:
+        if mode == SUB:
             decay[j] = v * nthr + beta
-        elif mode == _ZERO_DETACHED:
+        elif mode == ZERO_DETACHED:
             decay[j] = one if (ninf < m) & (m < th_up) else zero
-        elif mode == _ZERO:
+        elif mode == ZERO:
             decay[j] = fma(-m, v, one if (ninf < m) & (m < th_up) else zero)
 
 
 @jit
-def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.float32, thr: np.float32,
+def advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.float32, thr: np.float32,
                  th_up: np.float32, subtract: bool, scale: np.float32, scaled: bool) -> None:
     """One membrane update of a row of neurons (``out`` may be ``prev``), as ``tactile_zoo.nn.lif_fused._advance``;
     with ``scaled`` the input is ``x * scale`` (one float32 multiply, as ``x * input_scale`` rounds it in torch)."""
@@ -140,9 +141,9 @@ def _advance_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, beta: np.floa
 
 
 @jit
-def _step_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, spikes: np.ndarray, beta: np.float32,
+def step_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, spikes: np.ndarray, beta: np.float32,
               thr: np.float32, th_up: np.float32, subtract: bool, scale: np.float32, scaled: bool) -> None:
-    """:func:`_advance_row` and the spikes in one loop: the forward's step reads ``prev`` and ``x`` once and writes
+    """:func:`advance_row` and the spikes in one loop: the forward's step reads ``prev`` and ``x`` once and writes
     the membrane and the spike ``S = (U > thr)`` (``open_interval_mask(U, thr, inf)``) of each neuron: the same
     operations per element as two passes, with one pass less over the row (measured 1.45x on the forward alone)."""
     one, zero, inf, ninf = np.float32(1.0), np.float32(0.0), np.float32(np.inf), np.float32(-np.inf)
@@ -207,7 +208,7 @@ def lif_forward(x: np.ndarray, mem0: np.ndarray, spikes: np.ndarray, last: np.nd
         for s in range(steps):
             if save and s % EVERY == 0:
                 ckpt[s // EVERY, n0:n1] = mem
-            _step_row(mem, x[s, n0:n1], nxt, spikes[s, n0:n1], beta, thr, th_up, subtract, in_scale, scaled)
+            step_row(mem, x[s, n0:n1], nxt, spikes[s, n0:n1], beta, thr, th_up, subtract, in_scale, scaled)
             mem, nxt = nxt, mem
         last[n0:n1] = mem
         set_csr(own)
@@ -231,7 +232,7 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
     # dU[t]/dU[t-1] is applied as fma(scale * g, decay, .); with a detached subtractive reset it is beta itself,
     # applied as fma(g, beta, .) (add_(g, alpha=beta)) -- a different rounding, hence its own branches below
     plain = subtract and detach_reset
-    mode = _PLAIN if plain else _SUB if subtract else _ZERO_DETACHED if detach_reset else _ZERO
+    mode = PLAIN if plain else SUB if subtract else ZERO_DETACHED if detach_reset else ZERO
     scale = one if subtract else beta
     nthr = -thr
     for c in prange((n + chunk - 1) // chunk):
@@ -250,14 +251,14 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
                 s0 = s - s % EVERY
                 hist[0] = ckpt[s0 // EVERY, n0:n1]
                 for k in range(s + 1 - s0):
-                    _advance_row(hist[k], x[s0 + k, n0:n1], hist[k + 1], beta, thr, th_up, subtract, in_scale,
+                    advance_row(hist[k], x[s0 + k, n0:n1], hist[k + 1], beta, thr, th_up, subtract, in_scale,
                                  scaled)
                 if s == steps - 1:
-                    _surrogate_row(hist[s + 1 - s0], thr, kind, lo, hi, c1, c2, sg)  # S'(U[T-1])
+                    surrogate_row(hist[s + 1 - s0], thr, kind, lo, hi, c1, c2, sg)  # S'(U[T-1])
             g = grad_x[s, n0:n1]
             u_prev = hist[s - s0]  # U[s-1]
             if has_grad_spikes and s + 1 < steps and (s + 1) % block != 0:  # the usual step: one pass
-                _carry_row(grad_spikes[s, n0:n1], sg, decay, g_next, g, u_prev, beta, scale, thr, th_up, mode, kind,
+                carry_row(grad_spikes[s, n0:n1], sg, decay, g_next, g, u_prev, beta, scale, thr, th_up, mode, kind,
                            lo, hi, c1, c2)
                 if scaled:
                     _scale_row(g_next, in_scale)
@@ -287,7 +288,7 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
             else:  # addcmul_(g[s+1], decay[s+1], value=scale)
                 for j in range(width):
                     g[j] = fma(scale * g_next[j], decay[j], g[j])
-            _surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
+            surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
             if subtract and not plain:  # mul(S'(U[s-1]), -thr).add_(beta): two roundings
                 for j in range(width):
                     decay[j] = sg[j] * nthr + beta
