@@ -93,7 +93,6 @@ def event_graph_lif(conv: FrameGraphConv, lif: MultiStepLIF, x: Tensor) -> tuple
 def _forward(matrix: Tensor, bias: Tensor, events: EventList, cfg: tuple, save: bool) -> tuple[Tensor, Tensor | None]:
     """The compiled forward: spikes ``(T, B, W)`` and, with ``save``, the membrane checkpoints; the spike list goes
     into ``cfg``'s sink."""
-
     (steps, batch), lif, kernels, sink = cfg
     graph = switch.graph_lif_kernels()
     width = matrix.shape[0]

@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from .jit import CSR_MODE, fma, get_csr, jit, serial_copy, set_csr
-from .lif import EVERY, ZERO, ZERO_DETACHED, advance_row, carry_row, step_row, surrogate_row
+from .jit import CSR_MODE, get_csr, jit, serial_copy, set_csr
+from .lif import EVERY, ZERO, ZERO_DETACHED, advance_row, carry_row, step_row, surrogate_row, zero_reset_decay_row
 
 __all__ = ["graph_lif_forward", "graph_lif_backward", "graph_lif_forward_serial", "graph_lif_backward_serial",
            "merge_events"]
@@ -114,7 +114,7 @@ def graph_lif_backward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray,
     the last membrane and the same ``block``."""
     steps, batch, width = grad_spikes.shape
     csr = get_csr() & CSR_MODE
-    one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
+    one = np.float32(1.0)
     mode = ZERO_DETACHED if detach_reset else ZERO
     scale = beta  # dU[t]/dU[t-1] carries as fma(beta * g, decay, .) for the zero reset
     for b in prange(batch):
@@ -149,14 +149,7 @@ def graph_lif_backward(table: np.ndarray, bias: np.ndarray, in_cols: np.ndarray,
                 for j in range(width):
                     g[j] = g[j] + (g_next[j] * decay[j]) * scale
             surrogate_row(u_prev, thr, kind, lo, hi, c1, c2, sg)
-            if detach_reset:
-                for j in range(width):
-                    m = u_prev[j]
-                    decay[j] = one if (ninf < m) & (m < th_up) else zero
-            else:
-                for j in range(width):
-                    m = u_prev[j]
-                    decay[j] = fma(-m, sg[j], one if (ninf < m) & (m < th_up) else zero)
+            zero_reset_decay_row(u_prev, sg, decay, th_up, detach_reset)
             g_next = g
         set_csr(own)
 

@@ -39,7 +39,7 @@ from .jit import CSR_MODE, fma, get_csr, jit, serial_copy, set_csr
 
 __all__ = ["lif_forward", "lif_backward", "lif_forward_serial", "lif_backward_serial", "RECT", "ATAN", "CHUNK",
            "FORWARD_CHUNK", "EVERY", "SERIAL_BELOW", "checkpoint_rows", "PLAIN", "SUB", "ZERO_DETACHED", "ZERO",
-           "surrogate_row", "carry_row", "advance_row", "step_row"]
+           "surrogate_row", "carry_row", "advance_row", "step_row", "zero_reset_decay_row"]
 
 #: Surrogate kinds the kernels evaluate themselves (others stay on the torch path).
 RECT, ATAN = 0, 1
@@ -175,6 +175,22 @@ def step_row(prev: np.ndarray, x: np.ndarray, out: np.ndarray, spikes: np.ndarra
 
 
 @jit
+def zero_reset_decay_row(u_prev: np.ndarray, sg: np.ndarray, decay: np.ndarray, th_up: np.float32,
+                         detach_reset: bool) -> None:
+    """dU[s]/dU[s-1] before the scale for the zero reset, from ``u_prev = U[s-1]`` and ``sg = S'(U[s-1])``:
+    ``1 - R[s] = (U[s-1] <= thr)``, then, with the reset attached, ``addcmul_(U[s-1], S'(U[s-1]), value=-1)``."""
+    one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
+    if detach_reset:
+        for j in range(decay.shape[0]):
+            m = u_prev[j]
+            decay[j] = one if (ninf < m) & (m < th_up) else zero
+    else:
+        for j in range(decay.shape[0]):
+            m = u_prev[j]
+            decay[j] = fma(-m, sg[j], one if (ninf < m) & (m < th_up) else zero)
+
+
+@jit
 def _scale_row(row: np.ndarray, scale: np.float32) -> None:
     """``row *= scale``, one rounding each (``mul`` by a float32 scalar)."""
     for j in range(row.shape[0]):
@@ -228,7 +244,7 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
     ``grad * in_scale``, one rounding)."""
     steps, n = x.shape
     csr = get_csr() & CSR_MODE
-    one, zero, ninf = np.float32(1.0), np.float32(0.0), np.float32(-np.inf)
+    one, zero = np.float32(1.0), np.float32(0.0)
     # dU[t]/dU[t-1] is applied as fma(scale * g, decay, .); with a detached subtractive reset it is beta itself,
     # applied as fma(g, beta, .) (add_(g, alpha=beta)) -- a different rounding, hence its own branches below
     plain = subtract and detach_reset
@@ -292,15 +308,8 @@ def lif_backward(x: np.ndarray, ckpt: np.ndarray, grad_spikes: np.ndarray, has_g
             if subtract and not plain:  # mul(S'(U[s-1]), -thr).add_(beta): two roundings
                 for j in range(width):
                     decay[j] = sg[j] * nthr + beta
-            elif not subtract:  # 1 - R[s] = (U[s-1] <= thr), then addcmul_(U[s-1], S'(U[s-1]), value=-1)
-                if detach_reset:
-                    for j in range(width):
-                        m = u_prev[j]
-                        decay[j] = one if (ninf < m) & (m < th_up) else zero
-                else:
-                    for j in range(width):
-                        m = u_prev[j]
-                        decay[j] = fma(-m, sg[j], one if (ninf < m) & (m < th_up) else zero)
+            elif not subtract:
+                zero_reset_decay_row(u_prev, sg, decay, th_up, detach_reset)
             if scaled and s + 1 < steps:  # dL/dU[s + 1] has been read for the last time: make it dL/dx[s + 1]
                 _scale_row(g_next, in_scale)
             g_next = g
