@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import functools
 import platform
+import threading
 from enum import StrEnum
 from types import ModuleType
 from typing import TYPE_CHECKING, TypeVar
@@ -58,7 +59,7 @@ if TYPE_CHECKING:
 __all__ = ["LIFBackend", "LIFKernel", "ConvLSTMBackend", "GraphBackend", "WeightGrad", "TemporalBackend", "Attention",
            "Compute", "BatchNormStats", "resolve", "resolve_compute", "LIF_KERNEL_ENV", "lif_kernel_choice",
            "lif_kernels", "lif_kernels_for", "event_kernels", "graph_lif_kernels", "bn_pool_kernels",
-           "convlstm_kernels", "ALIFBackend", "alif_kernels_for"]
+           "convlstm_kernels", "ALIFBackend", "alif_kernels_for", "launch"]
 
 
 class LIFBackend(StrEnum):
@@ -241,6 +242,42 @@ def event_kernels() -> ModuleType | None:
     except ImportError:
         return None
     return events
+
+
+def _kernel_threads(kernels: ModuleType) -> None:
+    """Run the kernels on as many threads as torch is given (numba's own pool cannot grow past its start size)."""
+    import numba
+
+    n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    if numba.get_num_threads() != n:
+        numba.set_num_threads(n)
+
+
+#: Serialises kernel launches where numba's threading layer cannot take two at once: its fallback layer
+#: ("workqueue", used where neither OpenMP nor TBB loads) aborts the process on concurrent launches from two threads.
+_LAUNCH_LOCK = threading.Lock()
+
+
+def launch(kernels: ModuleType, name: str, *args: object, serial: bool) -> None:
+    """Call compiled kernel ``name`` of module ``kernels`` (built twice, ``name`` and ``name_serial``: see
+    :func:`tactile_zoo.nn._kernels.jit.serial_copy`) on torch's thread count: the serial build on one thread or where
+    the caller says the work is too small to split (``serial``), else the parallel build -- under a lock until numba's
+    threading layer is known (it is chosen at the first launch) and for good if that layer is "workqueue"."""
+    import numba
+
+    if torch.get_num_threads() == 1 or serial:
+        getattr(kernels, f"{name}_serial")(*args)
+        return
+    _kernel_threads(kernels)
+    try:
+        locked = numba.threading_layer() == "workqueue"
+    except ValueError:  # no parallel launch yet
+        locked = True
+    if locked:
+        with _LAUNCH_LOCK:
+            getattr(kernels, name)(*args)
+    else:
+        getattr(kernels, name)(*args)
 
 
 def graph_lif_kernels() -> ModuleType | None:

@@ -130,7 +130,6 @@ class _StatsChoice:
         # the input's layout, as nn.BatchNorm keeps it (a copy for an NCHW or (B, C, L) input)
         return y if x.dim() == 4 and x.is_contiguous(memory_format=torch.channels_last) else y.contiguous()
 
-
     def _track(self, mean: Tensor, var: Tensor, m: int) -> None:
         """The running statistics' update from a training batch's ``mean`` and biased ``var`` over ``m`` values per
         channel, as ``nn.BatchNorm`` makes it (``momentum``; ``None``: a cumulative average; the variance unbiased)."""
@@ -146,10 +145,11 @@ class _StatsChoice:
         :func:`~tactile_zoo.nn.relu_bn_pool.fusable` says it can be (statistics in float64; the running statistics
         updated as :meth:`forward` updates them), else ``None``: the caller then runs the layers apart."""
         bn: Any = self
-        if not bn.training or bn.running_mean is None or not fusable(x, bn.weight) or x[:, 0].numel() < 2:
+        m = x.shape[0] * x.shape[2] * x.shape[3] if x.dim() == 4 else 0  # values per channel
+        if not bn.training or bn.running_mean is None or m < 2 or not fusable(x, bn.weight):
             return None
         out, mean, var = relu_bn_pool(x, bn.weight, bn.bias, bn.eps)
-        self._track(mean, var, x.shape[0] * x.shape[2] * x.shape[3])
+        self._track(mean, var, m)
         return out
 
 

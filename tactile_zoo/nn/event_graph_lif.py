@@ -38,7 +38,7 @@ from .event_linear import EventList, events_from_rows, events_of, uses_events
 from .graph import FrameGraphConv
 from .hooks import has_hooks
 from .lif import MultiStepLIF
-from .lif_compiled import f32, launch, surrogate_args
+from .lif_compiled import f32, surrogate_args
 
 __all__ = ["event_graph_lif"]
 
@@ -81,32 +81,33 @@ def event_graph_lif(conv: FrameGraphConv, lif: MultiStepLIF, x: Tensor) -> tuple
     n = conv.num_nodes
     matrix = effective_matrix(conv, x.dtype)  # (N * F_out, N * F_in)
     bias = conv.conv.bias.repeat(n) if conv.conv.bias is not None else matrix.new_zeros(matrix.shape[0])
+    offsets = torch.cat([events.row_offsets, events.row_offsets.new_tensor([len(events.cols)])])  # (T * B + 1,)
     sink: list[EventList] = []
-    cfg = (tuple(x.shape[:2]), lif, kernels, sink)
+    cfg = (tuple(x.shape[:2]), lif, kernels, events, offsets, sink)
     if torch.is_grad_enabled() and (matrix.requires_grad or bias.requires_grad):
-        spikes = _EventGraphLIF.apply(matrix, bias, events, cfg)
+        spikes = _EventGraphLIF.apply(matrix, bias, cfg)
     else:
-        spikes = _forward(matrix.detach(), bias.detach(), events, cfg, save=False)[0]
+        spikes = _forward(matrix.detach().t().contiguous(), bias.detach(), cfg, save=False)[0]
     return spikes, sink[0]
 
 
-def _forward(matrix: Tensor, bias: Tensor, events: EventList, cfg: tuple, save: bool) -> tuple[Tensor, Tensor | None]:
-    """The compiled forward: spikes ``(T, B, W)`` and, with ``save``, the membrane checkpoints; the spike list goes
+def _forward(table: Tensor, bias: Tensor, cfg: tuple, save: bool) -> tuple[Tensor, Tensor | None]:
+    """The compiled forward from ``table (N * F_in, W)``, the effective matrix with a row per input column (as the
+    event product's table): spikes ``(T, B, W)`` and, with ``save``, the membrane checkpoints; the spike list goes
     into ``cfg``'s sink."""
-    (steps, batch), lif, kernels, sink = cfg
+    (steps, batch), lif, kernels, events, offsets, sink = cfg
     graph = switch.graph_lif_kernels()
-    width = matrix.shape[0]
-    table = matrix.t().contiguous()  # (N * F_in, W): a row per input column, as the event product's table
-    offsets = torch.cat([events.row_offsets, events.row_offsets.new_tensor([len(events.cols)])])  # (T * B + 1,)
+    width = table.shape[1]
     spikes = storage_pool.reusable((steps, batch, width), table)
     ckpt = torch.empty(kernels.checkpoint_rows(steps), batch, width) if save else torch.empty(1, 1, 1)
     # room for every spike and a spare slot, on a pooled storage: only the part written is read, and no page faults
     by_batch = storage_pool.reusable((batch, steps * width + 1), events.cols)
     counts = torch.empty(steps, batch, dtype=torch.int64)
     mem0, last = torch.zeros(batch, width), torch.empty(batch, width)
-    launch(graph, "graph_lif_forward", table.numpy(), bias.contiguous().numpy(), events.cols.numpy(), offsets.numpy(),
-           mem0.numpy(), spikes.numpy(), last.numpy(), ckpt.numpy(), save, by_batch.numpy(), counts.numpy(),
-           *f32(lif.beta, lif.threshold, lif_fused.next_up(lif.threshold, torch.float32)), serial=batch == 1)
+    switch.launch(graph, "graph_lif_forward", table.numpy(), bias.contiguous().numpy(), events.cols.numpy(),
+                  offsets.numpy(), mem0.numpy(), spikes.numpy(), last.numpy(), ckpt.numpy(), save, by_batch.numpy(),
+                  counts.numpy(), *f32(lif.beta, lif.threshold, lif_fused.next_up(lif.threshold, torch.float32)),
+                  serial=batch == 1)
     cols, row_offsets = torch.empty(int(counts.sum()), dtype=torch.int64), torch.empty(steps * batch, dtype=torch.int64)
     graph.merge_events(by_batch.numpy(), counts.numpy(), cols.numpy(), row_offsets.numpy())
     sink.append(events_from_rows(cols, row_offsets, width))
@@ -114,15 +115,15 @@ def _forward(matrix: Tensor, bias: Tensor, events: EventList, cfg: tuple, save: 
 
 
 class _EventGraphLIF(torch.autograd.Function):
-    """Spikes from the effective matrix ``(W, C_in)`` and the bias ``(W,)`` over the input events; see the module
-    docstring."""
+    """Spikes from the effective matrix ``(W, C_in)`` and the bias ``(W,)`` over the input events in ``cfg``; see the
+    module docstring."""
 
     @staticmethod
-    def forward(ctx: Any, matrix: Tensor, bias: Tensor, events: EventList, cfg: tuple) -> Tensor:
-        matrix, bias = matrix.detach(), bias.detach()
-        spikes, ckpt = _forward(matrix, bias, events, cfg, save=True)
-        ctx.save_for_backward(matrix, bias, ckpt)
-        ctx.events, ctx.cfg = events, cfg
+    def forward(ctx: Any, matrix: Tensor, bias: Tensor, cfg: tuple) -> Tensor:
+        table, bias = matrix.detach().t().contiguous(), bias.detach()  # (N * F_in, W)
+        spikes, ckpt = _forward(table, bias, cfg, save=True)
+        ctx.save_for_backward(table, bias, ckpt)
+        ctx.cfg = cfg
         ctx.set_materialize_grads(False)
         return spikes
 
@@ -130,23 +131,20 @@ class _EventGraphLIF(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx: Any, grad_spikes: Tensor | None) -> tuple[Tensor | None, ...]:
         if grad_spikes is None:
-            return None, None, None, None
-        matrix, bias, ckpt = ctx.saved_tensors
-        ev, ((steps, batch), lif, kernels, _) = ctx.events, ctx.cfg
-        width = matrix.shape[0]
-        table = matrix.t().contiguous()
-        offsets = torch.cat([ev.row_offsets, ev.row_offsets.new_tensor([len(ev.cols)])])
-        # the unfused LIF's block of steps (its gradient crosses block boundaries with a different rounding)
-        block = max(1, min(steps, lif_fused.BLOCK_BYTES // (batch * width * 4)))
+            return None, None, None
+        table, bias, ckpt = ctx.saved_tensors
+        (steps, batch), lif, kernels, ev, offsets, _ = ctx.cfg
+        width = table.shape[1]
+        block = lif_fused.block_steps(steps, batch * width * table.element_size())  # the unfused LIF's blocks
         grad_cur = storage_pool.reusable((steps, batch, width), table)  # dL/dI (T, B, W)
-        launch(switch.graph_lif_kernels(), "graph_lif_backward", table.numpy(), bias.numpy(), ev.cols.numpy(),
-               offsets.numpy(), ckpt.numpy(), grad_spikes.contiguous().numpy(), grad_cur.numpy(),
-               *f32(lif.beta, lif.threshold, lif_fused.next_up(lif.threshold, torch.float32)), lif.detach_reset,
-               *surrogate_args(kernels, lif.surrogate), block, serial=batch == 1)
+        switch.launch(switch.graph_lif_kernels(), "graph_lif_backward", table.numpy(), bias.numpy(), ev.cols.numpy(),
+                      offsets.numpy(), ckpt.numpy(), grad_spikes.contiguous().numpy(), grad_cur.numpy(),
+                      *f32(lif.beta, lif.threshold, lif_fused.next_up(lif.threshold, torch.float32)),
+                      lif.detach_reset, *surrogate_args(kernels, lif.surrogate), block, serial=batch == 1)
         rows = grad_cur.view(steps * batch, width)  # (T * B, W), as the event product's output gradient
         grad_matrix = grad_bias = None
         if ctx.needs_input_grad[0]:  # (N * F_in, W): each input column's active rows, summed; then as E's layout
             grad_matrix = F.embedding_bag(ev.rows_by_col, rows, ev.col_offsets, mode="sum").t()
         if ctx.needs_input_grad[1]:
             grad_bias = rows.sum(0)
-        return grad_matrix, grad_bias, None, None
+        return grad_matrix, grad_bias, None

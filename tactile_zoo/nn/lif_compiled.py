@@ -6,56 +6,23 @@ to where it does not apply. Where it runs is decided in :func:`tactile_zoo.nn.ba
 from __future__ import annotations
 
 import math
-import threading
 from types import ModuleType
 
 import torch
 from torch import Tensor
 
+from . import backend as switch
 from . import hugepages, lif_fused, storage_pool
 from .surrogate import Surrogate
 
-__all__ = ["CompiledLIF", "compiled_forward", "launch", "surrogate_args", "f32"]
+__all__ = ["CompiledLIF", "compiled_forward", "surrogate_args", "f32"]
 
 
-def _kernel_threads(kernels: ModuleType) -> None:
-    """Run the kernels on as many threads as torch is given (numba's own pool cannot grow past its start size)."""
-    import numba
-
-    n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
-    if numba.get_num_threads() != n:
-        numba.set_num_threads(n)
-
-
-#: Serialises kernel launches where numba's threading layer cannot take two at once: its fallback layer
-#: ("workqueue", used where neither OpenMP nor TBB loads) aborts the process on concurrent launches from two threads.
-_LAUNCH_LOCK = threading.Lock()
-
-
-def launch(kernels: ModuleType, name: str, *args: object, serial: bool | None = None) -> None:
-    """Call compiled kernel ``name`` (``lif_forward`` or ``lif_backward``; ``args[0]`` is the ``(T, N)`` input) on
-    torch's thread count: its serial build on one thread, for one block of neurons or for small sequences (a parallel
-    launch costs more than it saves there), else the parallel build -- under the lock until numba's threading layer
-    is known (it is chosen at the first launch) and for good if that layer is "workqueue". Another kernel module's
-    caller passes ``serial`` (whether its work is too small to split) instead of the LIF's sizes."""
-    import numba
-
-    if serial is None:
-        steps, n = args[0].shape
-        serial = n <= kernels.CHUNK or steps * n < kernels.SERIAL_BELOW
-    if torch.get_num_threads() == 1 or serial:
-        getattr(kernels, f"{name}_serial")(*args)
-        return
-    _kernel_threads(kernels)
-    try:
-        serial = numba.threading_layer() == "workqueue"
-    except ValueError:  # no parallel launch yet
-        serial = True
-    if serial:
-        with _LAUNCH_LOCK:
-            getattr(kernels, name)(*args)
-    else:
-        getattr(kernels, name)(*args)
+def _launch(kernels: ModuleType, name: str, *args: object) -> None:
+    """:func:`~tactile_zoo.nn.backend.launch` of ``lif_forward`` or ``lif_backward`` (``args[0]`` is the ``(T, N)``
+    input): serial for one block of neurons or for small sequences, where a parallel launch costs more than it saves."""
+    steps, n = args[0].shape
+    switch.launch(kernels, name, *args, serial=n <= kernels.CHUNK or steps * n < kernels.SERIAL_BELOW)
 
 
 def _forward_chunk(kernels: ModuleType, n: int) -> int:
@@ -78,7 +45,7 @@ def compiled_forward(kernels: ModuleType, x: Tensor, mem0: Tensor, beta: float, 
     spikes = storage_pool.reusable(x.shape, x) if reuse else hugepages.empty(x.shape, x)
     last = torch.empty_like(mem0, memory_format=torch.contiguous_format)
     ckpt = torch.empty(kernels.checkpoint_rows(steps), mem0.numel(), dtype=torch.float32) if checkpoints else None
-    launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
+    _launch(kernels, "lif_forward", x.detach().view(steps, -1).numpy(), mem0.detach().reshape(-1).numpy(),
             spikes.view(steps, -1).numpy(), last.view(-1).numpy(),
             np.zeros((1, 1), np.float32) if ckpt is None else ckpt.numpy(), checkpoints, *f32(beta, threshold),
             f32(lif_fused.next_up(threshold, torch.float32))[0], subtract, _forward_chunk(kernels, int(mem0.numel())),
@@ -134,15 +101,14 @@ class CompiledLIF(torch.autograd.Function):
         x, ckpt = ctx.saved_tensors
         beta, th, subtract, detach_reset, surrogate, kernels, input_scale = ctx.cfg
         steps, n = x.shape[0], ckpt.shape[1]
-        # the fused path's block of steps: its gradient crosses block boundaries with a different rounding
-        block = max(1, min(steps, lif_fused.BLOCK_BYTES // max(1, n * x.element_size())))
+        block = lif_fused.block_steps(steps, n * x.element_size())  # the fused path's blocks: the same rounding
         grad_x = storage_pool.reusable(x.shape, x)
         grad_mem0 = x.new_empty(ctx.mem_shape)
         no_rows, no_row = np.zeros((1, 1), np.float32), np.zeros(1, np.float32)  # stand-ins for absent gradients
         gs = no_rows if grad_spikes is None else grad_spikes.contiguous().view(steps, -1).numpy()
         gm = no_row if grad_mem is None else grad_mem.contiguous().reshape(-1).numpy()
         kind, lo, hi, c1, c2 = surrogate_args(kernels, surrogate)
-        launch(kernels, "lif_backward", x.view(steps, -1).numpy(), ckpt.numpy(), gs,
+        _launch(kernels, "lif_backward", x.view(steps, -1).numpy(), ckpt.numpy(), gs,
                 grad_spikes is not None, gm, grad_mem is not None, grad_x.view(steps, -1).numpy(),
                 grad_mem0.view(-1).numpy(), *f32(beta, th, lif_fused.next_up(th, torch.float32)), subtract,
                 detach_reset, kind, lo, hi, c1, c2, block, kernels.CHUNK, *f32(input_scale), input_scale != 1.0)

@@ -13,7 +13,7 @@ from torch import Tensor
 from . import hugepages, storage_pool
 from .surrogate import Surrogate, open_interval_mask
 
-__all__ = ["FusedLIF", "run_forward", "next_up", "SAVE_LIMIT_BYTES", "BLOCK_BYTES"]
+__all__ = ["FusedLIF", "run_forward", "next_up", "block_steps", "SAVE_LIMIT_BYTES", "BLOCK_BYTES"]
 
 #: Sequences whose membrane history is at most this large keep it for the backward pass; longer ones keep one
 #: checkpoint per block and recompute the block (two kernels per step) instead of allocating, and page-faulting in,
@@ -21,6 +21,13 @@ __all__ = ["FusedLIF", "run_forward", "next_up", "SAVE_LIMIT_BYTES", "BLOCK_BYTE
 SAVE_LIMIT_BYTES = 8 << 20
 #: Bytes per block of steps that the vectorised parts of forward and backward process at once (stays in cache).
 BLOCK_BYTES = 2 << 20
+
+
+def block_steps(steps: int, step_bytes: int) -> int:
+    """Steps per block of a ``steps``-long sequence whose step is ``step_bytes`` large: the blocks the fused loops
+    process at once. The backward's gradient crosses a block boundary with another rounding than inside a block, so
+    every kernel that reproduces this path's gradients uses the same blocks."""
+    return max(1, min(steps, BLOCK_BYTES // max(1, step_bytes)))
 
 
 @functools.lru_cache(maxsize=64)
@@ -50,7 +57,7 @@ def run_forward(x: Tensor, mem0: Tensor, beta: float, threshold: float, subtract
     """The forward time loop: spikes ``[T, ...]``, the last membrane, what the backward pass needs (the membrane
     history with ``mem0`` as row 0 when small, else the membrane entering each block) and the block layout."""
     steps, step_bytes = x.shape[0], max(1, mem0.numel() * x.element_size())
-    block = max(1, min(steps, BLOCK_BYTES // step_bytes))
+    block = block_steps(steps, step_bytes)
     keep_all = for_backward and (steps + 1) * step_bytes <= SAVE_LIMIT_BYTES
     # huge pages when large (its first write would page-fault), and for training a storage of an earlier call that
     # nothing refers to any more (storage_pool.reusable), whose pages are already mapped

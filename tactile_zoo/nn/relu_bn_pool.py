@@ -32,7 +32,6 @@ from torch import Tensor
 
 from . import backend as switch
 from .hugepages import empty
-from .lif_compiled import launch
 
 __all__ = ["relu_bn_pool", "fusable"]
 
@@ -62,7 +61,7 @@ def relu_bn_pool(x: Tensor, weight: Tensor, bias: Tensor, eps: float) -> tuple[T
 
 
 def _run(name: str, batch: int, *args: Any) -> None:
-    launch(switch.bn_pool_kernels(), name, *args, serial=batch == 1)
+    switch.launch(switch.bn_pool_kernels(), name, *args, serial=batch == 1)
 
 
 class _ReLUBNPool(torch.autograd.Function):

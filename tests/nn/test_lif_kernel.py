@@ -15,7 +15,6 @@ import pytest
 import torch
 
 import tactile_zoo.nn.lif as lif_module
-import tactile_zoo.nn.lif_compiled as compiled
 import tactile_zoo.nn.lif_fused as fused
 from tactile_zoo.errors import ConfigError
 from tactile_zoo.nn import backend
@@ -213,10 +212,10 @@ def test_threads_follow_torch(monkeypatch: pytest.MonkeyPatch) -> None:
     kernels, before = backend.lif_kernels(), torch.get_num_threads()
     try:
         torch.set_num_threads(1)
-        compiled._kernel_threads(kernels)
+        backend._kernel_threads(kernels)
         assert numba.get_num_threads() == 1
         torch.set_num_threads(64)  # more than numba's pool: capped there
-        compiled._kernel_threads(kernels)
+        backend._kernel_threads(kernels)
         assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS
     finally:
         torch.set_num_threads(before)
