@@ -25,12 +25,17 @@ recurrence:
     hidden convolution to the input side's, then 7 in-place or ``out=`` ops, no autograd graph. Its hand-written
     backward walks the steps in reverse: the gate derivatives, the kernel gradient (one product) and the gradient
     of ``h_{t-1}`` (one product and a scatter-add, the transpose of the gather). Without gradients (inference) the
-    same loop runs on reused scratch tensors. The input-side convolution runs channels-last, where oneDNN's CPU
-    backward is about 2x faster on these grids. Measured on one CPU thread, the two-layer 16-channel model on a
-    9x13 grid, B = 32, T = 100: 2.15 s forward + backward (0.64 s forward alone), against 2.29 s for the previous
-    per-step ``conv2d`` version and 2.31 s for the ``"autograd"`` backend. The matrix products dominate: about 65
-    GFLOP, whose floor at the ~60 GFLOP/s one core reaches at these sizes is about 1.1 s; the rest is memory-bound
-    element-wise work and the gather/scatter.
+    same loop runs on reused scratch tensors. On CPU float32/float64 the gather and the scatter-add are numba's
+    shifted row copies and adds (:mod:`tactile_zoo.nn._kernels.convlstm`; ``index_select``/``index_add_``
+    elsewhere, with the same bits), and the large buffers come from :mod:`~tactile_zoo.nn.storage_pool`: together
+    1.2-1.3x a training step (performance round 5), with every number unchanged. The gates keep the strides of the
+    input side's channels-last output: a contiguous gate buffer would be faster for the element-wise ops, but the
+    products would then write a transposed output, a different BLAS kernel with different rounding. The input-side
+    convolution runs channels-last, where oneDNN's CPU backward is about 2x faster on these grids. Measured on one
+    CPU thread, the two-layer 16-channel model on a 9x13 grid, B = 32, T = 100: 2.15 s forward + backward (0.64 s
+    forward alone), against 2.29 s for the previous per-step ``conv2d`` version and 2.31 s for the ``"autograd"``
+    backend. The matrix products dominate: about 65 GFLOP, whose floor at the ~60 GFLOP/s one core reaches at these
+    sizes is about 1.1 s; the rest is memory-bound element-wise work and the gather/scatter.
 ``"autograd"``
     the same update written with ordinary differentiable ops, stepped in Python: the reference the fused backend
     is tested against, and the path for double backward.
@@ -53,6 +58,10 @@ recurrence:
     What it does not touch bounds the gain: the three matrix products per step and the input-side convolution
     (oneDNN, above all its backward) are most of the time; the element-wise work, gather and scatter-add it
     replaces took about 0.5 s of ``"fused"``'s forward + backward and take about 0.26 s here (cProfile, one run).
+    Since performance round 5 it reads ``xz`` as the convolution's view (it enters only the products, as their bias)
+    and writes the gradient back in the convolution's channels-last layout one step at a time, where it used to copy
+    both whole tensors through a transpose (about 0.2 s of a 0.85 s training step); its buffers are pooled. Its
+    numbers did not change (tests/nn/test_convlstm_kernel.py holds the copying version's bits).
 
 Initialisation (``init``): ``"keras"`` (default) follows Keras' ``ConvLSTM2D`` defaults: Glorot-uniform input
 kernels, orthogonal recurrent kernels, zero biases except 1 on the forget gate (``unit_forget_bias``). ``"torch"``
@@ -74,6 +83,7 @@ from ..errors import ConfigError
 from . import backend as switch
 from .backend import ConvLSTMBackend
 from .convlstm_compiled import CompiledRecurrence, compiled_applies, compiled_recurrence
+from .storage_pool import reusable, reusable_like
 
 __all__ = ["ConvLSTMCell", "ConvLSTM", "ConvLSTMConfig", "BACKENDS", "INITS"]
 
@@ -112,34 +122,75 @@ def _tap_index(batch: int, height: int, width: int, kernel: int) -> Tensor:
     return idx.reshape(-1)
 
 
-def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, idx: Tensor, keep: bool
+class _Taps:
+    """The im2col gather of a state and its transpose, for one grid: numba's shifted row copies and adds
+    (:func:`~tactile_zoo.nn._kernels.convlstm.im2col_rows`, ``col2im_rows``) on plain CPU float32/float64 tensors
+    where numba is installed, ``index_select`` / ``index_add_`` with :func:`_tap_index` elsewhere. Both give the same
+    values bit for bit: the gather is a copy, and the kernel adds each position's taps in the index's order."""
+
+    def __init__(self, grid: tuple[int, int, int], kernel: int, like: Tensor, *tensors: Tensor) -> None:
+        self.grid, self.kernel = grid, kernel
+        self.kern = _kernels_for(like, *tensors)
+        self.idx = _tap_index(*grid, kernel).to(like.device) if self.kern is None else None
+
+    def gather(self, rows: Tensor, cols: Tensor) -> None:
+        """``rows (h, N + 1)`` (the last column 0) -> ``cols (h*k*k, N)``, the im2col matrix of ``rows[:, :N]``."""
+        if self.kern is None:
+            torch.index_select(rows, 1, self.idx, out=cols.view(rows.shape[0], -1))
+        else:
+            self.kern.im2col_rows(rows.numpy(), cols.numpy(), *self.grid, self.kernel)
+
+    def scatter(self, d_cols: Tensor, out: Tensor) -> None:
+        """``out[:, :N]`` (``out (h, N + 1)``) becomes the transpose of the gather applied to ``d_cols``, which
+        may be overwritten."""
+        if self.kern is None:
+            out.zero_().index_add_(1, self.idx, d_cols.view(out.shape[0], -1))
+        else:
+            self.kern.col2im_rows(d_cols.numpy(), out.numpy(), *self.grid, self.kernel)
+
+
+def _kernels_for(*tensors: Tensor) -> Any:
+    """The numba kernel module where it runs on ``tensors`` (:func:`compiled_applies`, and numba installed), else
+    ``None``."""
+    if not compiled_applies(*tensors):
+        return None
+    try:
+        return switch.convlstm_kernels()
+    except ImportError:
+        return None
+
+
+def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, taps: _Taps, keep: bool
                 ) -> tuple[Tensor, Tensor, tuple[Tensor, Tensor, Tensor] | None]:
     """The time loop without autograd, channel-major: ``xz (T, 4h, B*H*W)`` (the input side's pre-activations),
-    ``h0, c0 (h, B*H*W)``, ``idx`` from :func:`_tap_index` -> ``hbuf (T+1, h, B*H*W + 1)`` (``hbuf[t, :, :-1]`` is
+    ``h0, c0 (h, B*H*W)``, the grid's :class:`_Taps` -> ``hbuf (T+1, h, B*H*W + 1)`` (``hbuf[t, :, :-1]`` is
     ``h_t``, ``hbuf[0]`` holds ``h0``, the last column stays 0) and ``c_T (h, B*H*W)``.
 
-    A step is one gather and one matrix product: ``index_select`` along each channel's row builds the im2col matrix
-    ``(h*k*k, B*H*W)`` of ``h_{t-1}`` (taps outside the grid read the zero column), and ``addmm`` adds the kernel
-    times it to ``xz_t``, writing the pre-activations straight into the gate buffer. Channel-major keeps each gate a
-    contiguous block for the element-wise updates, and the whole batch is one ``4h x h*k*k x B*H*W`` product: on
-    these small grids much faster on CPU than a ``conv2d`` per step.
+    A step is one gather and one matrix product: the gather builds the im2col matrix ``(h*k*k, B*H*W)`` of
+    ``h_{t-1}`` (taps outside the grid read zeros), and ``addmm`` adds the kernel times it to ``xz_t``, writing the
+    pre-activations straight into the gate buffer. Channel-major keeps each gate a contiguous block for the
+    element-wise updates, and the whole batch is one ``4h x h*k*k x B*H*W`` product: on these small grids much faster
+    on CPU than a ``conv2d`` per step.
     With ``keep`` the activated gates, cell states and ``tanh(c)`` of every step stay in buffers for the backward;
-    without it (inference) per-step scratch tensors are reused.
+    without it (inference) per-step scratch tensors are reused. The large buffers come from the storage pool: a
+    training step rewrites memory already mapped instead of faulting in about 80 MB of fresh pages per layer.
     """
     steps, four_h, cols_n = xz.shape
     hid = four_h // 4
     kernel = weight.reshape(four_h, -1)  # (4h, h*k*k)
-    hbuf = xz.new_zeros(steps + 1, hid, cols_n + 1)
+    hbuf = reusable((steps + 1, hid, cols_n + 1), xz)  # every position is written below or by the loop
     hbuf[0, :, :cols_n] = h0
+    hbuf[:, :, cols_n] = 0
     if keep:
-        gates, cs, tcs = torch.empty_like(xz), xz.new_empty(steps + 1, hid, cols_n), xz.new_empty(steps, hid, cols_n)
+        gates, cs = reusable_like(xz), reusable((steps + 1, hid, cols_n), xz)
+        tcs = reusable((steps, hid, cols_n), xz)
         cs[0] = c0
     else:
         z_buf, c, tc = torch.empty_like(xz[0]), c0.clone(), torch.empty_like(c0)
-    cols = xz.new_empty(kernel.shape[1], cols_n)  # reused: a fresh multi-megabyte tensor per step costs page faults
+    cols = reusable((kernel.shape[1], cols_n), xz)  # a fresh multi-megabyte tensor per call costs page faults
     for t in range(steps):
         z = gates[t] if keep else z_buf
-        torch.index_select(hbuf[t], 1, idx, out=cols.view(hid, -1))  # (h*k*k, B*H*W)
+        taps.gather(hbuf[t], cols)  # (h*k*k, B*H*W)
         torch.addmm(xz[t], kernel, cols, out=z)  # (4h, B*H*W) pre-activations
         z[: 3 * hid].sigmoid_()
         z[3 * hid:].tanh_()
@@ -157,28 +208,32 @@ def _recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, idx: Tensor,
 
 class _FusedRecurrence(torch.autograd.Function):
     """The ConvLSTM time loop as one autograd node, channel-major: ``(xz (T, 4h, B*H*W), W_h (4h, h, k, k),
-    h0, c0 (h, B*H*W), idx) -> (hs (T, h, B*H*W), c_T (h, B*H*W))``."""
+    h0, c0 (h, B*H*W), grid (B, H, W)) -> (hs (T, h, B*H*W), c_T (h, B*H*W))``."""
 
     @staticmethod
-    def forward(ctx: Any, xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, idx: Tensor) -> tuple[Tensor, Tensor]:
-        hbuf, c_last, saved = _recurrence(xz, weight, h0, c0, idx, keep=True)
+    def forward(ctx: Any, xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, grid: tuple[int, int, int]
+                ) -> tuple[Tensor, Tensor]:
+        taps = _Taps(grid, weight.shape[-1], xz, weight, h0, c0)
+        hbuf, c_last, saved = _recurrence(xz, weight, h0, c0, taps, keep=True)
         # the returned hs is a view of hbuf: the version counter they share guards against in-place edits
-        ctx.save_for_backward(weight, hbuf, idx, *saved)
+        ctx.save_for_backward(weight, hbuf, *saved)
+        ctx.taps = taps
         return hbuf[1:, :, :-1], c_last
 
     @staticmethod
     @once_differentiable
     def backward(ctx: Any, d_hs: Tensor, d_c_last: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor, None]:
-        weight, hbuf, idx, gates, cs, tcs = ctx.saved_tensors
+        weight, hbuf, gates, cs, tcs = ctx.saved_tensors
+        taps = ctx.taps
         steps, four_h, cols_n = gates.shape
         hid = four_h // 4
         kernel = weight.reshape(four_h, -1)  # (4h, h*k*k)
         d_kernel = torch.zeros_like(kernel)
-        d_z = torch.empty_like(gates)  # (T, 4h, B*H*W): gradient of the pre-activations = gradient of xz
+        d_z = reusable_like(gates)  # (T, 4h, B*H*W): gradient of the pre-activations = gradient of xz
         d_hbuf = hbuf.new_zeros(hid, cols_n + 1)  # gradient of h_{t-1}, scattered back from the im2col columns
         d_h = d_hbuf[:, :cols_n]
         d_c = d_c_last.clone()
-        cols, d_cols = gates.new_empty(kernel.shape[1], cols_n), gates.new_empty(kernel.shape[1], cols_n)
+        cols, d_cols = reusable((kernel.shape[1], cols_n), gates), reusable((kernel.shape[1], cols_n), gates)
         for t in reversed(range(steps)):
             dh = d_h + d_hs[t]
             i, f, o, g = gates[t].split(hid)
@@ -195,11 +250,11 @@ class _FusedRecurrence(torch.autograd.Function):
             d_z[t][: 3 * hid].mul_(torch.addcmul(sig, sig, sig, value=-1.0))  # sigmoid' = s (1 - s)
             dg.addcmul_(dg * g, g, value=-1.0)  # tanh' = 1 - g^2
             # the kernel's gradient needs h_{t-1}'s im2col matrix again: one gather, cheaper than keeping T of them
-            torch.index_select(hbuf[t], 1, idx, out=cols.view(hid, -1))
+            taps.gather(hbuf[t], cols)
             d_kernel.addmm_(d_z[t], cols.t())
-            # on to h_{t-1}: the transpose of the gather is a scatter-add of the im2col matrix's gradient
+            # on to h_{t-1}: the transpose of the gather, a scatter-add of the im2col matrix's gradient
             torch.mm(kernel.t(), d_z[t], out=d_cols)  # (h*k*k, B*H*W)
-            d_hbuf.zero_().index_add_(1, idx, d_cols.view(hid, -1))
+            taps.scatter(d_cols, d_hbuf)
         return d_z, d_kernel.view_as(weight), d_h.clone(), d_c, None
 
 
@@ -272,7 +327,9 @@ class ConvLSTMCell(nn.Module):
             h_cm, c_cm = (v.transpose(0, 1).reshape(self.hidden_channels, -1) for v in (h, c))
             train = torch.is_grad_enabled() and any(v.requires_grad for v in (xz, weight, h, c))
             if self.backend is ConvLSTMBackend.COMPILED and compiled_applies(xz_cm, weight, h_cm, c_cm):
-                xz_cm, h_cm, c_cm = xz_cm.contiguous(), h_cm.contiguous(), c_cm.contiguous()  # numba reads raw rows
+                # numba reads the states' raw rows; xz only enters the products (as a bias: a copy), so it stays the
+                # convolution's view, and its gradient goes back in the convolution's layout: no full-size transposes
+                h_cm, c_cm = h_cm.contiguous(), c_cm.contiguous()
                 grid = (b, height, width)
                 if train:
                     hs, c = CompiledRecurrence.apply(xz_cm, weight, h_cm, c_cm, grid)
@@ -280,11 +337,10 @@ class ConvLSTMCell(nn.Module):
                     hs, c = compiled_recurrence(xz_cm, weight, h_cm, c_cm, grid, keep=False)[:2]
                     hs = hs[1:]
             elif train:
-                idx = _tap_index(b, height, width, weight.shape[-1]).to(xz.device)
-                hs, c = _FusedRecurrence.apply(xz_cm, weight, h_cm, c_cm, idx)  # (T, h, B*H*W), (h, B*H*W)
+                hs, c = _FusedRecurrence.apply(xz_cm, weight, h_cm, c_cm, (b, height, width))  # (T, h, N), (h, N)
             else:  # inference: the same loop without buffers for a backward pass
-                idx = _tap_index(b, height, width, weight.shape[-1]).to(xz.device)
-                hbuf, c, _ = _recurrence(xz_cm, weight, h_cm, c_cm, idx, keep=False)
+                taps = _Taps((b, height, width), weight.shape[-1], xz_cm, weight, h_cm, c_cm)
+                hbuf, c, _ = _recurrence(xz_cm, weight, h_cm, c_cm, taps, keep=False)
                 hs = hbuf[1:, :, :-1]
             hs = hs.unflatten(2, (b, height, width)).transpose(1, 2)  # (T, B, hidden, H, W), a view
             c = c.unflatten(1, (b, height, width)).transpose(0, 1)  # (B, hidden, H, W)

@@ -12,6 +12,7 @@ from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
 from . import backend
+from .storage_pool import reusable
 
 __all__ = ["CompiledRecurrence", "compiled_applies", "compiled_recurrence"]
 
@@ -42,15 +43,15 @@ def compiled_recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, grid
     hid, k = four_h // 4, weight.shape[-1]
     kernel = weight.detach().reshape(four_h, -1)  # (4h, h*k*k)
     xz = xz.detach()
-    hbuf = xz.new_empty(steps + 1, hid, cols_n)
+    hbuf = reusable((steps + 1, hid, cols_n), xz)  # pooled storages (contiguous, as before): no page faults
     hbuf[0] = h0
-    cols = xz.new_empty(kernel.shape[1], cols_n)  # reused: the kernels write every position of it each step
+    cols = reusable((kernel.shape[1], cols_n), xz)  # reused: the kernels write every position of it each step
     if keep:
-        gates, cs, tcs = torch.empty_like(xz), xz.new_empty(steps + 1, hid, cols_n), xz.new_empty(steps, hid, cols_n)
+        gates, cs, tcs = (reusable(shape, xz) for shape in (xz.shape, (steps + 1, hid, cols_n), (steps, hid, cols_n)))
         cs[0] = c0
         gates_np, cs_np, tcs_np = gates.numpy(), cs.numpy(), tcs.numpy()
     else:
-        gates, c, tc = torch.empty_like(xz[0]), c0.detach().clone(), xz.new_empty(hid, cols_n)
+        gates, c, tc = xz.new_empty(four_h, cols_n), c0.detach().clone(), xz.new_empty(hid, cols_n)
         gates_np, c_np, tc_np = gates.numpy(), c.numpy(), tc.numpy()
     hbuf_np, cols_np = hbuf.numpy(), cols.numpy()
     for j in range(hid):
@@ -70,13 +71,14 @@ def compiled_recurrence(xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, grid
 class CompiledRecurrence(torch.autograd.Function):
     """The fused autograd Function (``tactile_zoo.nn.convlstm._FusedRecurrence``) with the per-step element-wise
     work, gather and scatter-add in numba kernels: ``(xz (T, 4h, N), W_h (4h, h, k, k), h0, c0 (h, N), grid (B, H,
-    W)) -> (hs (T, h, N), c_T (h, N))``, CPU only, contiguous float32 or float64 tensors."""
+    W)) -> (hs (T, h, N), c_T (h, N))``, CPU only, float32 or float64; ``h0`` and ``c0`` contiguous, ``xz`` any layout
+    (its gradient comes back in the same strides)."""
 
     @staticmethod
     def forward(ctx: Any, xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, grid: tuple[int, int, int]
                 ) -> tuple[Tensor, Tensor]:
         hbuf, c_last, saved = compiled_recurrence(xz, weight, h0, c0, grid, keep=True)
-        ctx.grid = grid
+        ctx.grid, ctx.xz_strides = grid, torch.empty_like(xz, device="meta").stride()  # xz's layout, no memory
         ctx.save_for_backward(weight, hbuf, *saved)
         return hbuf[1:], c_last
 
@@ -90,11 +92,13 @@ class CompiledRecurrence(torch.autograd.Function):
         hid, k = four_h // 4, weight.shape[-1]
         kernel = weight.detach().reshape(four_h, -1)  # (4h, h*k*k)
         d_kernel = torch.zeros_like(kernel)
-        d_z = torch.empty_like(gates)  # (T, 4h, N): gradient of the pre-activations = gradient of xz
+        d_z = gates.new_empty(four_h, cols_n)  # one step's gradient of the pre-activations, channel-major
+        # all steps' gradients, in xz's own layout (the convolution's, channels-last)
+        d_xz = reusable((gates.numel(),), gates).as_strided(gates.shape, ctx.xz_strides)
         d_c = d_c_last.detach().clone(memory_format=torch.contiguous_format)
         # a zero gradient arrives as an expanded zero (not writable, not contiguous): give the kernel real zeros
         d_hs = d_hs.detach().contiguous()
-        cols, d_cols = gates.new_empty(kernel.shape[1], cols_n), gates.new_empty(kernel.shape[1], cols_n)
+        cols, d_cols = reusable((kernel.shape[1], cols_n), gates), reusable((kernel.shape[1], cols_n), gates)
         dh = gates.new_empty(cols_n)
         d_hs_np, d_c_np, d_z_np, dh_np = d_hs.numpy(), d_c.numpy(), d_z.numpy(), dh.numpy()
         gates_np, cs_np, tcs_np, hbuf_np = gates.numpy(), cs.numpy(), tcs.numpy(), hbuf.numpy()
@@ -102,11 +106,12 @@ class CompiledRecurrence(torch.autograd.Function):
         for t in reversed(range(steps)):
             # gate derivatives of step t (dL/dh_t summed from step t+1's im2col gradient), im2col of h_{t-1}
             kern.backward_step(gates_np[t], cs_np[t], tcs_np[t], d_hs_np[t], d_cols_np, t + 1 < steps, d_c_np,
-                               d_z_np[t], dh_np, hbuf_np[t], cols_np, True, *grid, k)
-            d_kernel.addmm_(d_z[t], cols.t())
-            torch.mm(kernel.t(), d_z[t], out=d_cols)  # (h*k*k, N): gradient of h_{t-1}'s im2col matrix
+                               d_z_np, dh_np, hbuf_np[t], cols_np, True, *grid, k)
+            d_kernel.addmm_(d_z, cols.t())
+            torch.mm(kernel.t(), d_z, out=d_cols)  # (h*k*k, N): gradient of h_{t-1}'s im2col matrix
+            d_xz[t] = d_z  # a transpose of one step, in cache: much cheaper than one over all steps afterwards
         d_h0 = gates.new_zeros(hid, cols_n)
         d_h0_np = d_h0.numpy()
         for j in range(hid):
             kern.col2im(d_cols_np, d_h0_np[j], j, *grid, k)
-        return d_z, d_kernel.view_as(weight), d_h0, d_c, None
+        return d_xz, d_kernel.view_as(weight), d_h0, d_c, None

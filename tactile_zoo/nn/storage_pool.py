@@ -20,7 +20,7 @@ from torch import Tensor
 
 from .hugepages import empty
 
-__all__ = ["reusable", "POOL_BYTES", "POOL_MIN_BYTES", "pool_stats", "clear_pool"]
+__all__ = ["reusable", "reusable_like", "POOL_BYTES", "POOL_MIN_BYTES", "pool_stats", "clear_pool"]
 
 #: The most storage the pool of :func:`reusable` holds, in use and idle together (0 turns the pool off): a request
 #: that would go over it evicts idle storages, least recently used first, and gets an unpooled tensor if that is not
@@ -88,6 +88,14 @@ def reusable(shape: Sequence[int], like: Tensor) -> Tensor:
         return empty(shape, like)
     out = _POOL.take(shape, like, nbytes)
     return empty(shape, like) if out is None else out
+
+
+def reusable_like(x: Tensor) -> Tensor:
+    """:func:`reusable` with ``torch.empty_like(x)``'s strides (those of ``x`` where it is dense, as a permuted view of
+    a channels-last tensor is): for outputs whose layout matters beyond speed, such as a product's output, whose
+    layout picks the BLAS kernel and with it the rounding."""
+    strides = torch.empty_like(x, device="meta").stride()  # a meta tensor: the layout, without memory
+    return reusable((x.numel(),), x).as_strided(x.shape, strides)
 
 
 def pool_stats() -> dict[str, int]:

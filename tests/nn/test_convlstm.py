@@ -114,9 +114,8 @@ def test_fused_time_loop_gradcheck_on_every_input() -> None:
     w = (0.5 * torch.randn(4 * hid, hid, 3, 3, dtype=torch.float64)).requires_grad_()
     h0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
     c0 = torch.randn(hid, cols, dtype=torch.float64, requires_grad=True)
-    idx = _tap_index(b, height, width, 3)
     # both outputs, the whole hidden sequence and the last cell state, carry gradient
-    assert torch.autograd.gradcheck(lambda *a: _FusedRecurrence.apply(*a, idx), (xz, w, h0, c0))
+    assert torch.autograd.gradcheck(lambda *a: _FusedRecurrence.apply(*a, (b, height, width)), (xz, w, h0, c0))
 
 
 def test_tap_index_gathers_the_im2col_matrix_of_a_same_convolution() -> None:

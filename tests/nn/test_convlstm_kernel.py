@@ -144,3 +144,69 @@ def test_the_default_fused_loop_reads_the_input_convolution_in_place(monkeypatch
         lambda _m, _i, out: seen.__setitem__("conv", out.untyped_storage().data_ptr()))
     cell(torch.randn(2, 5, 2, 3, 4, requires_grad=True))[0].sum().backward()
     assert seen["loop"] == seen["conv"]
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_fused_loop_gives_the_same_bits_with_numba_taps_as_with_the_index(monkeypatch: pytest.MonkeyPatch,
+                                                                               dtype: torch.dtype) -> None:
+    """The default loop gathers and scatters with the numba kernels where they run; the numbers must be the index
+    path's bit for bit (the committed revision-1 cells depend on it), on the model's layout: ``xz`` a transposed
+    view of a channels-last convolution output, the gradient arriving in the same layout."""
+    import tactile_zoo.nn.convlstm as module
+
+    torch.manual_seed(11)
+    steps, hid, grid = 6, 4, (3, 4, 5)
+    n = grid[0] * grid[1] * grid[2]
+    base = torch.randn(steps, n, 4 * hid, dtype=dtype)  # (T, B*H*W, 4h): channels-last memory
+    w = 0.4 * torch.randn(4 * hid, hid, 3, 3, dtype=dtype)
+    h0, c0 = torch.randn(hid, n, dtype=dtype), torch.randn(hid, n, dtype=dtype)
+    d_hs = torch.randn(steps, hid, n, dtype=dtype)
+
+    def run() -> list[torch.Tensor]:
+        leaves = [v.clone().requires_grad_() for v in (base, w, h0, c0)]
+        hs, c = module._FusedRecurrence.apply(leaves[0].transpose(1, 2), *leaves[1:], grid)
+        torch.autograd.backward([hs, c], [d_hs, torch.ones_like(c)])
+        return [hs.detach(), c.detach(), *(v.grad for v in leaves)]  # views: the pool must not reuse them
+
+    assert module._Taps(grid, 3, base, w).kern is not None
+    with_kernels = run()
+    again = run()  # a second call reuses the pooled buffers: the first call's outputs must be untouched
+    monkeypatch.setattr(module, "_kernels_for", lambda *tensors: None)
+    assert module._Taps(grid, 3, base, w).kern is None
+    with_index = run()
+    for a, b, c in zip(with_kernels, again, with_index):
+        assert torch.equal(a, b) and torch.equal(a, c)
+
+
+def test_the_compiled_loop_gives_the_same_bits_on_the_convolutions_layout(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Revision 2 once copied ``xz`` to a contiguous channel-major tensor, and its gradient came back in that layout,
+    two full-size transposes a step. It now reads the convolution's view and returns the gradient in the
+    convolution's layout; every output and gradient of a cell must stay what the copying version computed."""
+    import tactile_zoo.nn.convlstm_compiled as module
+
+    torch.manual_seed(12)
+    cell = ConvLSTMCell(2, 4, backend="compiled")
+    x = torch.randn(3, 6, 2, 4, 5)
+
+    def run() -> list[torch.Tensor]:
+        xi = x.clone().requires_grad_()
+        hs, (h, c) = cell(xi)
+        (hs * torch.linspace(-1, 1, hs.numel()).view_as(hs)).sum().add(c.sin().sum()).backward()
+        grads = [xi.grad, *(p.grad.clone() for p in cell.parameters())]
+        cell.zero_grad()
+        return [hs.detach(), c.detach(), *grads]
+
+    seen: list[tuple[bool, tuple[int, ...]]] = []
+    apply = module.CompiledRecurrence.apply
+
+    def spy(xz: torch.Tensor, *rest: object) -> object:
+        seen.append((xz.is_contiguous(), xz.stride()))
+        return apply(xz, *rest)
+
+    monkeypatch.setattr(module.CompiledRecurrence, "apply", spy)
+    on_view = run()
+    assert seen and not seen[-1][0]  # the loop got the convolution's strided view, not a copy
+    monkeypatch.setattr(module.CompiledRecurrence, "apply", lambda xz, *rest: apply(xz.contiguous(), *rest))
+    copied = run()
+    for a, b in zip(on_view, copied):
+        assert torch.equal(a, b)

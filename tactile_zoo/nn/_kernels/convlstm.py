@@ -38,7 +38,7 @@ from numba.extending import intrinsic, overload
 
 from .jit import fma, jit
 
-__all__ = ["forward_step", "backward_step", "im2col", "col2im"]
+__all__ = ["forward_step", "backward_step", "im2col", "col2im", "im2col_rows", "col2im_rows"]
 
 _F = np.float32
 
@@ -195,6 +195,29 @@ def col2im(d_cols: np.ndarray, out: np.ndarray, channel: int, batch: int, height
 
 im2col = jit(im2col)
 col2im = jit(col2im)
+
+
+@jit
+def im2col_rows(rows: np.ndarray, cols: np.ndarray, batch: int, height: int, width: int,
+                kernel: int) -> None:  # pragma: no cover - compiled
+    """:func:`im2col` of every channel in one call: ``rows (h, >= N)`` (a state, of which the first ``N`` columns
+    are read) -> ``cols (h*k*k, N)``. The fused loop's gather without its index: a copy, so the same values."""
+    n = cols.shape[1]
+    for j in range(rows.shape[0]):
+        im2col(rows[j, :n], cols, j, batch, height, width, kernel)
+
+
+@jit
+def col2im_rows(d_cols: np.ndarray, out: np.ndarray, batch: int, height: int, width: int,
+                kernel: int) -> None:  # pragma: no cover - compiled
+    """:func:`col2im` of every channel in one call, from zero: ``out[:, :N]`` becomes the transpose of the gather
+    applied to ``d_cols (h*k*k, N)``, summed tap by tap in the order of the fused loop's ``index_add_``; ``d_cols``'
+    outside positions are zeroed on the way."""
+    n = d_cols.shape[1]
+    for j in range(out.shape[0]):
+        row = out[j, :n]
+        row[:] = 0
+        col2im(d_cols, row, j, batch, height, width, kernel)
 
 
 # Row helpers: each is one loop over a row of N values that reads at most three rows and writes at most two, so
