@@ -55,8 +55,8 @@ READOUTS = ("gap", "taxels")
     **recipe_file("tactile_zoo", "convlstm"),
     causal=True,
     streaming=True,
-    # 2: the recurrence's numba kernels (backend "compiled"), selectable but not the default: it lost to "fused" in
-    # both runs that timed them side by side (vs_pinned.csv 13.42 s against 13.27 s; vs_fcddbe0.csv 18.97 s, 18.06 s)
+    # 2: the recurrence's numba kernels (backend "compiled"), selectable, 1.52x revision 1 since 2026-12-08
+    # (vs_fcddbe0_convlstm.csv); not the default until Table I has its cells (benchmarks/studies/convlstm-r2.yaml)
     revision=1,
     revisions={1: {"backend": "fused"}, 2: {"backend": "compiled"}},
 )
