@@ -35,12 +35,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from .common import REPO, BenchmarkSkipped, Context, data_root, model_recipe, write_csv
 
 NAME = "multibarrel_cost"
 TITLE = "multi-barrel SNN: CPU seconds per `zoo` epoch on Ev-Objects and the cell's CPU-hours; peak RSS"
 COLUMNS = ("revision", "round", "epoch", "wall_s", "cpu_s", "cpu_hours", "max_epochs", "batch_size",
-           "micro_batch_size", "n_train", "n_val", "peak_rss_mb", "load", "target")
+           "micro_batch_size", "n_train", "n_val", "peak_rss_mb", "load", "target", "cpu_capability")
 TARGET = "a cell <= 4 CPU-hours, peak <= 16 GB (issue 53)"
 
 
@@ -96,6 +98,7 @@ def run(ctx: Context, epochs: int | None = None, revisions: list[int] | None = N
     env = {**os.environ, "OMP_NUM_THREADS": "1",
            "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
     rows: list[dict[str, Any]] = []
+    isa = torch.backends.cpu.get_cpu_capability()  # the SIMD level ATen dispatches to: epochs differ by it (AVX2/512)
     last: dict[int, list[float]] = {r: [] for r in revisions}
     peak: dict[int, float] = {r: 0.0 for r in revisions}
     for round_ in range(rounds):
@@ -109,7 +112,8 @@ def run(ctx: Context, epochs: int | None = None, revisions: list[int] | None = N
             out = json.loads(proc.stdout.strip().splitlines()[-1])
             load = f"{before} -> {_load()}"
             shared = {k: out[k] for k in ("max_epochs", "batch_size", "micro_batch_size", "n_train", "n_val")}
-            rows += [{"case": "epoch", "revision": revision, "round": round_, **e, **shared, "load": load}
+            rows += [{"case": "epoch", "revision": revision, "round": round_, **e, **shared, "load": load,
+                      "cpu_capability": isa}
                      for e in out["epochs"]]
             last[revision].append(out["epochs"][-1]["cpu_s"])
             peak[revision] = max(peak[revision], out["peak_rss_mb"])
@@ -119,8 +123,8 @@ def run(ctx: Context, epochs: int | None = None, revisions: list[int] | None = N
         cpu = statistics.median(last[revision])
         rows.append({"case": "cell", "revision": revision, "epoch": epochs, "cpu_s": cpu,
                      "cpu_hours": cpu * shared["max_epochs"] / 3600, **shared, "peak_rss_mb": peak[revision],
-                     "target": TARGET, "note": f"max_epochs x the median over {rounds} round(s) of the last of "
-                                               f"{epochs} measured epochs"})
+                     "target": TARGET, "cpu_capability": isa,
+                     "note": f"max_epochs x the median over {rounds} round(s) of the last of {epochs} measured epochs"})
         ctx.log(f"  revision {revision}: a cell {rows[-1]['cpu_hours']:.2f} CPU-hours; peak {peak[revision]:.0f} MB")
     return write_csv(ctx, NAME, COLUMNS, rows)
 
