@@ -28,7 +28,7 @@ recurrence:
     same loop runs on reused scratch tensors. On CPU float32/float64 the gather and the scatter-add are numba's
     shifted row copies and adds (:mod:`tactile_zoo.nn._kernels.convlstm`; ``index_select``/``index_add_``
     elsewhere, with the same bits), and the large buffers come from :mod:`~tactile_zoo.nn.storage_pool`: together
-    1.2-1.3x a training step (performance round 5), with every number unchanged. The gates keep the strides of the
+    about 1.2x a training step (performance round 5), with every number unchanged. The gates keep the strides of the
     input side's channels-last output: a contiguous gate buffer would be faster for the element-wise ops, but the
     products would then write a transposed output, a different BLAS kernel with different rounding. The input-side
     convolution runs channels-last, where oneDNN's CPU backward is about 2x faster on these grids. Measured on one
@@ -60,7 +60,7 @@ recurrence:
     replaces took about 0.5 s of ``"fused"``'s forward + backward and take about 0.26 s here (cProfile, one run).
     Since performance round 5 it reads ``xz`` as the convolution's view (it enters only the products, as their bias)
     and writes the gradient back in the convolution's channels-last layout one step at a time, where it used to copy
-    both whole tensors through a transpose (about 0.2 s of a 0.85 s training step); its buffers are pooled. Its
+    both whole tensors through a transpose (about 0.25 s of a 0.85 s training step); its buffers are pooled. Its
     numbers did not change (tests/nn/test_convlstm_kernel.py holds the copying version's bits).
 
 Initialisation (``init``): ``"keras"`` (default) follows Keras' ``ConvLSTM2D`` defaults: Glorot-uniform input
