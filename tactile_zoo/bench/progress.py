@@ -36,7 +36,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
-from .._files import atomic_write_text
+from .._files import atomic_write_text, torn_temporaries
 from ..engine.progress import format_seconds, interactive, make_bar
 
 __all__ = ["ProgressWriter", "add_listener", "remove_listener", "listening", "read_progress", "running_cells",
@@ -201,8 +201,12 @@ def running_cells(out: str | os.PathLike) -> list[dict[str, Any]]:
 
 
 def remove_progress(out: str | os.PathLike, cell_id: str) -> None:
-    with contextlib.suppress(OSError):
-        (progress_dir(out) / f"{cell_id}.json").unlink()
+    """Remove cell ``cell_id``'s progress file, and the temporary of any write to it that did not finish (a worker
+    stopped mid-write leaves one); call it only once nothing writes that file any more."""
+    folder, name = progress_dir(out), f"{cell_id}.json"
+    for path in (folder / name, *torn_temporaries(folder, name)):
+        with contextlib.suppress(OSError):
+            path.unlink()
 
 
 def _epoch_text(state: Mapping[str, Any], epoch: int | None = None, acc: Any = None, seconds: Any = None) -> str:

@@ -126,9 +126,14 @@ def test_report_lists_running_cells(tmp_path: Path, capsys: pytest.CaptureFixtur
     text = capsys.readouterr().out
     assert "running convlstm x sim_evtouch fold 0 seed 0: epoch 3/15 val_acc 0.412 41.2s, updated" in text
     assert f"(pid {os.getpid()} on " in text
+    torn = tmp_path / "progress" / ".convlstm__sim__f0__s0__h.json.0a1b2c3d4e5f.tmp"  # a write its worker never ended
+    other = tmp_path / "progress" / ".dcnn__sim__f0__s0__h.json.0a1b2c3d4e5f.tmp"  # another cell's: left alone
+    torn.write_text("{")
+    other.write_text("{")
     progress.remove_progress(tmp_path, "convlstm__sim__f0__s0__h")
     assert main(["report", str(tmp_path), "--running"]) == 0
     assert "no cell is running" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "progress").iterdir()) == [other.name]
 
 
 _WRITE_AND_EXIT = """
