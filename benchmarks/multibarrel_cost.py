@@ -35,8 +35,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from .common import REPO, BenchmarkSkipped, Context, data_root, model_recipe, write_csv
 
 NAME = "multibarrel_cost"
@@ -75,7 +73,8 @@ def _child(root: str, epochs: int, revision: int) -> dict[str, Any]:
             "max_epochs": model_recipe("multibarrel").max_epochs,  # the registered cell's (fit's is ``epochs``)
             "batch_size": result.recipe.batch_size,
             "micro_batch_size": result.recipe.micro_batch_size, "n_train": result.n_train, "n_val": result.n_val,
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "cpu_capability": torch.backends.cpu.get_cpu_capability()}  # ATen's SIMD level: epochs differ by it
 
 
 def _load() -> str:
@@ -98,7 +97,6 @@ def run(ctx: Context, epochs: int | None = None, revisions: list[int] | None = N
     env = {**os.environ, "OMP_NUM_THREADS": "1",
            "PYTHONPATH": os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])])}
     rows: list[dict[str, Any]] = []
-    isa = torch.backends.cpu.get_cpu_capability()  # the SIMD level ATen dispatches to: epochs differ by it (AVX2/512)
     last: dict[int, list[float]] = {r: [] for r in revisions}
     peak: dict[int, float] = {r: 0.0 for r in revisions}
     for round_ in range(rounds):
@@ -112,6 +110,7 @@ def run(ctx: Context, epochs: int | None = None, revisions: list[int] | None = N
             out = json.loads(proc.stdout.strip().splitlines()[-1])
             load = f"{before} -> {_load()}"
             shared = {k: out[k] for k in ("max_epochs", "batch_size", "micro_batch_size", "n_train", "n_val")}
+            isa = out["cpu_capability"]
             rows += [{"case": "epoch", "revision": revision, "round": round_, **e, **shared, "load": load,
                       "cpu_capability": isa}
                      for e in out["epochs"]]

@@ -12,7 +12,7 @@ from torch import Tensor, nn
 from torch.autograd.function import once_differentiable
 
 from . import backend
-from .storage_pool import reusable
+from .storage_pool import reusable, reusable_like
 
 __all__ = ["CompiledRecurrence", "compiled_applies", "compiled_recurrence"]
 
@@ -78,7 +78,7 @@ class CompiledRecurrence(torch.autograd.Function):
     def forward(ctx: Any, xz: Tensor, weight: Tensor, h0: Tensor, c0: Tensor, grid: tuple[int, int, int]
                 ) -> tuple[Tensor, Tensor]:
         hbuf, c_last, saved = compiled_recurrence(xz, weight, h0, c0, grid, keep=True)
-        ctx.grid, ctx.xz_strides = grid, torch.empty_like(xz, device="meta").stride()  # xz's layout, no memory
+        ctx.grid, ctx.xz_layout = grid, torch.empty_like(xz, device="meta")  # xz's shape and strides, no memory
         ctx.save_for_backward(weight, hbuf, *saved)
         return hbuf[1:], c_last
 
@@ -93,8 +93,7 @@ class CompiledRecurrence(torch.autograd.Function):
         kernel = weight.detach().reshape(four_h, -1)  # (4h, h*k*k)
         d_kernel = torch.zeros_like(kernel)
         d_z = gates.new_empty(four_h, cols_n)  # one step's gradient of the pre-activations, channel-major
-        # all steps' gradients, in xz's own layout (the convolution's, channels-last)
-        d_xz = reusable((gates.numel(),), gates).as_strided(gates.shape, ctx.xz_strides)
+        d_xz = reusable_like(ctx.xz_layout, gates)  # all steps' gradients, in xz's layout (the convolution's)
         d_c = d_c_last.detach().clone(memory_format=torch.contiguous_format)
         # a zero gradient arrives as an expanded zero (not writable, not contiguous): give the kernel real zeros
         d_hs = d_hs.detach().contiguous()

@@ -90,12 +90,13 @@ def reusable(shape: Sequence[int], like: Tensor) -> Tensor:
     return empty(shape, like) if out is None else out
 
 
-def reusable_like(x: Tensor) -> Tensor:
-    """:func:`reusable` with ``torch.empty_like(x)``'s strides (those of ``x`` where it is dense, as a permuted view of
-    a channels-last tensor is): for outputs whose layout matters beyond speed, such as a product's output, whose
-    layout picks the BLAS kernel and with it the rounding."""
+def reusable_like(x: Tensor, like: Tensor | None = None) -> Tensor:
+    """:func:`reusable` with ``torch.empty_like(x)``'s shape and strides (those of ``x`` where it is dense, as a
+    permuted view of a channels-last tensor is), on ``like``'s device and dtype (default ``x``'s; ``x`` may then be a
+    meta tensor that only records a layout). For outputs whose layout matters beyond speed, such as a product's
+    output, whose layout picks the BLAS kernel and with it the rounding."""
     strides = torch.empty_like(x, device="meta").stride()  # a meta tensor: the layout, without memory
-    return reusable((x.numel(),), x).as_strided(x.shape, strides)
+    return reusable((x.numel(),), x if like is None else like).as_strided(x.shape, strides)
 
 
 def pool_stats() -> dict[str, int]:

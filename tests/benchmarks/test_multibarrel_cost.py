@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import torch
 
 REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:  # benchmarks/ is a top-level package of the checkout, not of the installed wheel
@@ -26,7 +27,7 @@ def test_the_cell_costs_its_epochs_times_the_last_measured_epoch(tmp_path: Path,
     (tmp_path / "data" / "ev_objects" / "raw" / "Ev-Objects.zip").touch()
     answer = {"epochs": [{"epoch": 1, "wall_s": 120.0, "cpu_s": 90.0}, {"epoch": 2, "wall_s": 80.0, "cpu_s": 72.0}],
               "max_epochs": 200, "batch_size": 600, "micro_batch_size": 120, "n_train": 468, "n_val": 108,
-              "peak_rss_mb": 11800.0}
+              "peak_rss_mb": 11800.0, "cpu_capability": "AVX2"}
     asked: list[Any] = []
     real = subprocess.run
 
@@ -45,6 +46,7 @@ def test_the_cell_costs_its_epochs_times_the_last_measured_epoch(tmp_path: Path,
     assert [(r["case"], r["epoch"], r["cpu_s"]) for r in rows] == [("epoch", "1", "90.0"), ("epoch", "2", "72.0"),
                                                                   ("cell", "2", "72.0")]
     assert float(rows[-1]["cpu_hours"]) == 4.0 and rows[-1]["peak_rss_mb"] == "11800.0"  # 72 s x 200 epochs
+    assert {r["cpu_capability"] for r in rows} == {"AVX2"}  # the child's, where the epochs ran
     assert BENCHMARKS["multibarrel_cost"] == "multibarrel_cost"
 
 
@@ -71,7 +73,7 @@ def test_revisions_run_side_by_side_in_alternating_rounds_and_each_cell_is_a_med
         answer = {"epochs": [{"epoch": 1, "wall_s": 1.0, "cpu_s": 100.0},
                              {"epoch": 2, "wall_s": 1.0, "cpu_s": next(last[revision])}],
                   "max_epochs": 200, "batch_size": 600, "micro_batch_size": 120, "n_train": 468, "n_val": 108,
-                  "peak_rss_mb": 10000.0 + 1000 * revision}
+                  "peak_rss_mb": 10000.0 + 1000 * revision, "cpu_capability": "AVX2"}
         return subprocess.CompletedProcess(argv, 0, json.dumps(answer) + "\n", "")
 
     monkeypatch.setattr(multibarrel_cost.subprocess, "run", child)
@@ -114,3 +116,4 @@ def test_the_child_trains_with_the_bench_workers_malloc_settings_at_the_asked_re
     assert order == ["malloc", "load train", "load val", "fit"]
     assert fitted["hparams"] == {"alif_backend": "compiled"} and fitted["epochs"] == 1
     assert out["epochs"][0]["epoch"] == 1 and out["n_train"] == 468
+    assert out["cpu_capability"] == torch.backends.cpu.get_cpu_capability()

@@ -13,8 +13,12 @@ def test_reusable_like_keeps_empty_likes_strides() -> None:
     kernel and changes the last bits, so the pooled buffer must have exactly ``empty_like``'s strides."""
     channels_last = torch.randn(5, 3000, 64).transpose(1, 2)
     for x in (channels_last, torch.randn(5, 64, 3000), torch.randn(1, 64, 1), channels_last[:, :, :7]):
+        want = torch.empty_like(x).stride()
         got = reusable_like(x)
-        assert got.shape == x.shape and got.stride() == torch.empty_like(x).stride()
+        assert got.shape == x.shape and got.stride() == want
+        # a layout recorded on the meta device, the memory on the CPU (ConvLSTM's compiled backward does this)
+        moved = reusable_like(torch.empty_like(x, device="meta"), x)
+        assert moved.device.type == "cpu" and moved.shape == x.shape and moved.stride() == want
 
 
 def test_reusable_like_hands_a_storage_out_again_only_once_it_is_free() -> None:
